@@ -1,0 +1,102 @@
+"""Gravity, inertia and Coriolis wrenches of the platform (paper eq. 4), batched over poses.
+
+The equation of motion is ``A T = -(M qdd + C + G + W_ext)`` with wrenches at P in {O} axes and the
+order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load* on the platform
+(so ``A T0 = -G`` holds wind-off).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._checks import check_trailing
+from .conventions import GRAVITY_O_MPS2
+from .errors import InputError
+from .rotations import euler_rate_matrix, rotation_from_euler
+
+FloatArray = NDArray[np.float64]
+
+
+def gravity_wrench(
+    mass_kg: float, com_P_m: ArrayLike, R_O_P: ArrayLike, gravity_O_mps2: ArrayLike = GRAVITY_O_MPS2
+) -> FloatArray:
+    """Gravity load ``G = [m g; (R c) x m g]`` (..., 6) at P in {O} axes (N, N m)."""
+    if not mass_kg > 0:
+        raise InputError(f"mass_kg: expected > 0, got {mass_kg}")
+    c = check_trailing(com_P_m, "com_P_m", (3,))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    g = check_trailing(gravity_O_mps2, "gravity_O_mps2", (3,))
+    f = mass_kg * np.broadcast_to(g, R.shape[:-2] + (3,))
+    rc = np.einsum("...ij,...j->...i", R, c)
+    return np.concatenate([f, np.cross(rc, f)], axis=-1)
+
+
+def finite_difference(values: ArrayLike, t_ns: ArrayLike) -> FloatArray:
+    """Time derivative (n, k) of samples ``values`` (n, k) at integer-nanosecond times ``t_ns`` (n,).
+
+    Second-order accurate central differences inside, one-sided at the ends (numpy.gradient).
+    """
+    v = np.asarray(values, dtype=np.float64)
+    t = np.asarray(t_ns)
+    if v.ndim != 2 or t.ndim != 1 or t.shape[0] != v.shape[0]:
+        raise InputError(f"values (n, k) and t_ns (n,) expected, got {v.shape} and {t.shape}")
+    if v.shape[0] < 3:
+        raise InputError(f"finite_difference: expected at least 3 samples, got {v.shape[0]}")
+    t_s = (t - t[0]).astype(np.float64) * 1e-9
+    if np.any(np.diff(t_s) <= 0):
+        raise InputError("t_ns: expected strictly increasing times")
+    return np.gradient(v, t_s, axis=0, edge_order=2)
+
+
+def inertia_wrench(
+    mass_kg: float,
+    com_P_m: ArrayLike,
+    inertia_P_kgm2: ArrayLike,
+    pose: ArrayLike,
+    pose_rate: ArrayLike,
+    pose_accel: ArrayLike,
+) -> FloatArray:
+    """Inertia plus Coriolis/centrifugal wrench ``M qdd + C`` (..., 6) at P in {O} axes.
+
+    pose (..., 6) = [x, y, z, alpha, beta, gamma]; pose_rate and pose_accel are its first and second
+    time derivatives (m/s, rad/s; m/s^2, rad/s^2).  The rigid body is referred to P: with
+    ``rc = R c``, ``I_O = R I_P R^T`` (about P),
+
+        F = m (a_P + alpha x rc + omega x (omega x rc))
+        M = I_O alpha + omega x (I_O omega) + m rc x a_P
+
+    which reduce to the paper's ``M qdd + C`` when the centre of mass is at P.  ``omega = H psi_dot``
+    and ``alpha = H psi_ddot + H_dot psi_dot``.
+    """
+    q = check_trailing(pose, "pose", (6,))
+    qd = check_trailing(pose_rate, "pose_rate", (6,))
+    qdd = check_trailing(pose_accel, "pose_accel", (6,))
+    c = check_trailing(com_P_m, "com_P_m", (3,))
+    I_P = check_trailing(inertia_P_kgm2, "inertia_P_kgm2", (3, 3))
+    psi, psid, psidd = q[..., 3:], qd[..., 3:], qdd[..., 3:]
+    R = rotation_from_euler(psi)
+    H = euler_rate_matrix(psi)
+    omega = np.einsum("...ij,...j->...i", H, psid)
+    # H_dot psi_dot by the chain rule on H(beta, gamma).
+    b, g = psi[..., 1], psi[..., 2]
+    bd, gd = psid[..., 1], psid[..., 2]
+    sb, cb, sg, cg = np.sin(b), np.cos(b), np.sin(g), np.cos(g)
+    Hd = np.zeros(psi.shape[:-1] + (3, 3))
+    Hd[..., 0, 0] = -sb * bd * cg - cb * sg * gd
+    Hd[..., 0, 1] = -cg * gd
+    Hd[..., 1, 0] = -sb * bd * sg + cb * cg * gd
+    Hd[..., 1, 1] = -sg * gd
+    Hd[..., 2, 0] = -cb * bd
+    alpha = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    rc = np.einsum("...ij,...j->...i", R, c)
+    I_O = R @ I_P @ np.swapaxes(R, -1, -2)
+    a_P = qdd[..., :3]
+    F = mass_kg * (a_P + np.cross(alpha, rc) + np.cross(omega, np.cross(omega, rc)))
+    Iw = np.einsum("...ij,...j->...i", I_O, omega)
+    M = (
+        np.einsum("...ij,...j->...i", I_O, alpha)
+        + np.cross(omega, Iw)
+        + mass_kg * np.cross(rc, a_P)
+    )
+    return np.concatenate([F, M], axis=-1)

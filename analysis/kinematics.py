@@ -1,0 +1,96 @@
+"""Cable kinematics and the structure matrix, batched over poses.
+
+For cable i: ``l_i = b_i - p - R pp_i`` (platform point to anchor, {O}), ``u_i = l_i / |l_i|``,
+``r_i = R pp_i`` and the structure-matrix column ``a_i = [u_i; r_i x u_i]``.  ``A`` is (..., 6, m) and
+maps cable tensions (N) to the wrench the cables apply on the platform at P, in {O} axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._checks import check_trailing
+from .errors import InputError
+from .rotations import rotation_from_euler
+
+FloatArray = NDArray[np.float64]
+
+
+def cable_vectors(
+    anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
+) -> FloatArray:
+    """Cable vectors ``l_i`` (..., m, 3) in {O}, m, from the platform points to the anchors.
+
+    anchors_O_m: (m, 3) or (..., m, 3); attach_P_m: (m, 3) or (..., m, 3); position_O_m: (..., 3);
+    R_O_P: (..., 3, 3).
+    """
+    b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
+    pp = check_trailing(attach_P_m, "attach_P_m", (3,))
+    p = check_trailing(position_O_m, "position_O_m", (3,))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    if b.ndim < 2 or pp.ndim < 2 or b.shape[-2] != pp.shape[-2]:
+        raise InputError(
+            f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
+        )
+    r = np.matmul(pp, np.swapaxes(R, -1, -2))  # (..., m, 3): r_i = R pp_i
+    return b - p[..., None, :] - r
+
+
+@dataclass(frozen=True)
+class CableGeometry:
+    """Everything the cable geometry gives at a batch of poses (all in {O}).
+
+    l_O_m: (..., m, 3) cable vectors; length_m: (..., m); u_O: (..., m, 3) unit vectors from the
+    platform to the anchors; r_O_m: (..., m, 3) lever arms ``R pp_i``; A: (..., 6, m) structure matrix.
+    """
+
+    l_O_m: FloatArray
+    length_m: FloatArray
+    u_O: FloatArray
+    r_O_m: FloatArray
+    A: FloatArray
+
+
+def cable_geometry(
+    anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
+) -> CableGeometry:
+    """Cable vectors, lengths, unit vectors, lever arms and structure matrix at a batch of poses.
+
+    Raises :class:`InputError` if a cable has zero length at some pose.
+    """
+    b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
+    pp = check_trailing(attach_P_m, "attach_P_m", (3,))
+    p = check_trailing(position_O_m, "position_O_m", (3,))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    if b.ndim < 2 or pp.ndim < 2 or b.shape[-2] != pp.shape[-2]:
+        raise InputError(
+            f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
+        )
+    r = np.matmul(pp, np.swapaxes(R, -1, -2))
+    lv = b - p[..., None, :] - r
+    length = np.sqrt(np.einsum("...i,...i->...", lv, lv))
+    if np.any(length < 1e-12):
+        raise InputError("cable_geometry: a cable has zero length (anchor on the attachment point)")
+    u = lv / length[..., None]
+    A = np.concatenate([u, np.cross(r, u)], axis=-1)
+    return CableGeometry(l_O_m=lv, length_m=length, u_O=u, r_O_m=r, A=np.swapaxes(A, -1, -2))
+
+
+def structure_matrix(
+    anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
+) -> FloatArray:
+    """Structure matrix ``A`` (..., 6, m): columns ``[u_i; r_i x u_i]`` at a batch of poses."""
+    return cable_geometry(anchors_O_m, attach_P_m, position_O_m, R_O_P).A
+
+
+def structure_matrix_at(
+    rig_anchors_O_m: ArrayLike, rig_attach_P_m: ArrayLike, pose: ArrayLike
+) -> FloatArray:
+    """Structure matrix (..., 6, m) from poses (..., 6) = ``[x, y, z, alpha, beta, gamma]`` (m, rad)."""
+    q = check_trailing(pose, "pose", (6,))
+    return structure_matrix(
+        rig_anchors_O_m, rig_attach_P_m, q[..., :3], rotation_from_euler(q[..., 3:])
+    )

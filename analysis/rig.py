@@ -1,0 +1,312 @@
+"""The rig model: cable anchors, platform attachment points, mass properties and cable limits.
+
+A :class:`Rig` is frozen and validated on construction.  :func:`rig_from_mapping` builds one from the
+nested mapping a rig file (TOML) parses to, naming the source and key of any problem;
+:func:`rig_to_mapping` is its inverse.  Reading and writing files is the pipelines' job.
+
+Rig file layout (all SI)::
+
+    [rig]
+    name = "flat-optimum"
+    gravity_O_mps2 = [0.0, 0.0, -9.80665]        # optional
+    reference_position_O_m = [0.5, 0.0, 0.335]   # optional, the nominal pose of P
+    reference_euler_rad = [0.0, 0.0, 0.0]        # optional
+
+    [platform]
+    mass_kg = 0.64
+    com_P_m = [0.0, 0.0, 0.0]
+    inertia_P_kgm2 = [[...], [...], [...]]       # about P, {P} axes
+
+    [[cables]]                                    # one table per cable, m >= 1
+    name = "front_left_top"
+    anchor_O_m = [0.0, 0.255, 0.67]               # b_i in {O}
+    attach_P_m = [-0.015, 0.005, 0.0]             # pp_i in {P}
+    t_min_N = 35.0
+    t_max_N = 300.0
+
+    [assumptions]                                 # optional free text, kept with the rig
+    layout = "..."
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .conventions import GRAVITY_O_MPS2
+from .errors import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+_TOP_KEYS = {"rig", "platform", "cables", "assumptions"}
+_RIG_KEYS = {
+    "name",
+    "description",
+    "gravity_O_mps2",
+    "reference_position_O_m",
+    "reference_euler_rad",
+}
+_PLATFORM_KEYS = {"mass_kg", "com_P_m", "inertia_P_kgm2"}
+_CABLE_KEYS = {"name", "anchor_O_m", "attach_P_m", "t_min_N", "t_max_N"}
+
+
+def _frozen(a: Any, shape: tuple[int, ...]) -> FloatArray:
+    arr = np.array(a, dtype=np.float64).reshape(shape)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """A cable robot: m cables between anchors ``b_i`` in {O} and platform points ``pp_i`` in {P}.
+
+    Attributes
+    ----------
+    name: rig name.
+    cable_names: m cable names, unique.
+    anchors_O_m: (m, 3) anchor points b_i in {O}, m.
+    attach_P_m: (m, 3) platform attachment points pp_i in {P}, m.
+    mass_kg: platform (plus model) mass, kg, > 0.
+    com_P_m: (3,) centre of mass in {P}, m.
+    inertia_P_kgm2: (3, 3) symmetric positive semi-definite inertia tensor about P in {P}, kg m^2.
+    t_min_N, t_max_N: (m,) per-cable tension limits, N, 0 <= t_min < t_max.
+    gravity_O_mps2: (3,) gravity in {O}, m/s^2.
+    reference_position_O_m: (3,) nominal position of P in {O}, m.
+    reference_euler_rad: (3,) nominal Z-Y-X Euler angles, rad.
+    assumptions: free-text notes on where the numbers come from.
+    """
+
+    name: str
+    cable_names: tuple[str, ...]
+    anchors_O_m: FloatArray
+    attach_P_m: FloatArray
+    mass_kg: float
+    com_P_m: FloatArray
+    inertia_P_kgm2: FloatArray
+    t_min_N: FloatArray
+    t_max_N: FloatArray
+    gravity_O_mps2: FloatArray = field(default_factory=lambda: GRAVITY_O_MPS2.copy())
+    reference_position_O_m: FloatArray = field(default_factory=lambda: np.zeros(3))
+    reference_euler_rad: FloatArray = field(default_factory=lambda: np.zeros(3))
+    assumptions: Mapping[str, str] = field(default_factory=dict)
+    description: str = ""
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        src = self.source
+        names = tuple(str(n) for n in self.cable_names)
+        m = len(names)
+        if m < 1:
+            raise ConfigError(src, "cables", "expected at least one cable, got none")
+        if len(set(names)) != m:
+            dup = sorted({n for n in names if names.count(n) > 1})
+            raise ConfigError(src, "cables.name", f"cable names must be unique, repeated: {dup}")
+        object.__setattr__(self, "cable_names", names)
+
+        def arr(key: str, value: Any, shape: tuple[int, ...]) -> FloatArray:
+            try:
+                a = np.array(value, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(src, key, f"expected numbers of shape {shape}") from exc
+            if a.shape != shape:
+                raise ConfigError(src, key, f"expected shape {shape}, got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise ConfigError(src, key, "expected finite numbers, got NaN or inf")
+            return _frozen(a, shape)
+
+        object.__setattr__(self, "anchors_O_m", arr("cables.anchor_O_m", self.anchors_O_m, (m, 3)))
+        object.__setattr__(self, "attach_P_m", arr("cables.attach_P_m", self.attach_P_m, (m, 3)))
+        t_min = np.broadcast_to(np.asarray(self.t_min_N, dtype=np.float64), (m,))
+        t_max = np.broadcast_to(np.asarray(self.t_max_N, dtype=np.float64), (m,))
+        object.__setattr__(self, "t_min_N", arr("cables.t_min_N", t_min, (m,)))
+        object.__setattr__(self, "t_max_N", arr("cables.t_max_N", t_max, (m,)))
+        bad = np.flatnonzero(self.t_min_N < 0)
+        if bad.size:
+            raise ConfigError(src, f"cables[{bad[0]}].t_min_N", "must be >= 0 N")
+        bad = np.flatnonzero(self.t_min_N >= self.t_max_N)
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(
+                src,
+                f"cables[{i}].t_min_N",
+                f"t_min_N ({self.t_min_N[i]}) must be < t_max_N ({self.t_max_N[i]})",
+            )
+        try:
+            mass = float(self.mass_kg)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(src, "platform.mass_kg", "expected a number") from exc
+        if not math.isfinite(mass) or mass <= 0:
+            raise ConfigError(src, "platform.mass_kg", f"must be > 0 kg, got {self.mass_kg}")
+        object.__setattr__(self, "mass_kg", mass)
+        object.__setattr__(self, "com_P_m", arr("platform.com_P_m", self.com_P_m, (3,)))
+        inertia = arr("platform.inertia_P_kgm2", self.inertia_P_kgm2, (3, 3))
+        if not np.allclose(inertia, inertia.T, atol=1e-12):
+            raise ConfigError(src, "platform.inertia_P_kgm2", "must be symmetric")
+        if np.linalg.eigvalsh(inertia).min() < -1e-12:
+            raise ConfigError(src, "platform.inertia_P_kgm2", "must be positive semi-definite")
+        object.__setattr__(self, "inertia_P_kgm2", inertia)
+        object.__setattr__(
+            self, "gravity_O_mps2", arr("rig.gravity_O_mps2", self.gravity_O_mps2, (3,))
+        )
+        object.__setattr__(
+            self,
+            "reference_position_O_m",
+            arr("rig.reference_position_O_m", self.reference_position_O_m, (3,)),
+        )
+        object.__setattr__(
+            self,
+            "reference_euler_rad",
+            arr("rig.reference_euler_rad", self.reference_euler_rad, (3,)),
+        )
+        object.__setattr__(self, "assumptions", dict(self.assumptions))
+        # A cable of zero length at the reference pose cannot define a direction.
+        from .kinematics import cable_vectors
+        from .rotations import rotation_from_euler
+
+        l_O = cable_vectors(
+            self.anchors_O_m,
+            self.attach_P_m,
+            self.reference_position_O_m,
+            rotation_from_euler(self.reference_euler_rad),
+        )
+        lengths = np.linalg.norm(l_O, axis=-1)
+        bad = np.flatnonzero(lengths < 1e-9)
+        if bad.size:
+            raise ConfigError(
+                src,
+                f"cables[{bad[0]}] ({names[bad[0]]})",
+                "zero-length cable at the reference pose: anchor coincides with the attachment point",
+            )
+
+    @property
+    def n_cables(self) -> int:
+        """Number of cables m."""
+        return len(self.cable_names)
+
+    def describe(self) -> dict[str, Any]:
+        """A short, JSON-friendly summary (names, units, shapes)."""
+        return {
+            "name": self.name,
+            "n_cables": self.n_cables,
+            "cable_names": list(self.cable_names),
+            "mass_kg": self.mass_kg,
+            "t_min_N": self.t_min_N.tolist(),
+            "t_max_N": self.t_max_N.tolist(),
+        }
+
+
+def _section(
+    data: Mapping[str, Any], key: str, source: str, allowed: set[str]
+) -> Mapping[str, Any]:
+    sec = data.get(key, {})
+    if not isinstance(sec, Mapping):
+        raise ConfigError(source, key, "expected a table")
+    unknown = sorted(set(sec) - allowed)
+    if unknown:
+        raise ConfigError(
+            source, f"{key}.{unknown[0]}", f"unknown key (allowed: {sorted(allowed)})"
+        )
+    return sec
+
+
+def _num(source: str, key: str, value: Any) -> FloatArray:
+    """``value`` as a float array, or a :class:`ConfigError` naming ``source`` and ``key``."""
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(source, key, f"expected numbers, got {value!r}") from None
+
+
+def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
+    """Build a validated :class:`Rig` from a parsed rig file.
+
+    Raises :class:`~cdpr.analysis.errors.ConfigError` naming ``source``, the key and the problem.
+    """
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise ConfigError(source, unknown[0], f"unknown key (allowed: {sorted(_TOP_KEYS)})")
+    rig = _section(data, "rig", source, _RIG_KEYS)
+    plat = _section(data, "platform", source, _PLATFORM_KEYS)
+    if "mass_kg" not in plat:
+        raise ConfigError(source, "platform.mass_kg", "missing")
+    cables = data.get("cables")
+    if not isinstance(cables, list) or not cables:
+        raise ConfigError(source, "cables", "expected a non-empty array of [[cables]] tables")
+    for i, c in enumerate(cables):
+        if not isinstance(c, Mapping):
+            raise ConfigError(source, f"cables[{i}]", "expected a table")
+        unknown = sorted(set(c) - _CABLE_KEYS)
+        if unknown:
+            raise ConfigError(source, f"cables[{i}].{unknown[0]}", "unknown key")
+        for k in ("anchor_O_m", "attach_P_m", "t_min_N", "t_max_N"):
+            if k not in c:
+                raise ConfigError(source, f"cables[{i}].{k}", "missing")
+        for k in ("anchor_O_m", "attach_P_m"):
+            v = c[k]
+            if not isinstance(v, list | tuple) or len(v) != 3:
+                raise ConfigError(source, f"cables[{i}].{k}", f"expected 3 numbers, got {v!r}")
+    assumptions = data.get("assumptions", {})
+    if not isinstance(assumptions, Mapping):
+        raise ConfigError(source, "assumptions", "expected a table of text")
+    return Rig(
+        name=str(rig.get("name", "rig")),
+        description=str(rig.get("description", "")),
+        cable_names=tuple(str(c.get("name", f"c{i + 1}")) for i, c in enumerate(cables)),
+        anchors_O_m=_num(source, "cables.anchor_O_m", [c["anchor_O_m"] for c in cables]),
+        attach_P_m=_num(source, "cables.attach_P_m", [c["attach_P_m"] for c in cables]),
+        mass_kg=plat["mass_kg"],
+        com_P_m=_num(source, "platform.com_P_m", plat.get("com_P_m", [0.0, 0.0, 0.0])),
+        inertia_P_kgm2=_num(
+            source, "platform.inertia_P_kgm2", plat.get("inertia_P_kgm2", np.zeros((3, 3)))
+        ),
+        t_min_N=_num(source, "cables.t_min_N", [c["t_min_N"] for c in cables]),
+        t_max_N=_num(source, "cables.t_max_N", [c["t_max_N"] for c in cables]),
+        gravity_O_mps2=_num(
+            source, "rig.gravity_O_mps2", rig.get("gravity_O_mps2", GRAVITY_O_MPS2)
+        ),
+        reference_position_O_m=_num(
+            source, "rig.reference_position_O_m", rig.get("reference_position_O_m", np.zeros(3))
+        ),
+        reference_euler_rad=_num(
+            source, "rig.reference_euler_rad", rig.get("reference_euler_rad", np.zeros(3))
+        ),
+        assumptions={str(k): str(v) for k, v in assumptions.items()},
+        source=source,
+    )
+
+
+def rig_to_mapping(rig: Rig) -> dict[str, Any]:
+    """The inverse of :func:`rig_from_mapping`: a nested dict ready to be written as TOML."""
+    out: dict[str, Any] = {
+        "rig": {
+            "name": rig.name,
+            "gravity_O_mps2": rig.gravity_O_mps2.tolist(),
+            "reference_position_O_m": rig.reference_position_O_m.tolist(),
+            "reference_euler_rad": rig.reference_euler_rad.tolist(),
+        },
+        "platform": {
+            "mass_kg": rig.mass_kg,
+            "com_P_m": rig.com_P_m.tolist(),
+            "inertia_P_kgm2": rig.inertia_P_kgm2.tolist(),
+        },
+        "cables": [
+            {
+                "name": rig.cable_names[i],
+                "anchor_O_m": rig.anchors_O_m[i].tolist(),
+                "attach_P_m": rig.attach_P_m[i].tolist(),
+                "t_min_N": float(rig.t_min_N[i]),
+                "t_max_N": float(rig.t_max_N[i]),
+            }
+            for i in range(rig.n_cables)
+        ],
+    }
+    if rig.description:
+        out["rig"]["description"] = rig.description
+    if rig.assumptions:
+        out["assumptions"] = dict(rig.assumptions)
+    return out

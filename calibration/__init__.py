@@ -1,0 +1,1 @@
+"""Calibration: fitting routines and the camera / vision code (OpenCV behind one adapter)."""

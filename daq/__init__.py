@@ -1,0 +1,1 @@
+"""Acquisition: sources (drivers), the virtual rig, the recorder and run storage."""

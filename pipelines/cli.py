@@ -1,0 +1,54 @@
+"""The ``cdpr`` command line.
+
+Each sub-command lives in its own module in :mod:`cdpr.pipelines.commands` and exposes
+``register(subparsers)``, which adds its parser and sets ``func`` to a callable taking the parsed
+arguments and returning an exit code.  Errors derived from
+:class:`~cdpr.analysis.errors.CdprError` become one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from cdpr.analysis.errors import CdprError
+
+from . import __version__, commands
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser, with every command module registered (sorted by name)."""
+    parser = argparse.ArgumentParser(
+        prog="cdpr",
+        description="Cable-driven parallel robot force balance: acquisition and analysis.",
+    )
+    parser.add_argument("--version", action="version", version=f"cdpr {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``cdpr`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CdprError as exc:
+        print(f"cdpr {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cdpr {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""One module per ``cdpr`` sub-command; each exposes ``register(subparsers)``."""

@@ -1,0 +1,60 @@
+"""``cdpr rig``: show a rig file, or write the paper's reference rigs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("rig", help="rig files: show, write the paper's rigs, import from CASPR")
+    rs = p.add_subparsers(dest="rig_command", metavar="ACTION")
+    rs.required = True
+
+    show = rs.add_parser("show", help="validate a rig file and print its summary")
+    show.add_argument("rig", help="rig file (TOML)")
+    show.set_defaults(func=run_show)
+
+    paper = rs.add_parser("paper", help="write the paper's reference rig files into a folder")
+    paper.add_argument("--out", required=True, help="output folder")
+    paper.set_defaults(func=run_paper)
+
+
+def run_show(args: argparse.Namespace) -> int:
+    import numpy as np
+    from cdpr.analysis.kinematics import structure_matrix
+    from cdpr.analysis.rotations import rotation_from_euler
+
+    from ..config import load_rig
+
+    rig = load_rig(args.rig)
+    R = rotation_from_euler(rig.reference_euler_rad)
+    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, rig.reference_position_O_m, R)
+    sv = np.linalg.svd(A, compute_uv=False)
+    print(f"rig {rig.name}: {rig.n_cables} cables, mass {rig.mass_kg:g} kg")
+    print(f"  reference pose: p = {rig.reference_position_O_m.tolist()} m")
+    for i, name in enumerate(rig.cable_names):
+        print(
+            f"  {name:24s} b = {np.round(rig.anchors_O_m[i], 4).tolist()} m, "
+            f"pp = {np.round(rig.attach_P_m[i], 4).tolist()} m, "
+            f"T in [{rig.t_min_N[i]:g}, {rig.t_max_N[i]:g}] N"
+        )
+    print(f"  singular values of A at the reference pose: {np.round(sv, 5).tolist()}")
+    for k, v in rig.assumptions.items():
+        print(f"  assumption {k}: {v}")
+    return 0
+
+
+def run_paper(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from cdpr.analysis.rigs import paper_rigs
+
+    from ..config import atomic_output, rig_toml
+
+    out = Path(args.out)
+    for stem, rig in paper_rigs().items():
+        path = out / f"{stem}.toml"
+        with atomic_output(path) as fh:
+            fh.write(rig_toml(rig, header=f"{rig.description}\nWritten by `cdpr rig paper`."))
+        print(f"wrote {path}")
+    return 0
