@@ -13,6 +13,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
+	cd tools/mcap-check && npm ci --silent --no-audit --no-fund
 	@touch $(STAMP)
 
 demo: $(STAMP)

@@ -1,0 +1,93 @@
+#!/usr/bin/env node
+// Independent MCAP reader for the cdpr tests: parses a file with the TypeScript reference
+// implementation (@mcap/core, streaming reader, chunk CRCs validated), decodes every JSON message,
+// and prints a JSON summary: message counts per topic, schemas, metadata, attachments, chunks,
+// whether the file ends with a valid footer, and the Statistics record's counts if present.
+// Usage: node mcap_check.js FILE.mcap
+"use strict";
+const fs = require("fs");
+const { McapStreamReader } = require("@mcap/core");
+const fzstd = require("fzstd");
+const lz4 = require("lz4js");
+
+function main() {
+  const path = process.argv[2];
+  if (!path) {
+    process.stderr.write("usage: mcap_check.js FILE.mcap\n");
+    process.exit(2);
+  }
+  const decompressHandlers = {
+    zstd: (data, size) => fzstd.decompress(data, new Uint8Array(Number(size))),
+    lz4: (data, size) => Uint8Array.from(lz4.decompress(data, Number(size))),
+  };
+  const reader = new McapStreamReader({ decompressHandlers, validateCrcs: true, includeChunks: true });
+  reader.append(new Uint8Array(fs.readFileSync(path)));
+  const channels = new Map();
+  const schemas = new Map();
+  const out = {
+    complete: false,
+    topics: {},
+    schemas: {},
+    metadata: [],
+    attachments: [],
+    chunks: 0,
+    messages: 0,
+    bad_json: 0,
+    statistics: null,
+    error: null,
+  };
+  const decoder = new TextDecoder();
+  try {
+    for (let rec; (rec = reader.nextRecord()); ) {
+      switch (rec.type) {
+        case "Schema":
+          schemas.set(rec.id, rec);
+          break;
+        case "Channel":
+          channels.set(rec.id, rec);
+          break;
+        case "Chunk":
+          out.chunks += 1;
+          break;
+        case "Message": {
+          const ch = channels.get(rec.channelId);
+          const topic = ch ? ch.topic : `#${rec.channelId}`;
+          out.topics[topic] = (out.topics[topic] || 0) + 1;
+          out.messages += 1;
+          if (ch && ch.messageEncoding === "json") {
+            try {
+              JSON.parse(decoder.decode(rec.data));
+            } catch (e) {
+              out.bad_json += 1;
+            }
+          }
+          if (ch && schemas.has(ch.schemaId)) out.schemas[topic] = schemas.get(ch.schemaId).name;
+          break;
+        }
+        case "Metadata":
+          out.metadata.push({ name: rec.name, keys: [...rec.metadata.keys()].sort() });
+          break;
+        case "Attachment":
+          out.attachments.push({ name: rec.name, media_type: rec.mediaType, size: rec.data.length });
+          break;
+        case "Statistics": {
+          const perChannel = {};
+          for (const [id, n] of rec.channelMessageCounts) {
+            const ch = channels.get(id);
+            perChannel[ch ? ch.topic : `#${id}`] = Number(n);
+          }
+          out.statistics = { message_count: Number(rec.messageCount), per_topic: perChannel };
+          break;
+        }
+        default:
+          break;
+      }
+    }
+    out.complete = reader.done();
+  } catch (e) {
+    out.error = String(e && e.message ? e.message : e);
+  }
+  process.stdout.write(JSON.stringify(out) + "\n");
+}
+
+main();
