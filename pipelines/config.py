@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import tomli_w
+
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import Rig, rig_from_mapping, rig_to_mapping
 
@@ -145,7 +146,7 @@ def write_table(path: str | os.PathLike[str], df: pd.DataFrame, header: Mapping[
     with atomic_output(path) as fh:
         for k, v in header.items():
             fh.write(f"# {k}: {v}\n")
-        df.to_csv(fh, index=False, float_format="%.9g")
+        df.to_csv(fh, index=False)
 
 
 def tension_columns(rig: Rig) -> list[str]:

@@ -21,6 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def run_show(args: argparse.Namespace) -> int:
     import numpy as np
+
     from cdpr.analysis.kinematics import structure_matrix
     from cdpr.analysis.rotations import rotation_from_euler
 

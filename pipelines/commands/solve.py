@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def run(args: argparse.Namespace) -> int:
     import numpy as np
     import pandas as pd
+
     from cdpr.analysis.conventions import POSE_COLUMNS
     from cdpr.analysis.dynamics import gravity_wrench
     from cdpr.analysis.errors import ConfigError
