@@ -41,6 +41,7 @@ STATUS_SLACK = 1 << 1
 STATUS_STALE = 1 << 2
 STATUS_BAD_FRAME = 1 << 3
 STATUS_GAP = 1 << 4
+STATUS_SENSOR_FAULT = 1 << 5
 
 
 @dataclass(frozen=True)
@@ -105,6 +106,11 @@ class Source(ABC):
     @property
     def is_open(self) -> bool:
         return self._is_open
+
+    @property
+    def exhausted(self) -> bool:
+        """True when a finite source (a log replay) has delivered everything; live sources: False."""
+        return False
 
     def __enter__(self) -> Source:
         self.open()
@@ -173,7 +179,11 @@ def create_source(
         ) from None
     module_name, _, cls_name = target.partition(":")
     cls = getattr(importlib.import_module(module_name), cls_name)
+    kwargs = dict(settings)
+    if getattr(cls, "accepts_origin", False):
+        # drivers that validate their settings name the config file and key in their errors
+        kwargs.setdefault("origin", origin)
     try:
-        return cls(name=name, **dict(settings))
+        return cls(name=name, **kwargs)
     except TypeError as exc:
         raise ConfigError(origin, f"sources.{name}", f"bad settings: {exc}") from None

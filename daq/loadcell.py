@@ -1,0 +1,191 @@
+"""Load-cell calibration (raw counts -> newtons) and the CAN frame budget check.
+
+A load-cell channel reports raw ADC counts ``c``; its tension is ``T_N = (c - offset_counts) *
+gain_N_per_count``.  :class:`Calibration` holds one offset and one gain per channel.
+
+The frame budget: a classic CAN data frame with an 11-bit identifier and ``n`` data bytes takes
+``44 + 8 n`` bits plus 3 bits of interframe space without stuffing (111 bits for 8 bytes) and, with
+worst-case bit stuffing, ``44 + 8 n + floor((34 + 8 n - 1) / 4) + 3`` bits (135 bits for 8 bytes).
+A 1 Mbit/s bus therefore carries about 7400 (worst case) to 9000 (no stuffing) 8-byte frames per
+second.  :func:`check_frame_budget` refuses a configuration whose worst-case load exceeds the
+allowed fraction of the bit rate, naming the configuration key at fault.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cdpr.analysis.errors import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+INT24_MIN = -(1 << 23)
+INT24_MAX = (1 << 23) - 1
+
+
+def can_frame_bits(data_bytes: int = 8, extended: bool = False, stuffing: bool = True) -> int:
+    """Bits on the wire for one classic CAN data frame, including 3 bits of interframe space.
+
+    data_bytes: 0..8; extended: 29-bit identifier (adds 20 bits); stuffing: worst-case bit stuffing.
+    Standard id, 8 bytes: 111 bits without stuffing, 135 with worst-case stuffing.
+    """
+    if not 0 <= data_bytes <= 8:
+        raise ValueError(f"data_bytes: expected 0..8, got {data_bytes}")
+    header = 64 if extended else 44  # SOF..EOF of a data frame with no data, excluding IFS
+    stuffable = (54 if extended else 34) + 8 * data_bytes
+    bits = header + 8 * data_bytes + 3
+    if stuffing:
+        bits += (stuffable - 1) // 4
+    return bits
+
+
+@dataclass(frozen=True)
+class FrameBudget:
+    """Result of a frame budget computation: frames/s, worst-case bits/s and the bus load fraction."""
+
+    frames_per_s: float
+    bits_per_s: float
+    bitrate: int
+    load: float
+    max_load: float
+
+    @property
+    def fits(self) -> bool:
+        return self.load <= self.max_load
+
+
+def frame_budget(
+    bitrate: int,
+    rate_hz: float,
+    frames_per_sample: int,
+    data_bytes: int = 8,
+    extended: bool = False,
+    max_load: float = 0.9,
+) -> FrameBudget:
+    """Worst-case bus load of ``frames_per_sample`` frames of ``data_bytes`` bytes at ``rate_hz``."""
+    frames = float(rate_hz) * frames_per_sample
+    bits = frames * can_frame_bits(data_bytes, extended, stuffing=True)
+    return FrameBudget(frames, bits, int(bitrate), bits / float(bitrate), float(max_load))
+
+
+def check_frame_budget(
+    origin: str,
+    key_prefix: str,
+    bitrate: int,
+    rate_hz: float,
+    frames_per_sample: int,
+    data_bytes: int = 8,
+    extended: bool = False,
+    max_load: float = 0.9,
+) -> FrameBudget:
+    """Raise :class:`ConfigError` (naming ``<key_prefix>.rate_hz``) if the frames cannot fit the bus.
+
+    Returns the :class:`FrameBudget` when they fit.
+    """
+    if bitrate <= 0:
+        raise ConfigError(origin, f"{key_prefix}.bitrate", f"must be > 0 bit/s, got {bitrate}")
+    if rate_hz <= 0:
+        raise ConfigError(origin, f"{key_prefix}.rate_hz", f"must be > 0 Hz, got {rate_hz}")
+    if not 0 < max_load <= 1:
+        raise ConfigError(origin, f"{key_prefix}.max_bus_load", f"must be in (0, 1], got {max_load}")
+    b = frame_budget(bitrate, rate_hz, frames_per_sample, data_bytes, extended, max_load)
+    if not b.fits:
+        cap = max_load * bitrate / (can_frame_bits(data_bytes, extended) * frames_per_sample)
+        raise ConfigError(
+            origin,
+            f"{key_prefix}.rate_hz",
+            f"{rate_hz:g} Hz x {frames_per_sample} frames/sample = {b.frames_per_s:.0f} frames/s "
+            f"needs {b.bits_per_s / 1e3:.0f} kbit/s worst case ({100 * b.load:.0f} % of "
+            f"{bitrate / 1e3:.0f} kbit/s, limit {100 * max_load:.0f} %): at most {cap:.0f} Hz fits",
+        )
+    return b
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Per-channel linear calibration: ``T_N = (counts - offset_counts) * gain_N_per_count``.
+
+    offset_counts: (n,) zero-load reading, counts; gain_N_per_count: (n,) N per count (non-zero).
+    """
+
+    offset_counts: FloatArray
+    gain_N_per_count: FloatArray
+
+    def __post_init__(self) -> None:
+        off = np.asarray(self.offset_counts, dtype=np.float64).reshape(-1)
+        gain = np.asarray(self.gain_N_per_count, dtype=np.float64).reshape(-1)
+        if off.shape != gain.shape:
+            raise ValueError(f"offset {off.shape} and gain {gain.shape} must have the same length")
+        object.__setattr__(self, "offset_counts", off)
+        object.__setattr__(self, "gain_N_per_count", gain)
+
+    @property
+    def n_channels(self) -> int:
+        return int(self.offset_counts.shape[0])
+
+    def to_newtons(self, counts: Any) -> FloatArray:
+        """Counts (..., n) -> tensions (..., n) in N."""
+        return (np.asarray(counts, dtype=np.float64) - self.offset_counts) * self.gain_N_per_count
+
+    def to_counts(self, tensions_N: Any) -> FloatArray:
+        """Tensions (..., n) in N -> counts (..., n) as floats (not rounded or clipped)."""
+        return np.asarray(tensions_N, dtype=np.float64) / self.gain_N_per_count + self.offset_counts
+
+    def to_mapping(self) -> dict[str, list[float]]:
+        return {
+            "offset_counts": self.offset_counts.tolist(),
+            "gain_N_per_count": self.gain_N_per_count.tolist(),
+        }
+
+
+DEFAULT_GAIN_N_PER_COUNT = 5.0e-5
+"""Default gain: 5e-5 N/count, i.e. +-419 N over the signed 24-bit range (assumption)."""
+
+
+def calibration_from_settings(
+    origin: str,
+    key_prefix: str,
+    n_channels: int,
+    offset_counts: Sequence[float] | float | None = None,
+    gain_N_per_count: Sequence[float] | float | None = None,
+) -> Calibration:
+    """Build a :class:`Calibration` for ``n_channels`` from settings values (scalar or one per
+    channel); a wrong length or a zero/non-finite gain raises :class:`ConfigError` naming the key."""
+
+    def vec(key: str, value: Any, default: float) -> FloatArray:
+        if value is None:
+            value = default
+        try:
+            a = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ConfigError(origin, f"{key_prefix}.{key}", f"expected numbers, got {value!r}") from None
+        if a.ndim == 0:
+            a = np.full(n_channels, float(a))
+        if a.shape != (n_channels,):
+            raise ConfigError(
+                origin, f"{key_prefix}.{key}", f"expected {n_channels} values, got {a.size}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise ConfigError(origin, f"{key_prefix}.{key}", "expected finite numbers")
+        return a
+
+    off = vec("offset_counts", offset_counts, 0.0)
+    gain = vec("gain_N_per_count", gain_N_per_count, DEFAULT_GAIN_N_PER_COUNT)
+    if np.any(gain == 0):
+        raise ConfigError(origin, f"{key_prefix}.gain_N_per_count", "gain must be non-zero")
+    return Calibration(off, gain)
+
+
+def calibration_from_mapping(
+    data: Mapping[str, Any], origin: str, key_prefix: str, n_channels: int
+) -> Calibration:
+    """:func:`calibration_from_settings` from a mapping with keys ``offset_counts`` and
+    ``gain_N_per_count``."""
+    return calibration_from_settings(
+        origin, key_prefix, n_channels, data.get("offset_counts"), data.get("gain_N_per_count")
+    )
