@@ -1,0 +1,226 @@
+"""Aerodynamic axes, angles and coefficients from the wrench on the platform.
+
+Frames (all right-handed):
+
+- {O} tunnel frame: x downstream along the tunnel axis, y to the left looking downstream, z up.  The
+  free stream blows along +x_O, so the model's velocity relative to the air is ``-V x_O``.
+- {P} platform frame (pose ``R_O_P``).
+- {B} AIAA body axes of the model: x to the nose, y to the right wing, z down.  The model is fixed to
+  the platform; its nose direction and its "up" direction in {P} are parameters, by default
+  ``nose_P = -x_P`` (nose upstream when the platform is level) and ``up_P = +z_P``, which gives
+  ``R_P_B = diag(-1, 1, -1)``.
+- {W} AIAA wind axes: x along the model's velocity relative to the air, z in the body x-z plane
+  (down when alpha = beta = 0), y completing the frame.
+
+Angles: with ``(u, v, w)`` the components in {B} of the model's velocity relative to the air,
+``alpha = atan2(w, u)`` (angle of attack, positive nose up relative to the wind) and
+``beta = asin(v / V)`` (sideslip, positive with the wind coming from the right).  With the default
+mounting and small angles, ``alpha`` equals the platform pitch and ``beta`` its yaw.
+
+Loads: the wrench ``W`` (..., 6) on the model is given at P in {O} axes (as
+:mod:`cdpr.analysis.wrench` recovers it).  It is moved to the moment reference point (MRP, given in
+{P}): ``M_mrp = M_P - r x F`` with ``r = R_O_P mrp_P`` the vector from P to the MRP.  Forces in wind
+axes are ``F_W = (-D, Y, -L)`` (drag, side force, lift); moments in body axes at the MRP are
+``(l, m, n)`` (roll, pitch, yaw).  Coefficients: ``CD = D/(q S)``, ``CY = Y/(q S)``,
+``CL = L/(q S)``, ``Cl = l/(q S b)``, ``Cm = m/(q S c)``, ``Cn = n/(q S b)`` with
+``q = rho V^2 / 2`` (Pa), reference area S (m^2), span b (m) and chord c (m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._checks import as_float_array, check_trailing
+from .errors import InputError
+
+FloatArray = NDArray[np.float64]
+
+SPECIFIC_GAS_CONSTANT_AIR_JPKGK: float = 287.05287
+"""Specific gas constant of dry air, J/(kg K) (ISA value)."""
+
+
+def air_density(static_pressure_Pa: ArrayLike, temperature_K: ArrayLike) -> FloatArray:
+    """Dry-air density (kg/m^3) from static pressure (Pa) and temperature (K), ideal gas.
+
+    ``rho = p / (R T)`` with ``R`` = :data:`SPECIFIC_GAS_CONSTANT_AIR_JPKGK`; broadcast.
+    """
+    p = as_float_array(static_pressure_Pa, "static_pressure_Pa")
+    t = as_float_array(temperature_K, "temperature_K")
+    if np.any(~np.isfinite(p)) or np.any(p <= 0):
+        raise InputError("static_pressure_Pa: expected finite values > 0 Pa")
+    if np.any(~np.isfinite(t)) or np.any(t <= 0):
+        raise InputError("temperature_K: expected finite values > 0 K")
+    return np.asarray(p / (SPECIFIC_GAS_CONSTANT_AIR_JPKGK * t), dtype=np.float64)
+
+
+def dynamic_pressure(density_kgpm3: ArrayLike, airspeed_mps: ArrayLike) -> FloatArray:
+    """Dynamic pressure ``q = rho V^2 / 2`` (Pa) from density (kg/m^3) and airspeed (m/s)."""
+    rho = as_float_array(density_kgpm3, "density_kgpm3")
+    v = as_float_array(airspeed_mps, "airspeed_mps")
+    if np.any(~np.isfinite(rho)) or np.any(rho <= 0):
+        raise InputError("density_kgpm3: expected finite values > 0")
+    return np.asarray(0.5 * rho * v * v, dtype=np.float64)
+
+
+def body_axes_in_platform(
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0), up_P: ArrayLike = (0.0, 0.0, 1.0)
+) -> FloatArray:
+    """Rotation ``R_P_B`` (3, 3): columns are the AIAA body axes x_B, y_B, z_B in {P} components.
+
+    nose_P: direction of the model's nose in {P} (x_B); up_P: the model's "up" (canopy) direction in
+    {P}, made orthogonal to the nose (z_B = -up).  Defaults: nose upstream (-x_P), up +z_P.
+    """
+    x = check_trailing(nose_P, "nose_P", (3,))
+    u = check_trailing(up_P, "up_P", (3,))
+    if x.ndim != 1 or u.ndim != 1:
+        raise InputError("nose_P, up_P: expected single vectors of shape (3,)")
+    nx = np.linalg.norm(x)
+    if nx < 1e-12:
+        raise InputError("nose_P: expected a non-zero vector")
+    x = x / nx
+    z = -(u - np.dot(u, x) * x)
+    nz = np.linalg.norm(z)
+    if nz < 1e-9:
+        raise InputError("up_P: expected a direction not parallel to nose_P")
+    z = z / nz
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=-1)
+
+
+def body_from_tunnel(
+    R_O_P: ArrayLike, nose_P: ArrayLike = (-1.0, 0.0, 0.0), up_P: ArrayLike = (0.0, 0.0, 1.0)
+) -> FloatArray:
+    """Rotation ``R_B_O`` (..., 3, 3) mapping {O} components to AIAA body-axis components.
+
+    ``R_B_O = (R_O_P R_P_B)^T``; apply as ``v_B = R_B_O @ v_O``.
+    """
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    R_O_B = R @ body_axes_in_platform(nose_P, up_P)
+    return np.swapaxes(R_O_B, -1, -2)
+
+
+def flow_angles(
+    R_O_P: ArrayLike, nose_P: ArrayLike = (-1.0, 0.0, 0.0), up_P: ArrayLike = (0.0, 0.0, 1.0)
+) -> tuple[FloatArray, FloatArray]:
+    """Angle of attack and sideslip ``(alpha_rad, beta_rad)``, each (...,), from the platform attitude.
+
+    The free stream blows along +x_O; the model's velocity relative to the air is ``-x_O`` (unit
+    speed).  ``alpha = atan2(w, u)``, ``beta = asin(v)`` with ``(u, v, w)`` its body components.
+    """
+    R_B_O = body_from_tunnel(R_O_P, nose_P, up_P)
+    vel_B = -R_B_O[..., :, 0]  # R_B_O @ (-1, 0, 0)
+    alpha = np.arctan2(vel_B[..., 2], vel_B[..., 0])
+    beta = np.arcsin(np.clip(vel_B[..., 1], -1.0, 1.0))
+    return alpha, beta
+
+
+def wind_from_body(alpha_rad: ArrayLike, beta_rad: ArrayLike) -> FloatArray:
+    """Rotation ``R_W_B`` (..., 3, 3) mapping body-axis components to wind-axis components.
+
+    Rows are the wind axes in body components: ``x_W = (ca cb, sb, sa cb)``,
+    ``y_W = (-ca sb, cb, -sa sb)``, ``z_W = (-sa, 0, ca)``.
+    """
+    a = as_float_array(alpha_rad, "alpha_rad")
+    b = as_float_array(beta_rad, "beta_rad")
+    a, b = np.broadcast_arrays(a, b)
+    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+    R = np.empty(a.shape + (3, 3))
+    R[..., 0, :] = np.stack([ca * cb, sb, sa * cb], axis=-1)
+    R[..., 1, :] = np.stack([-ca * sb, cb, -sa * sb], axis=-1)
+    R[..., 2, :] = np.stack([-sa, np.zeros_like(a), ca], axis=-1)
+    return R
+
+
+def transfer_moment(wrench: ArrayLike, offset_O_m: ArrayLike) -> FloatArray:
+    """Move a wrench's moment to another point: ``[F; M - r x F]`` (..., 6).
+
+    wrench: (..., 6) ``[F; M]`` with M about the old point (N, N m); offset_O_m: (..., 3) vector r
+    from the old point to the new one, in the same axes as the wrench (m).
+    """
+    w = check_trailing(wrench, "wrench", (6,))
+    r = check_trailing(offset_O_m, "offset_O_m", (3,))
+    F = w[..., :3]
+    M = w[..., 3:] - np.cross(r, F)
+    return np.concatenate([np.broadcast_to(F, M.shape), M], axis=-1)
+
+
+@dataclass(frozen=True)
+class AeroResult:
+    """Aerodynamic angles, loads and coefficients over a batch of samples (each field (...,) or more).
+
+    alpha_rad, beta_rad: angle of attack and sideslip, rad.
+    force_B_N, moment_B_Nm: (..., 3) force and moment about the MRP in AIAA body axes.
+    drag_N, side_N, lift_N: wind-axis forces ``F_W = (-D, Y, -L)``, N.
+    CD, CY, CL: force coefficients (divided by q S); Cl, Cm, Cn: body-axis moment coefficients about
+    the MRP (roll and yaw divided by q S b, pitch by q S c).
+    """
+
+    alpha_rad: FloatArray
+    beta_rad: FloatArray
+    force_B_N: FloatArray
+    moment_B_Nm: FloatArray
+    drag_N: FloatArray
+    side_N: FloatArray
+    lift_N: FloatArray
+    CD: FloatArray
+    CY: FloatArray
+    CL: FloatArray
+    Cl: FloatArray
+    Cm: FloatArray
+    Cn: FloatArray
+
+
+def aero_coefficients(
+    wrench_O: ArrayLike,
+    R_O_P: ArrayLike,
+    dynamic_pressure_Pa: ArrayLike,
+    area_m2: float,
+    span_m: float,
+    chord_m: float,
+    mrp_P_m: ArrayLike = (0.0, 0.0, 0.0),
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+) -> AeroResult:
+    """Angles, wind-axis forces and the six coefficients from the aerodynamic wrench.
+
+    wrench_O: (..., 6) aerodynamic wrench on the model at P in {O} axes (N, N m), e.g. ``W_ext``.
+    R_O_P: (..., 3, 3) platform attitude; dynamic_pressure_Pa: (...,) or scalar, > 0;
+    area_m2, span_m, chord_m: reference area, span and chord (> 0); mrp_P_m: (3,) moment reference
+    point in {P} (m); nose_P, up_P: the model's mounting (see :func:`body_axes_in_platform`).
+    """
+    w = check_trailing(wrench_O, "wrench_O", (6,))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    q = as_float_array(dynamic_pressure_Pa, "dynamic_pressure_Pa")
+    if np.any(~np.isfinite(q)) or np.any(q <= 0):
+        raise InputError("dynamic_pressure_Pa: expected finite values > 0 Pa")
+    for name, v in (("area_m2", area_m2), ("span_m", span_m), ("chord_m", chord_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name}: expected a finite value > 0, got {v}")
+    mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
+    r_O = np.einsum("...ij,...j->...i", R, mrp)
+    w_mrp = transfer_moment(w, r_O)
+    R_B_O = body_from_tunnel(R, nose_P, up_P)
+    F_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., :3])
+    M_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., 3:])
+    alpha, beta = flow_angles(R, nose_P, up_P)
+    F_W = np.einsum("...ij,...j->...i", wind_from_body(alpha, beta), F_B)
+    drag, side, lift = -F_W[..., 0], F_W[..., 1], -F_W[..., 2]
+    qS = q * float(area_m2)
+    return AeroResult(
+        alpha_rad=alpha,
+        beta_rad=beta,
+        force_B_N=F_B,
+        moment_B_Nm=M_B,
+        drag_N=drag,
+        side_N=side,
+        lift_N=lift,
+        CD=drag / qS,
+        CY=side / qS,
+        CL=lift / qS,
+        Cl=M_B[..., 0] / (qS * float(span_m)),
+        Cm=M_B[..., 1] / (qS * float(chord_m)),
+        Cn=M_B[..., 2] / (qS * float(span_m)),
+    )
