@@ -1,0 +1,158 @@
+"""``cdpr wrench``: recover the external (aerodynamic) wrench from measured tensions and poses.
+
+Inputs: a rig file; a pose CSV with ``x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad`` (P in {O}, Z-Y-X
+Euler angles); a tension CSV with one ``T_<cable>_N`` column per cable of the rig and one row per
+pose; optionally wind-off tare tensions (same columns, one row for all poses or one per pose).
+
+Methods: with ``--tare`` the tare method ``W_ext = A (T0 - Tw)`` (paper eq. 7), otherwise the
+absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also subtracts the
+inertia wrench ``M qdd + C`` computed from the pose time series (needs an integer ``t_ns`` column).
+
+Output: the pose table's columns, then ``fx_N, fy_N, fz_N, mx_Nm, my_Nm, mz_Nm`` (W_ext on the
+platform at P, {O} axes, moments about P) and their standard deviations ``sd_fx_N ... sd_mz_Nm``
+from the linearised noise model (load-cell noise ``--tension-sigma-N`` on every tension, pose noise
+``--pose-sigma-m`` on each position coordinate and ``--pose-sigma-rad`` on each Euler angle).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+DEFAULT_TENSION_SIGMA_N = 0.05
+DEFAULT_POSE_SIGMA_M = 0.5e-3
+DEFAULT_POSE_SIGMA_RAD = math.radians(0.1)
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "wrench",
+        help="external wrench (and its standard deviation) from tensions and poses",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--rig", required=True, help="rig file (TOML)")
+    p.add_argument("--poses", required=True, help="pose CSV (one row per sample)")
+    p.add_argument("--tensions", required=True, help="wind-on tension CSV (one row per pose)")
+    p.add_argument("--tare", help="wind-off tension CSV at the same poses (tare method)")
+    p.add_argument(
+        "--tension-sigma-N",
+        dest="tension_sigma_N",
+        type=float,
+        default=DEFAULT_TENSION_SIGMA_N,
+        help=f"load-cell noise, standard deviation per tension (N, default {DEFAULT_TENSION_SIGMA_N})",
+    )
+    p.add_argument(
+        "--pose-sigma-m",
+        dest="pose_sigma_m",
+        type=float,
+        default=DEFAULT_POSE_SIGMA_M,
+        help="pose position noise, standard deviation per axis (m, default 0.0005: the paper's camera)",
+    )
+    p.add_argument(
+        "--pose-sigma-rad",
+        dest="pose_sigma_rad",
+        type=float,
+        default=DEFAULT_POSE_SIGMA_RAD,
+        help="pose angle noise, standard deviation per Euler angle (rad, default 0.1 deg)",
+    )
+    p.add_argument(
+        "--dynamic",
+        action="store_true",
+        help="subtract M qdd + C from the pose time series (needs a t_ns column)",
+    )
+    p.add_argument("--out", required=True, help="output wrench CSV")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from cdpr.analysis.conventions import WRENCH_COLUMNS
+    from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.kinematics import cable_vectors
+    from cdpr.analysis.rotations import rotation_from_euler
+    from cdpr.analysis.uncertainty import wrench_covariance
+    from cdpr.analysis.wrench import inertia_wrench_from_poses, recover_wrench
+
+    from .. import __version__
+    from ..config import file_sha256, load_rig, read_poses, read_tensions, write_table
+
+    for flag, v in (
+        ("--tension-sigma-N", args.tension_sigma_N),
+        ("--pose-sigma-m", args.pose_sigma_m),
+        ("--pose-sigma-rad", args.pose_sigma_rad),
+    ):
+        if not (math.isfinite(v) and v >= 0):
+            raise ConfigError("command line", flag, f"expected a finite value >= 0, got {v}")
+
+    rig = load_rig(args.rig)
+    table, poses = read_poses(args.poses)
+    n = len(poses)
+    Tw = read_tensions(args.tensions, rig)
+    if len(Tw) != n:
+        raise ConfigError(
+            args.tensions,
+            "rows",
+            f"expected {n} rows (one per pose in {args.poses}), got {len(Tw)}",
+        )
+    T0 = read_tensions(args.tare, rig, n) if args.tare else None
+
+    lengths = np.linalg.norm(
+        cable_vectors(
+            rig.anchors_O_m, rig.attach_P_m, poses[:, :3], rotation_from_euler(poses[:, 3:])
+        ),
+        axis=-1,
+    )
+    bad = np.argwhere(lengths < 1e-9)
+    if bad.size:
+        i, j = bad[0]
+        raise ConfigError(
+            args.poses, f"row {i + 2}", f"cable {rig.cable_names[j]} has zero length at this pose"
+        )
+
+    D = None
+    if args.dynamic:
+        if "t_ns" not in table.columns:
+            raise ConfigError(args.poses, "column t_ns", "missing (needed by --dynamic)")
+        t = table["t_ns"]
+        if t.dtype.kind not in "iu":
+            raise ConfigError(args.poses, "column t_ns", "expected integer nanoseconds")
+        t_ns = t.to_numpy(dtype=np.int64)
+        back = np.flatnonzero(np.diff(t_ns) <= 0)
+        if back.size:
+            raise ConfigError(args.poses, f"row {back[0] + 3}, column t_ns", "not increasing")
+        if n < 3:
+            raise ConfigError(args.poses, "rows", f"--dynamic needs at least 3 poses, got {n}")
+        D = inertia_wrench_from_poses(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, poses, t_ns)
+
+    W = recover_wrench(rig, poses, Tw, tare_tensions_N=T0, inertia_wrench_N=D)
+    pose_sd = np.array([args.pose_sigma_m] * 3 + [args.pose_sigma_rad] * 3)
+    cov = wrench_covariance(rig, poses, Tw, args.tension_sigma_N, pose_sd, tare_tensions_N=T0)
+    sd = cov.std
+
+    out = table.copy()
+    for k, col in enumerate(WRENCH_COLUMNS):
+        out[col] = W[:, k]
+    for k, col in enumerate(WRENCH_COLUMNS):
+        out[f"sd_{col}"] = sd[:, k]
+    method = "tare: W_ext = A (T0 - Tw)" if T0 is not None else "absolute: W_ext = -A Tw - G"
+    if D is not None:
+        method += " - (M qdd + C)"
+    header = {
+        "cdpr": f"wrench {__version__}",
+        "rig": f"{args.rig} sha256={file_sha256(args.rig)}",
+        "poses": f"{args.poses} sha256={file_sha256(args.poses)}",
+        "tensions": f"{args.tensions} sha256={file_sha256(args.tensions)}",
+        "tare": f"{args.tare} sha256={file_sha256(args.tare)}" if args.tare else "none",
+        "method": method,
+        "noise model": (
+            f"tension sd {args.tension_sigma_N:g} N per cable"
+            + (" (wind-on and tare)" if T0 is not None else "")
+            + f"; pose sd {args.pose_sigma_m:g} m, {args.pose_sigma_rad:g} rad; linearised"
+        ),
+        "units": "W_ext on the platform at P, {O} axes; N and N m; sd_* standard deviations",
+    }
+    write_table(args.out, out, header)
+    print(f"cdpr wrench: {n} poses, {method.split(':')[0]} method, wrote {args.out}")
+    return 0
