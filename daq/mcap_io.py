@@ -1,0 +1,717 @@
+"""Run files in MCAP: the writer the recorder uses, a reader, a summary and truncated-file recovery.
+
+Layout of a run file (see ``docs/recording.md``):
+
+- one channel per stream, topic ``/<stream>``, message encoding ``json``, schema encoding
+  ``jsonschema``; a message's ``log_time`` is the reading's ``t_ns`` (host time of reception, ns since
+  the Unix epoch) and its JSON body holds the reading's values (flat numeric fields, so a plot panel
+  graphs them) plus ``status``;
+- Foxglove's well-known schemas where one exists: streams named ``pose*`` use ``foxglove.PoseInFrame``,
+  ``image*`` / ``camera*`` use ``foxglove.CompressedImage`` and ``event*`` use ``foxglove.Log``
+  (:func:`register_stream_codec` adds more);
+- metadata records (``run`` at the start, ``run_end`` at the end) and attachments (rig file,
+  calibration files, config file), so a run file is self-contained.
+
+The python ``mcap`` writer closes a chunk only when it outgrows ``chunk_size``;
+:class:`McapRunWriter` also closes it when it is older than ``flush_interval_s`` and fsyncs the file,
+so a killed recorder loses at most about one flush interval of data.
+"""
+
+from __future__ import annotations
+
+import base64
+import fnmatch
+import json
+import math
+import os
+import struct
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cdpr.analysis.errors import ConfigError, InputError
+
+from .source import Reading, StreamDescription
+
+#: Profile string written in the MCAP header.
+PROFILE = ""
+LIBRARY = "cdpr-recorder"
+
+_JSON_TYPES = {
+    "float64": {"type": "number"},
+    "float32": {"type": "number"},
+    "float": {"type": "number"},
+    "int64": {"type": "integer"},
+    "int32": {"type": "integer"},
+    "int": {"type": "integer"},
+    "uint8": {"type": "integer"},
+    "bool": {"type": "boolean"},
+    "str": {"type": "string"},
+    "bytes": {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255}},
+}
+
+_TIME_SCHEMA = {
+    "type": "object",
+    "title": "time",
+    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer"}},
+}
+
+
+def _default(obj: Any) -> Any:
+    """JSON fallback for numpy scalars and arrays, bytes and other sequences."""
+    if isinstance(obj, bytes | bytearray | memoryview):
+        return list(bytes(obj))
+    tolist = getattr(obj, "tolist", None)
+    if tolist is not None:
+        return tolist()
+    if isinstance(obj, set | frozenset | tuple):
+        return list(obj)
+    raise TypeError(f"cannot encode {type(obj).__name__} as JSON")
+
+
+def _sanitize(obj: Any) -> Any:
+    """Replace non-finite floats (not valid JSON) by ``None``, recursively."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {k: _sanitize(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_sanitize(v) for v in obj]
+    if isinstance(obj, bytes | bytearray | memoryview):
+        return list(bytes(obj))
+    tolist = getattr(obj, "tolist", None)
+    if tolist is not None:
+        return _sanitize(tolist())
+    return obj
+
+
+_dumps = json.JSONEncoder(default=_default, separators=(",", ":"), allow_nan=True).encode
+
+
+def encode_json(body: Mapping[str, Any]) -> bytes:
+    """Compact JSON bytes of ``body``; NaN and infinities become ``null`` (strict JSON)."""
+    text = _dumps(body)
+    if "NaN" in text or "Infinity" in text:
+        text = _dumps(_sanitize(body))
+    return text.encode()
+
+
+def ns_to_time(t_ns: int) -> dict[str, int]:
+    """Foxglove ``time`` object ``{"sec", "nsec"}`` of an integer ns timestamp."""
+    sec, nsec = divmod(int(t_ns), 1_000_000_000)
+    return {"sec": sec, "nsec": nsec}
+
+
+# -------------------------------------------------------------------------------------------------
+# codecs: how a stream's readings become JSON messages and which schema describes them
+
+
+@dataclass
+class StreamCodec:
+    """Schema and encoder of one stream.
+
+    schema_name: MCAP schema name (``foxglove.PoseInFrame``, ``cdpr.tensions``, ...).
+    schema: JSON schema (dict).
+    encode: reading -> message body (dict, encoded to JSON by the writer).
+    """
+
+    schema_name: str
+    schema: dict[str, Any]
+    encode: Callable[[Reading], Mapping[str, Any]]
+
+
+def _field_schema(desc: Any) -> dict[str, Any]:
+    base = dict(_JSON_TYPES.get(getattr(desc, "dtype", "float64"), {}))
+    shape = tuple(getattr(desc, "shape", ()) or ())
+    for n in reversed(shape):
+        base = {"type": "array", "items": base, "minItems": n, "maxItems": n}
+    unit = getattr(desc, "unit", "")
+    if unit:
+        base["description"] = f"unit: {unit}"
+    return base
+
+
+def flat_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """The default codec: the reading's values as they are, plus ``status``.
+
+    The schema lists the described fields (type, shape, unit) and allows extra ones.
+    """
+    props: dict[str, Any] = {}
+    if description is not None:
+        for name, fd in description.fields.items():
+            props[name] = _field_schema(fd)
+    props["status"] = {
+        "type": "integer",
+        "description": "0 = good, else bit field: 1 saturated, 2 slack, 4 stale, 8 bad frame, 16 gap",
+    }
+    schema = {
+        "type": "object",
+        "title": f"cdpr.{stream}",
+        "description": (description.doc if description is not None else "")
+        + " Time is the message log_time (ns since the Unix epoch).",
+        "properties": props,
+        "additionalProperties": True,
+    }
+
+    def encode(r: Reading) -> Mapping[str, Any]:
+        body = dict(r.values)
+        body["status"] = r.status
+        return body
+
+    return StreamCodec(f"cdpr.{stream}", schema, encode)
+
+
+def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """``foxglove.PoseInFrame``; values ``position_O_m`` (3,), ``quaternion_xyzw`` (4,), optional
+    ``frame_id`` (default ``"O"``); every other value is carried as an extra flat field."""
+    schema = {
+        "type": "object",
+        "title": "foxglove.PoseInFrame",
+        "description": "A timestamped pose in a named coordinate frame (cdpr: platform {P} in {O})",
+        "properties": {
+            "timestamp": _TIME_SCHEMA,
+            "frame_id": {"type": "string"},
+            "pose": {
+                "type": "object",
+                "properties": {
+                    "position": {
+                        "type": "object",
+                        "properties": {k: {"type": "number"} for k in "xyz"},
+                    },
+                    "orientation": {
+                        "type": "object",
+                        "properties": {k: {"type": "number"} for k in "xyzw"},
+                    },
+                },
+            },
+            "status": {"type": "integer"},
+        },
+        "additionalProperties": True,
+    }
+
+    def encode(r: Reading) -> Mapping[str, Any]:
+        v = dict(r.values)
+        p = [float(x) for x in v.pop("position_O_m", (math.nan,) * 3)]
+        q = [float(x) for x in v.pop("quaternion_xyzw", (0.0, 0.0, 0.0, 1.0))]
+        body: dict[str, Any] = {
+            "timestamp": ns_to_time(r.t_ns),
+            "frame_id": str(v.pop("frame_id", "O")),
+            "pose": {
+                "position": {"x": p[0], "y": p[1], "z": p[2]},
+                "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
+            },
+        }
+        body.update(v)
+        body["status"] = r.status
+        return body
+
+    return StreamCodec("foxglove.PoseInFrame", schema, encode)
+
+
+def _image_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """``foxglove.CompressedImage``; values ``data`` (bytes: JPEG/PNG), ``format`` (``"jpeg"``,
+    ``"png"``), optional ``frame_id`` (default ``"camera"``)."""
+    schema = {
+        "type": "object",
+        "title": "foxglove.CompressedImage",
+        "description": "A compressed image",
+        "properties": {
+            "timestamp": _TIME_SCHEMA,
+            "frame_id": {"type": "string"},
+            "data": {"type": "string", "contentEncoding": "base64"},
+            "format": {"type": "string"},
+            "status": {"type": "integer"},
+        },
+        "additionalProperties": True,
+    }
+
+    def encode(r: Reading) -> Mapping[str, Any]:
+        v = dict(r.values)
+        data = bytes(v.pop("data", b""))
+        body: dict[str, Any] = {
+            "timestamp": ns_to_time(r.t_ns),
+            "frame_id": str(v.pop("frame_id", "camera")),
+            "data": base64.b64encode(data).decode("ascii"),
+            "format": str(v.pop("format", "jpeg")),
+        }
+        body.update(v)
+        body["status"] = r.status
+        return body
+
+    return StreamCodec("foxglove.CompressedImage", schema, encode)
+
+
+LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+
+
+def _log_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """``foxglove.Log``; values ``message`` (str), optional ``level`` (name or 0-5, default info),
+    ``name`` (origin, default the stream); other values are kept as extra fields."""
+    schema = {
+        "type": "object",
+        "title": "foxglove.Log",
+        "description": "A log message (cdpr: events such as wind on/off, test points, errors)",
+        "properties": {
+            "timestamp": _TIME_SCHEMA,
+            "level": {
+                "type": "integer",
+                "description": "0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal",
+            },
+            "message": {"type": "string"},
+            "name": {"type": "string"},
+            "file": {"type": "string"},
+            "line": {"type": "integer", "minimum": 0},
+            "status": {"type": "integer"},
+        },
+        "additionalProperties": True,
+    }
+
+    def encode(r: Reading) -> Mapping[str, Any]:
+        v = dict(r.values)
+        level = v.pop("level", 2)
+        if isinstance(level, str):
+            level = LOG_LEVELS.get(level.lower(), 0)
+        body: dict[str, Any] = {
+            "timestamp": ns_to_time(r.t_ns),
+            "level": int(level),
+            "message": str(v.pop("message", "")),
+            "name": str(v.pop("name", stream)),
+            "file": str(v.pop("file", "")),
+            "line": int(v.pop("line", 0)),
+        }
+        body.update(v)
+        body["status"] = r.status
+        return body
+
+    return StreamCodec("foxglove.Log", schema, encode)
+
+
+CodecFactory = Callable[[str, "StreamDescription | None"], StreamCodec]
+_CODECS: list[tuple[str, CodecFactory]] = [
+    ("pose*", _pose_codec),
+    ("image*", _image_codec),
+    ("camera*", _image_codec),
+    ("event*", _log_codec),
+]
+
+
+def register_stream_codec(pattern: str, factory: CodecFactory) -> None:
+    """Use ``factory(stream, description)`` for streams whose name matches ``pattern`` (fnmatch);
+    later registrations win."""
+    _CODECS.insert(0, (pattern, factory))
+
+
+def codec_for(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """The codec of ``stream``: the first registered pattern that matches, else :func:`flat_codec`."""
+    for pattern, factory in _CODECS:
+        if fnmatch.fnmatchcase(stream, pattern):
+            return factory(stream, description)
+    return flat_codec(stream, description)
+
+
+def topic_of(stream: str) -> str:
+    """MCAP topic of a stream: ``/<stream>``."""
+    return "/" + stream
+
+
+# -------------------------------------------------------------------------------------------------
+# writer
+
+
+class McapRunWriter:
+    """An MCAP run file being written: channels per stream, bounded chunks, fsync, never overwrite.
+
+    Parameters
+    ----------
+    path:
+        Output file; it must not exist (opened with exclusive create).
+    chunk_size:
+        A chunk is closed when its uncompressed size exceeds this many bytes ...
+    flush_interval_s:
+        ... or when it is older than this (checked by :meth:`maybe_flush`); each flush is fsynced.
+    compression:
+        ``"zstd"``, ``"lz4"`` or ``"none"``.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        chunk_size: int = 256 * 1024,
+        flush_interval_s: float = 0.5,
+        compression: str = "zstd",
+    ) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        comp = {
+            "zstd": CompressionType.ZSTD,
+            "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE,
+        }
+        if compression not in comp:
+            raise InputError(f"compression must be one of {sorted(comp)}, got {compression!r}")
+        if chunk_size < 1024:
+            raise InputError(f"chunk_size must be >= 1024 bytes, got {chunk_size}")
+        if not flush_interval_s > 0:
+            raise InputError(f"flush_interval_s must be > 0, got {flush_interval_s}")
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._fh = open(self.path, "xb")  # noqa: SIM115 - closed in finish()
+        except FileExistsError:
+            raise InputError(f"{self.path}: exists already; a run is never overwritten") from None
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=comp[compression])
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self.flush_interval_ns = int(flush_interval_s * 1e9)
+        self._last_flush_ns = time.monotonic_ns()
+        self._channels: dict[str, int] = {}
+        self._codecs: dict[str, Callable[[Reading], Mapping[str, Any]]] = {}
+        self.counts: dict[str, int] = {}
+        self.flushes = 0
+        self.finished = False
+
+    # channels ------------------------------------------------------------------------------
+    def add_stream(self, stream: str, description: StreamDescription | None = None) -> int:
+        """Register ``/<stream>`` (idempotent); returns its channel id."""
+        if stream in self._channels:
+            return self._channels[stream]
+        codec = codec_for(stream, description)
+        schema_id = self._writer.register_schema(
+            name=codec.schema_name,
+            encoding="jsonschema",
+            data=json.dumps(codec.schema, separators=(",", ":")).encode(),
+        )
+        meta = {"stream": stream}
+        if description is not None:
+            meta["rate_hz"] = repr(float(description.rate_hz))
+            units = {k: f.unit for k, f in description.fields.items() if f.unit}
+            if units:
+                meta["units"] = json.dumps(units, separators=(",", ":"))
+        cid = self._writer.register_channel(
+            topic=topic_of(stream), message_encoding="json", schema_id=schema_id, metadata=meta
+        )
+        self._channels[stream] = cid
+        self._codecs[stream] = codec.encode
+        self.counts[stream] = 0
+        return cid
+
+    @property
+    def streams(self) -> list[str]:
+        return list(self._channels)
+
+    # data ----------------------------------------------------------------------------------
+    def write(self, reading: Reading) -> None:
+        """Write one reading (its stream is registered on first use if it was not declared)."""
+        stream = reading.stream
+        cid = self._channels.get(stream)
+        if cid is None:
+            cid = self.add_stream(stream, None)
+        data = encode_json(self._codecs[stream](reading))
+        n = self.counts[stream]
+        self._writer.add_message(
+            channel_id=cid, log_time=reading.t_ns, data=data, publish_time=reading.t_ns, sequence=n
+        )
+        self.counts[stream] = n + 1
+
+    def maybe_flush(self) -> bool:
+        """Close the open chunk and fsync if it is older than the flush interval."""
+        if time.monotonic_ns() - self._last_flush_ns >= self.flush_interval_ns:
+            self.flush()
+            return True
+        return False
+
+    def flush(self) -> None:
+        """Close the open chunk (if any), write it out and fsync the file."""
+        self._writer.flush()
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self._last_flush_ns = time.monotonic_ns()
+        self.flushes += 1
+
+    def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
+        """A metadata record; values are converted to strings (non-strings as JSON)."""
+        self._writer.add_metadata(
+            name, {str(k): v if isinstance(v, str) else json.dumps(v) for k, v in data.items()}
+        )
+
+    def add_attachment(self, name: str, data: bytes, media_type: str = "text/plain") -> None:
+        """Embed a file (rig, calibration, config) in the run."""
+        now = time.time_ns()
+        self._writer.add_attachment(
+            create_time=now, log_time=now, name=name, media_type=media_type, data=data
+        )
+
+    def finish(self) -> None:
+        """Write the summary section and footer, fsync and close; idempotent."""
+        if self.finished:
+            return
+        self.finished = True
+        try:
+            self._writer.finish()
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        finally:
+            self._fh.close()
+
+
+# -------------------------------------------------------------------------------------------------
+# reader
+
+
+@dataclass
+class ChannelInfo:
+    """A channel of a run file."""
+
+    id: int
+    topic: str
+    schema_name: str
+    message_encoding: str
+    metadata: dict[str, str]
+    schema: dict[str, Any] | None = None
+
+
+@dataclass
+class RunContents:
+    """Everything in a run file, as the mcap reader sees it.
+
+    messages: topic -> list of (log_time_ns, decoded JSON body).
+    complete: the file ends with a valid footer (False for a truncated file read in recovery mode).
+    """
+
+    channels: dict[str, ChannelInfo] = field(default_factory=dict)
+    messages: dict[str, list[tuple[int, dict[str, Any]]]] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, tuple[str, bytes]] = field(default_factory=dict)
+    complete: bool = False
+    error: str | None = None
+
+
+def _check_file(path: str | os.PathLike[str]) -> Path:
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(str(p), "", "file not found")
+    with p.open("rb") as fh:
+        magic = fh.read(8)
+    if magic != b"\x89MCAP0\r\n":
+        raise ConfigError(str(p), "", "not an MCAP file (bad magic bytes)")
+    return p
+
+
+def iter_records(path: str | os.PathLike[str]) -> Iterator[Any]:
+    """Every record of an MCAP file in order (chunks expanded), stopping quietly at a truncation or
+    corruption; the reason is available from :func:`read_run` (``error``)."""
+    yield from _iter_records(Path(path), [])
+
+
+def _iter_records(p: Path, errors: list[str]) -> Iterator[Any]:
+    from mcap.exceptions import McapError
+    from mcap.stream_reader import StreamReader
+
+    with p.open("rb") as fh:
+        reader = StreamReader(fh, validate_crcs=True)
+        try:
+            yield from reader.records
+        except (McapError, struct.error, ValueError, EOFError) as exc:
+            # McapError: EndOfFile, bad magic, record too long; struct.error: a record header cut
+            # short; ValueError: CRC mismatch or a zstd frame cut short.
+            errors.append(f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__)
+
+
+def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContents:
+    """Read a run file with the streaming reader: every record up to the end or the first damaged
+    one (a truncated file yields every complete chunk).  ``decode=False`` keeps message bodies as
+    raw bytes (under key ``"_raw"``), which is faster."""
+    from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
+
+    p = _check_file(path)
+    out = RunContents()
+    schemas: dict[int, Any] = {}
+    by_id: dict[int, str] = {}
+    errors: list[str] = []
+    loads = json.loads
+    for rec in _iter_records(p, errors):
+        if isinstance(rec, Message):
+            topic = by_id.get(rec.channel_id)
+            if topic is None:
+                continue
+            body = loads(rec.data) if decode else {"_raw": rec.data}
+            out.messages[topic].append((rec.log_time, body))
+        elif isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            if rec.id in by_id:
+                continue
+            sch = schemas.get(rec.schema_id)
+            schema_json = None
+            if sch is not None and sch.encoding == "jsonschema":
+                try:
+                    schema_json = json.loads(sch.data)
+                except ValueError:
+                    schema_json = None
+            out.channels[rec.topic] = ChannelInfo(
+                rec.id,
+                rec.topic,
+                sch.name if sch is not None else "",
+                rec.message_encoding,
+                dict(rec.metadata),
+                schema_json,
+            )
+            by_id[rec.id] = rec.topic
+            out.messages.setdefault(rec.topic, [])
+        elif isinstance(rec, Metadata):
+            out.metadata[rec.name] = dict(rec.metadata)
+        elif isinstance(rec, Attachment):
+            out.attachments[rec.name] = (rec.media_type, bytes(rec.data))
+        elif isinstance(rec, Footer):
+            out.complete = True
+    out.error = errors[0] if errors else None
+    return out
+
+
+def recover_run(
+    path: str | os.PathLike[str], out_path: str | os.PathLike[str] | None = None
+) -> tuple[Path, RunContents]:
+    """Salvage a truncated or damaged run file into ``<run>.recovered.mcap``.
+
+    Every complete chunk (and every schema, channel, metadata record and attachment before the
+    damage) is copied into a new, finished file; the original is left untouched.  Returns the new
+    path and what was read.  Refuses to overwrite an existing output.
+    """
+    from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
+    from mcap.writer import CompressionType, Writer
+
+    p = _check_file(path)
+    if out_path is None:
+        stem = p.name[:-5] if p.name.endswith(".mcap") else p.name
+        out_path = p.with_name(stem + ".recovered.mcap")
+    q = Path(out_path)
+    if q.exists():
+        raise InputError(f"{q}: exists already; a run is never overwritten")
+    tmp = q.with_name(f".{q.name}.part")
+    contents = RunContents()
+    errors: list[str] = []
+    try:
+        with open(tmp, "xb") as fh:
+            w = Writer(fh, chunk_size=1024 * 1024, compression=CompressionType.ZSTD)
+            w.start(profile=PROFILE, library=LIBRARY + "-recover")
+            schema_map: dict[int, int] = {}
+            chan_map: dict[int, int] = {}
+            pending: dict[int, Any] = {}
+            for rec in _iter_records(p, errors):
+                if isinstance(rec, Message):
+                    cid = chan_map.get(rec.channel_id)
+                    if cid is None:
+                        continue
+                    w.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
+                    topic = pending[rec.channel_id].topic
+                    contents.messages.setdefault(topic, []).append((rec.log_time, {}))
+                elif isinstance(rec, Schema) and rec.id not in schema_map:
+                    schema_map[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
+                elif isinstance(rec, Channel) and rec.id not in chan_map:
+                    chan_map[rec.id] = w.register_channel(
+                        rec.topic,
+                        rec.message_encoding,
+                        schema_map.get(rec.schema_id, 0),
+                        dict(rec.metadata),
+                    )
+                    pending[rec.id] = rec
+                    contents.messages.setdefault(rec.topic, [])
+                elif isinstance(rec, Metadata):
+                    w.add_metadata(rec.name, dict(rec.metadata))
+                    contents.metadata[rec.name] = dict(rec.metadata)
+                elif isinstance(rec, Attachment):
+                    w.add_attachment(
+                        rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
+                    )
+                    contents.attachments[rec.name] = (rec.media_type, b"")
+                elif isinstance(rec, Footer):
+                    contents.complete = True
+            w.add_metadata(
+                "recovery",
+                {
+                    "source_file": p.name,
+                    "source_complete": str(contents.complete).lower(),
+                    "stopped_at": errors[0] if errors else "end of file",
+                    "messages": str(sum(len(v) for v in contents.messages.values())),
+                    "recovered_at_ns": str(time.time_ns()),
+                },
+            )
+            w.finish()
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, q)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    contents.error = errors[0] if errors else None
+    return q, contents
+
+
+# -------------------------------------------------------------------------------------------------
+# summary
+
+
+@dataclass
+class StreamSummary:
+    """Counts and timing of one stream."""
+
+    topic: str
+    schema: str
+    count: int
+    first_ns: int | None
+    last_ns: int | None
+    rate_hz: float
+    nominal_rate_hz: float
+    gaps: int
+    max_gap_s: float
+    bad_status: int
+
+
+def summarize(contents: RunContents) -> list[StreamSummary]:
+    """Per-stream counts, rates, gaps (an interval longer than 3x the median one, or than 3x the
+    nominal period when the channel declares a rate) and readings with a non-zero status."""
+    import numpy as np
+
+    out = []
+    for topic, msgs in contents.messages.items():
+        ch = contents.channels.get(topic)
+        nominal = 0.0
+        if ch is not None:
+            try:
+                nominal = float(ch.metadata.get("rate_hz", "0"))
+            except ValueError:
+                nominal = 0.0
+        n = len(msgs)
+        if n == 0:
+            out.append(StreamSummary(topic, ch.schema_name if ch else "", 0, None, None, 0.0,
+                                     nominal, 0, 0.0, 0))  # fmt: skip
+            continue
+        t = np.fromiter((m[0] for m in msgs), dtype=np.int64, count=n)
+        t.sort()
+        span = (t[-1] - t[0]) / 1e9
+        rate = float((n - 1) / span) if span > 0 else 0.0
+        gaps, max_gap = 0, 0.0
+        if n > 2:
+            dt = np.diff(t) / 1e9
+            ref = 1.0 / nominal if nominal > 0 else float(np.median(dt))
+            if ref > 0:
+                gaps = int(np.count_nonzero(dt > 3 * ref))
+            max_gap = float(dt.max())
+        bad = sum(1 for _, b in msgs if isinstance(b, dict) and b.get("status", 0))
+        out.append(
+            StreamSummary(
+                topic,
+                ch.schema_name if ch else "",
+                n,
+                int(t[0]),
+                int(t[-1]),
+                rate,
+                nominal,
+                gaps,
+                max_gap,
+                bad,
+            )
+        )
+    return out

@@ -1,0 +1,462 @@
+"""The recorder: sources -> bounded queues -> one writer thread -> an MCAP run file.
+
+One acquisition thread per source calls :meth:`Source.read` in a loop and puts each batch of
+readings on that source's bounded queue; a full queue drops the batch and counts it (``dropped``),
+the acquisition never blocks on the disk.  One writer thread drains every queue into a
+:class:`~cdpr.daq.mcap_io.McapRunWriter`, closes a chunk at least every ``flush_interval_s`` and
+fsyncs, and once a second writes a ``/recorder`` message with the counters (so drops are known even
+in a salvaged file).  :meth:`Recorder.stop` (also run by ``with Recorder(...)``, and by the CLI's
+SIGINT/SIGTERM handlers) stops the sources, drains the queues, writes the ``run_end`` metadata and
+finishes the file (summary and footer) on every exit path.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cdpr.analysis.errors import InputError
+
+from .mcap_io import McapRunWriter
+from .runs import iso_utc
+from .source import FieldDescription, Reading, Source, StreamDescription, now_ns
+
+
+@dataclass
+class RecorderOptions:
+    """Tuning of the recorder.
+
+    queue_readings: capacity of each source's queue, in readings (a batch that does not fit is dropped).
+    chunk_size: close an MCAP chunk when its uncompressed size exceeds this (bytes).
+    flush_interval_s: ... or when it is older than this; every flush is fsynced.
+    compression: ``"zstd"``, ``"lz4"`` or ``"none"``.
+    stats_interval_s: period of the ``/recorder`` counter messages.
+    read_timeout_s: timeout of each :meth:`Source.read` call (bounds the stop latency).
+    """
+
+    queue_readings: int = 200_000
+    chunk_size: int = 256 * 1024
+    flush_interval_s: float = 0.5
+    compression: str = "zstd"
+    stats_interval_s: float = 1.0
+    read_timeout_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.queue_readings < 1:
+            raise InputError(f"queue_readings must be >= 1, got {self.queue_readings}")
+        if not 0 < self.flush_interval_s <= 1.0:
+            raise InputError(
+                f"flush_interval_s must be in (0, 1] s (crash safety), got {self.flush_interval_s}"
+            )
+
+
+@dataclass
+class Attachment:
+    """A file embedded in the run (rig, calibration, config)."""
+
+    name: str
+    data: bytes
+    media_type: str = "text/plain"
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike[str], name: str | None = None) -> Attachment:
+        p = Path(path)
+        media = {".toml": "application/toml", ".json": "application/json", ".csv": "text/csv"}.get(
+            p.suffix.lower(), "application/octet-stream"
+        )
+        if p.suffix.lower() in (".dbc", ".txt", ".log"):
+            media = "text/plain"
+        return cls(name or p.name, p.read_bytes(), media)
+
+
+class _BoundedQueue:
+    """Batches of readings, at most ``capacity`` readings; a batch that does not fit is dropped."""
+
+    __slots__ = ("_dq", "_lock", "capacity", "pending", "accepted", "dropped", "peak")
+
+    def __init__(self, capacity: int) -> None:
+        self._dq: deque[list[Reading]] = deque()
+        self._lock = threading.Lock()
+        self.capacity = capacity
+        self.pending = 0
+        self.accepted = 0
+        self.dropped = 0
+        self.peak = 0
+
+    def put(self, batch: list[Reading]) -> bool:
+        n = len(batch)
+        with self._lock:
+            if self.pending + n > self.capacity:
+                self.dropped += n
+                return False
+            self._dq.append(batch)
+            self.pending += n
+            self.accepted += n
+            if self.pending > self.peak:
+                self.peak = self.pending
+        return True
+
+    def take_all(self) -> list[list[Reading]]:
+        with self._lock:
+            if not self._dq:
+                return []
+            out = list(self._dq)
+            self._dq.clear()
+            self.pending = 0
+        return out
+
+
+@dataclass
+class SourceCounters:
+    """What the recorder counted for one source (for the live view and the ``/recorder`` stream)."""
+
+    name: str
+    read: int = 0
+    dropped: int = 0
+    queued: int = 0
+    errors: int = 0
+    lost: int = 0
+    bad: int = 0
+    reopened: int = 0
+    last_error: str = ""
+
+
+@dataclass
+class RecorderStatus:
+    """A snapshot of the recorder's state."""
+
+    running: bool
+    elapsed_s: float
+    counts: dict[str, int]
+    latest: dict[str, Reading]
+    sources: dict[str, SourceCounters]
+    flushes: int
+    error: str | None = None
+    stop_reason: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class Recorder:
+    """Record ``sources`` into a new MCAP file at ``path``.
+
+    Parameters
+    ----------
+    sources:
+        Drivers (not yet opened; the recorder opens and closes them in their threads).
+    path:
+        The run file to create (must not exist).
+    metadata:
+        The ``run`` metadata record (see :func:`cdpr.daq.runs.run_metadata`), written first.
+    attachments:
+        Files embedded in the run (rig, calibrations, config).
+    extra_streams:
+        Streams to declare besides the sources' own (name -> description).
+    """
+
+    def __init__(
+        self,
+        sources: Sequence[Source],
+        path: str | os.PathLike[str],
+        *,
+        metadata: Mapping[str, str] | None = None,
+        attachments: Sequence[Attachment] = (),
+        options: RecorderOptions | None = None,
+        extra_streams: Mapping[str, StreamDescription] | None = None,
+    ) -> None:
+        names = [s.name for s in sources]
+        if len(set(names)) != len(names):
+            raise InputError(f"source names must be unique, got {names}")
+        self.sources = list(sources)
+        self.path = Path(path)
+        self.options = options or RecorderOptions()
+        self._metadata = dict(metadata or {})
+        self._attachments = list(attachments)
+        self._extra_streams = dict(extra_streams or {})
+        self._queues = {s.name: _BoundedQueue(self.options.queue_readings) for s in self.sources}
+        self._events: deque[Reading] = deque()
+        self._counters = {s.name: SourceCounters(s.name) for s in self.sources}
+        self._latest: dict[str, Reading] = {}
+        self._stop = threading.Event()
+        self._acq_done = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._writer_thread: threading.Thread | None = None
+        self._writer: McapRunWriter | None = None
+        self._error: str | None = None
+        self._start_ns = 0
+        self._t0 = 0.0
+        self._stop_reason = ""
+        self._stopped = False
+        self._lock = threading.Lock()
+
+    # lifecycle -----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Create the file, write metadata and attachments, declare the streams, start threads."""
+        o = self.options
+        self._writer = McapRunWriter(
+            self.path,
+            chunk_size=o.chunk_size,
+            flush_interval_s=o.flush_interval_s,
+            compression=o.compression,
+        )
+        try:
+            self._start_ns = now_ns()
+            self._t0 = time.monotonic()
+            md = dict(self._metadata)
+            md.setdefault("start_time_ns", str(self._start_ns))
+            md.setdefault("start_time_utc", iso_utc(self._start_ns))
+            md["sources"] = ",".join(s.name for s in self.sources)
+            self._writer.add_metadata("run", md)
+            for att in self._attachments:
+                self._writer.add_attachment(att.name, att.data, att.media_type)
+            self._writer.add_stream("event", StreamDescription({}, 0.0, "Run events."))
+            self._writer.add_stream("recorder", self._recorder_description())
+            for s in self.sources:
+                for stream, desc in s.describe().items():
+                    self._writer.add_stream(stream, desc)
+            for stream, desc in self._extra_streams.items():
+                self._writer.add_stream(stream, desc)
+            self._writer.flush()
+        except BaseException:
+            self._writer.finish()
+            raise
+        self._writer_thread = threading.Thread(
+            target=self._write_loop, name="recorder-writer", daemon=True
+        )
+        self._writer_thread.start()
+        for s in self.sources:
+            t = threading.Thread(target=self._acquire, args=(s,), name=f"acq-{s.name}", daemon=True)
+            self._threads.append(t)
+            t.start()
+        self.event("recording started", level="info")
+
+    def request_stop(self, reason: str = "requested") -> None:
+        """Ask the recorder to stop (safe from a signal handler: only sets a flag)."""
+        if not self._stop.is_set():
+            self._stop_reason = reason
+            self._stop.set()
+
+    @property
+    def stop_requested(self) -> bool:
+        return self._stop.is_set()
+
+    def wait(self, duration_s: float | None = None, poll_s: float = 0.1) -> None:
+        """Block until ``duration_s`` has elapsed, a stop is requested, or every source ended."""
+        end = None if duration_s is None else time.monotonic() + duration_s
+        while not self._stop.is_set():
+            if end is not None and time.monotonic() >= end:
+                self.request_stop("duration reached")
+                break
+            if self._threads and not any(t.is_alive() for t in self._threads):
+                self.request_stop("all sources ended")
+                break
+            if self._writer_thread is not None and not self._writer_thread.is_alive():
+                self.request_stop("writer failed")
+                break
+            self._stop.wait(
+                poll_s if end is None else max(0.0, min(poll_s, end - time.monotonic()))
+            )
+
+    def stop(self, reason: str | None = None) -> Path:
+        """Stop the sources, drain the queues and finish the file; idempotent.  Returns the path.
+
+        Raises the writer thread's error (after the file is finished) if it failed.
+        """
+        with self._lock:
+            if self._stopped:
+                return self.path
+            self._stopped = True
+        self.request_stop(reason or "stopped")
+        for t in self._threads:
+            t.join(timeout=10.0)
+        self._acq_done.set()
+        if self._writer_thread is not None:
+            self._writer_thread.join(timeout=60.0)
+        w = self._writer
+        if w is not None and not w.finished:
+            try:
+                # the writer thread is gone: drain what is left here, then finish
+                if self._writer_thread is None or not self._writer_thread.is_alive():
+                    if self._error is None:
+                        self._drain(w)
+                        self._write_stats(w)
+                    stop_ns = now_ns()
+                    w.add_metadata("run_end", self._end_metadata(stop_ns))
+            finally:
+                w.finish()
+        if self._error is not None:
+            raise OSError(f"recorder writer failed: {self._error}")
+        return self.path
+
+    def __enter__(self) -> Recorder:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop("context exit" if exc[0] is None else f"exception {exc[0].__name__}")  # type: ignore[union-attr]
+
+    # events and status -----------------------------------------------------------------------
+    def event(self, message: str, level: str = "info", **extra: Any) -> None:
+        """Record an event (``/event``, foxglove.Log) with the current time; never dropped."""
+        self._events.append(
+            Reading("event", now_ns(), {"message": message, "level": level, **extra})
+        )
+
+    def status(self) -> RecorderStatus:
+        """Counters, latest reading per stream, elapsed time (thread-safe snapshot)."""
+        w = self._writer
+        for s in self.sources:
+            c = self._counters[s.name]
+            q = self._queues[s.name]
+            c.read, c.dropped, c.queued = q.accepted + q.dropped, q.dropped, q.pending
+            c.lost, c.bad, c.reopened = s.stats.lost, s.stats.bad, s.stats.reopened
+        return RecorderStatus(
+            running=not self._stop.is_set(),
+            elapsed_s=time.monotonic() - self._t0 if self._t0 else 0.0,
+            counts=dict(w.counts) if w else {},
+            latest=dict(self._latest),
+            sources={k: SourceCounters(**vars(v)) for k, v in self._counters.items()},
+            flushes=w.flushes if w else 0,
+            error=self._error,
+            stop_reason=self._stop_reason,
+            extra={"queue_peak": {k: q.peak for k, q in self._queues.items()}},
+        )
+
+    @property
+    def dropped(self) -> int:
+        """Readings dropped because a queue was full, all sources."""
+        return sum(q.dropped for q in self._queues.values())
+
+    # threads ---------------------------------------------------------------------------------
+    def _acquire(self, src: Source) -> None:
+        q = self._queues[src.name]
+        c = self._counters[src.name]
+        timeout = self.options.read_timeout_s
+        backoff = 0.2
+        try:
+            while not self._stop.is_set():
+                try:
+                    batch = src.read(timeout)
+                    backoff = 0.2
+                except Exception as exc:  # a driver failure never kills the recording
+                    c.errors += 1
+                    c.last_error = f"{type(exc).__name__}: {exc}"
+                    self.event(f"source {src.name}: {c.last_error}", level="error")
+                    try:
+                        src.close()
+                    except Exception:
+                        pass
+                    self._stop.wait(backoff)
+                    backoff = min(2 * backoff, 5.0)
+                    continue
+                if batch:
+                    q.put(batch)
+                elif getattr(src, "exhausted", False):
+                    self.event(f"source {src.name}: end of data", level="info")
+                    break
+        finally:
+            try:
+                src.close()
+            except Exception as exc:
+                c.last_error = f"close: {type(exc).__name__}: {exc}"
+
+    def _drain(self, w: McapRunWriter) -> int:
+        n = 0
+        latest = self._latest
+        write = w.write
+        while self._events:
+            r = self._events.popleft()
+            write(r)
+            latest[r.stream] = r
+            n += 1
+        for q in self._queues.values():
+            for batch in q.take_all():
+                for r in batch:
+                    write(r)
+                n += len(batch)
+                # the latest reading of every stream in the batch (walk back a little)
+                seen: set[str] = set()
+                for r in reversed(batch[-64:]):
+                    if r.stream not in seen:
+                        seen.add(r.stream)
+                        latest[r.stream] = r
+        return n
+
+    def _write_loop(self) -> None:
+        w = self._writer
+        assert w is not None
+        stats_every = self.options.stats_interval_s
+        next_stats = time.monotonic() + stats_every
+        try:
+            while True:
+                n = self._drain(w)
+                now = time.monotonic()
+                if now >= next_stats:
+                    self._write_stats(w)
+                    next_stats = now + stats_every
+                w.maybe_flush()
+                if n == 0:
+                    if self._acq_done.is_set():
+                        break
+                    time.sleep(0.005)
+            self._drain(w)
+            self._write_stats(w)
+            w.add_metadata("run_end", self._end_metadata(now_ns()))
+            w.finish()
+        except BaseException as exc:
+            self._error = f"{type(exc).__name__}: {exc}"
+            traceback.print_exc()
+            self._stop.set()
+            try:
+                w.finish()
+            except BaseException:
+                pass
+
+    # helpers ---------------------------------------------------------------------------------
+    def _recorder_description(self) -> StreamDescription:
+        f: dict[str, FieldDescription] = {}
+        for s in self.sources:
+            for k in ("read", "dropped", "queued", "errors", "lost", "bad", "reopened"):
+                f[f"{s.name}_{k}"] = FieldDescription("", "int64")
+        return StreamDescription(
+            f,
+            1.0 / self.options.stats_interval_s,
+            "Recorder counters per source (cumulative): readings read, dropped (queue full), "
+            "queued, driver errors, samples lost (counter gaps), bad frames/lines, reopens.",
+        )
+
+    def _write_stats(self, w: McapRunWriter) -> None:
+        st = self.status()
+        values: dict[str, int] = {}
+        for name, c in st.sources.items():
+            values.update(
+                {
+                    f"{name}_read": c.read,
+                    f"{name}_dropped": c.dropped,
+                    f"{name}_queued": c.queued,
+                    f"{name}_errors": c.errors,
+                    f"{name}_lost": c.lost,
+                    f"{name}_bad": c.bad,
+                    f"{name}_reopened": c.reopened,
+                }
+            )
+        w.write(Reading("recorder", now_ns(), values, 1 if self.dropped else 0))
+
+    def _end_metadata(self, stop_ns: int) -> dict[str, Any]:
+        st = self.status()
+        return {
+            "stop_time_ns": str(stop_ns),
+            "stop_time_utc": iso_utc(stop_ns),
+            "duration_s": f"{(stop_ns - self._start_ns) / 1e9:.6f}",
+            "stop_reason": self._stop_reason,
+            "message_counts": st.counts,
+            "sources": {k: vars(v) for k, v in st.sources.items()},
+            "dropped_total": str(self.dropped),
+            "queue_peak": st.extra["queue_peak"],
+        }

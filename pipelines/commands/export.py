@@ -1,0 +1,20 @@
+"""``cdpr export RUN --hdf5 OUT``: a run's streams as HDF5 tables, metadata as attributes."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("export", help="export a run file to HDF5 (one table per stream)")
+    p.add_argument("run", help="run file (.mcap)")
+    p.add_argument("--hdf5", required=True, help="output HDF5 file (never overwritten)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from cdpr.daq.hdf5_io import export_hdf5
+
+    counts = export_hdf5(args.run, args.hdf5)
+    print(f"wrote {args.hdf5}: " + ", ".join(f"{k} {v} rows" for k, v in counts.items()))
+    return 0

@@ -1,0 +1,111 @@
+"""``cdpr inspect RUN``: streams, counts, rates, gaps, drops, duration and metadata of a run file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser("inspect", help="summarise a run file (streams, counts, rates, gaps, drops)")
+    p.add_argument("run", help="run file (.mcap)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=run)
+
+
+def inspect_run(path: str) -> dict[str, Any]:
+    """The summary ``cdpr inspect`` prints, as a dict."""
+    from cdpr.daq.mcap_io import read_run, summarize
+
+    rc = read_run(path)
+    streams = summarize(rc)
+    first = [s.first_ns for s in streams if s.first_ns is not None]
+    last = [s.last_ns for s in streams if s.last_ns is not None]
+    run_md = rc.metadata.get("run", {})
+    end_md = rc.metadata.get("run_end", {})
+    drops: dict[str, dict[str, int]] = {}
+    rec_msgs = rc.messages.get("/recorder", [])
+    if rec_msgs:
+        last_stats = max(rec_msgs, key=lambda m: m[0])[1]
+        for k, v in last_stats.items():
+            if k == "status" or "_" not in k:
+                continue
+            src, _, what = k.rpartition("_")
+            drops.setdefault(src, {})[what] = int(v)
+    return {
+        "file": str(path),
+        "complete": rc.complete,
+        "read_error": rc.error,
+        "duration_s": (max(last) - min(first)) / 1e9 if first else 0.0,
+        "streams": [
+            {
+                "topic": s.topic,
+                "schema": s.schema,
+                "count": s.count,
+                "rate_hz": round(float(s.rate_hz), 3),
+                "nominal_rate_hz": s.nominal_rate_hz,
+                "gaps": s.gaps,
+                "max_gap_s": round(s.max_gap_s, 6),
+                "bad_status": s.bad_status,
+            }
+            for s in streams
+        ],
+        "sources": drops,
+        "metadata": {
+            k: v
+            for k, v in run_md.items()
+            if k not in ("config",)  # the full snapshot is long: see `--json` of the record
+        },
+        "run_end": {
+            k: v
+            for k, v in end_md.items()
+            if k in ("stop_time_utc", "duration_s", "stop_reason", "dropped_total")
+        },
+        "other_metadata": sorted(k for k in rc.metadata if k not in ("run", "run_end")),
+        "attachments": {
+            k: {"media_type": v[0], "bytes": len(v[1])} for k, v in rc.attachments.items()
+        },
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    info = inspect_run(args.run)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    md = info["metadata"]
+    state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error'] or 'no footer'})"
+    print(f"run {info['file']}: {state}, {info['duration_s']:.3f} s of data")
+    for k in ("label", "rig", "rig_sha256", "software_version", "host", "start_time_utc",
+              "operator", "notes", "calibration_ids", "command"):  # fmt: skip
+        if md.get(k):
+            print(f"  {k:17s} {md[k]}")
+    for k, v in info["run_end"].items():
+        print(f"  {k:17s} {v}")
+    if info["attachments"]:
+        att = ", ".join(f"{k} ({v['bytes']} B)" for k, v in info["attachments"].items())
+        print(f"  attachments       {att}")
+    if info["other_metadata"]:
+        print(f"  other metadata    {', '.join(info['other_metadata'])}")
+    print()
+    print(
+        f"  {'topic':24s} {'schema':26s} {'messages':>9s} {'rate/s':>9s} {'nominal':>8s} "
+        f"{'gaps':>5s} {'max gap s':>9s} {'bad':>6s}"
+    )
+    for s in info["streams"]:
+        print(
+            f"  {s['topic']:24s} {s['schema']:26s} {s['count']:9d} {s['rate_hz']:9.1f} "
+            f"{s['nominal_rate_hz']:8.1f} {s['gaps']:5d} {s['max_gap_s']:9.3f} {s['bad_status']:6d}"
+        )
+    if info["sources"]:
+        print()
+        print(
+            f"  {'source':16s} {'read':>9s} {'dropped':>8s} {'lost':>6s} {'bad':>6s} {'errors':>6s}"
+        )
+        for name, c in info["sources"].items():
+            print(
+                f"  {name:16s} {c.get('read', 0):9d} {c.get('dropped', 0):8d} "
+                f"{c.get('lost', 0):6d} {c.get('bad', 0):6d} {c.get('errors', 0):6d}"
+            )
+    return 0

@@ -1,0 +1,147 @@
+"""``cdpr record``: record the hardware named in an acquisition config into a new MCAP run."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "record",
+        help="record the sources of an acquisition config (tunnel.toml) into a new MCAP run",
+        description="Record every source of the config into <out>/<date>_<time>_<label>.mcap "
+        "until --duration elapses or Ctrl-C / SIGTERM; the file is always finished.",
+    )
+    p.add_argument(
+        "--config", required=True, help="acquisition config (TOML), see docs/recording.md"
+    )
+    p.add_argument("--out", help="output folder (default: [recorder] out, else runs/)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--label", help="test-point label (default: [run] label)")
+    p.add_argument("--notes", help="operator notes (added to [run] notes)")
+    p.add_argument("--quiet", action="store_true", help="no live view")
+    p.set_defaults(func=run)
+
+
+def record_run(
+    sources: Sequence[Any],
+    path: Path,
+    *,
+    metadata: dict[str, str],
+    attachments: Sequence[Any],
+    options: Any,
+    duration_s: float | None,
+    quiet: bool,
+    t_min_N: Sequence[float] | None = None,
+    t_max_N: Sequence[float] | None = None,
+    on_started: Any = None,
+) -> Any:
+    """Run a :class:`~cdpr.daq.recorder.Recorder` until ``duration_s``, SIGINT or SIGTERM.
+
+    The signal handlers only request a stop; ``Recorder.stop`` (summary, footer, fsync) runs in a
+    ``finally``.  The live view is shown when stdout is a terminal and ``quiet`` is false.
+    Returns the recorder's final status.
+    """
+    from cdpr.daq.recorder import Recorder
+
+    rec = Recorder(sources, path, metadata=metadata, attachments=attachments, options=options)
+
+    def handler(signum: int, frame: Any) -> None:
+        rec.request_stop(signal.Signals(signum).name)
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        rec.start()
+        print(f"recording {path}", flush=True)
+        if on_started is not None:
+            on_started(rec)
+        if not quiet and sys.stdout.isatty():
+            from cdpr.daq.live import LiveView
+
+            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N):
+                rec.wait(duration_s)
+        else:
+            rec.wait(duration_s)
+    finally:
+        try:
+            rec.stop()
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+    st = rec.status()
+    n = sum(v for k, v in st.counts.items() if k not in ("recorder", "event"))
+    drops = sum(c.dropped for c in st.sources.values())
+    print(
+        f"finished {path}: {n} readings in {st.elapsed_s:.1f} s, {drops} dropped "
+        f"({st.stop_reason})",
+        flush=True,
+    )
+    return st
+
+
+def run(args: argparse.Namespace) -> int:
+    from cdpr.daq.recorder import Attachment, RecorderOptions
+    from cdpr.daq.runs import new_run_path, run_metadata
+
+    from .. import __version__
+    from ..config import file_sha256, load_rig
+    from ..daq_config import build_sources, load_daq_config
+
+    cfg = load_daq_config(args.config)
+    if args.duration is not None and not args.duration > 0:
+        from cdpr.analysis.errors import InputError
+
+        raise InputError(f"--duration must be > 0 s, got {args.duration}")
+    rig = load_rig(cfg.rig) if cfg.rig is not None else None
+    sources = build_sources(cfg)
+    label = args.label or cfg.label
+    out = Path(args.out) if args.out else (cfg.out or Path("runs"))
+    attachments = [Attachment.from_file(cfg.path, "config/" + cfg.path.name)]
+    if cfg.rig is not None:
+        attachments.append(Attachment.from_file(cfg.rig, "rig/" + cfg.rig.name))
+    attachments += [Attachment.from_file(c, "calibration/" + c.name) for c in cfg.calibrations]
+    config_snapshot = {
+        "file": str(cfg.path),
+        "sha256": file_sha256(cfg.path),
+        "toml": cfg.raw,
+        "sources": {s.name: {"kind": s.kind, **s.settings()} for s in sources},
+    }
+    notes = " ".join(x for x in (cfg.notes, args.notes or "") if x)
+    path = new_run_path(out, label)
+    from time import time_ns
+
+    md = run_metadata(
+        label=label,
+        start_ns=time_ns(),
+        software_version=__version__,
+        rig=rig.name if rig else "",
+        rig_sha256=file_sha256(cfg.rig) if cfg.rig else "",
+        calibration_ids=cfg.calibration_ids(),
+        config=config_snapshot,
+        operator=cfg.operator,
+        notes=notes,
+        extra={"command": "record"},
+    )
+    options = RecorderOptions(
+        queue_readings=cfg.queue_readings,
+        chunk_size=cfg.chunk_size,
+        flush_interval_s=cfg.flush_interval_s,
+        compression=cfg.compression,
+    )
+    record_run(
+        sources,
+        path,
+        metadata=md,
+        attachments=attachments,
+        options=options,
+        duration_s=args.duration,
+        quiet=args.quiet,
+        t_min_N=list(rig.t_min_N) if rig else None,
+        t_max_N=list(rig.t_max_N) if rig else None,
+    )
+    return 0
