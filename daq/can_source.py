@@ -1,0 +1,508 @@
+"""CAN load cells: a python-can bus, frames decoded by cantools from a DBC, counts -> newtons.
+
+The DBC (default ``data_samples/loadcell.dbc``) describes an 8-channel amplifier: signals named
+``Ch<k>_Counts`` (raw counts), ``Ch<k>_Saturated`` / ``Ch<k>_Slack`` / ``Ch<k>_Fault`` (status bits)
+and one ``Counter`` per frame (rolling sample counter shared by the frames of one sample).  Any DBC
+following that naming works; the frames of one sample are the messages that carry a used channel.
+
+Streams:
+
+- ``can_raw``: every frame as received: ``arbitration_id``, ``data`` (bytes), ``dlc``,
+  ``is_extended``, ``is_error_frame``, ``t_bus_ns`` (the interface's timestamp).
+- ``tensions``: one reading per sample: ``T_<cable>_N``, ``raw_<cable>_counts``, ``status_<cable>``
+  (DBC bits: 1 saturated, 2 slack, 4 fault), ``counter`` (0..255), ``seq`` (unwrapped counter) and
+  ``t_bus_ns`` of the first frame.  A sample with a missing frame comes out with NaN for the missing
+  channels and :data:`STATUS_GAP`.
+
+Counter jumps count as lost samples (``stats.lost``).  Error frames are counted (``stats.errors``,
+``stats.extra["error_frames"]``) and logged; a bus that raises on receive, reports bus-off
+(``bus.state == BusState.ERROR``) or floods error frames is shut down and reopened with exponential
+backoff (``stats.reopened``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+
+from cdpr.analysis.errors import ConfigError
+
+from .loadcell import Calibration, calibration_from_settings, check_frame_budget
+from .source import (
+    STATUS_BAD_FRAME,
+    STATUS_GAP,
+    STATUS_SATURATED,
+    STATUS_SENSOR_FAULT,
+    STATUS_SLACK,
+    FieldDescription,
+    Reading,
+    Source,
+    StreamDescription,
+)
+
+log = logging.getLogger(__name__)
+
+DEFAULT_DBC = Path(__file__).resolve().parents[1] / "data_samples" / "loadcell.dbc"
+"""The DBC shipped in ``data_samples/`` (resolved relative to the source tree)."""
+
+_CH_RE = re.compile(r"^Ch(\d+)_(Counts|Saturated|Slack|Fault)$")
+CHANNEL_STATUS_SATURATED = 1
+CHANNEL_STATUS_SLACK = 2
+CHANNEL_STATUS_FAULT = 4
+_STATUS_TO_SOURCE = (
+    (CHANNEL_STATUS_SATURATED, STATUS_SATURATED),
+    (CHANNEL_STATUS_SLACK, STATUS_SLACK),
+    (CHANNEL_STATUS_FAULT, STATUS_SENSOR_FAULT),
+)
+
+
+def load_dbc(path: str | Path, origin: str = "<config>", key: str = "dbc") -> Any:
+    """Load a DBC with cantools; a missing or invalid file raises :class:`ConfigError`."""
+    p = Path(path)
+    try:
+        return cantools.database.load_file(str(p), database_format="dbc", strict=True)
+    except FileNotFoundError:
+        raise ConfigError(origin, key, f"DBC file not found: {p}") from None
+    except Exception as exc:  # cantools raises several parser error types
+        raise ConfigError(origin, key, f"cannot parse DBC {p}: {exc}") from None
+
+
+def default_cable_names(n: int) -> list[str]:
+    return [f"c{i + 1}" for i in range(n)]
+
+
+class LoadCellDecoder:
+    """Decodes load-cell frames (DBC naming above) into ``tensions`` readings.
+
+    db: a cantools database; cables: one name per channel, channel k (1-based) -> ``cables[k-1]``;
+    calibration: per-channel offsets and gains (len(cables) channels).
+    """
+
+    def __init__(self, db: Any, cables: Sequence[str], calibration: Calibration) -> None:
+        self.db = db
+        self.cables = list(cables)
+        self.calibration = calibration
+        n = len(self.cables)
+        self.n = n
+        self.channel_signals: dict[int, list[tuple[int, str, str]]] = {}
+        for msg in db.messages:
+            entries = []
+            for sig in msg.signals:
+                m = _CH_RE.match(sig.name)
+                if m and 1 <= int(m.group(1)) <= n:
+                    entries.append((int(m.group(1)) - 1, m.group(2), sig.name))
+            if entries:
+                self.channel_signals[msg.frame_id] = entries
+        found = sorted({e[0] for v in self.channel_signals.values() for e in v})
+        if found != list(range(n)):
+            missing = sorted(set(range(n)) - set(found))
+            raise ValueError(f"DBC has no Ch<k>_Counts for channels {[k + 1 for k in missing]}")
+        self.frame_ids = sorted(self.channel_signals)
+        self._msgs = {fid: db.get_message_by_frame_id(fid) for fid in self.frame_ids}
+        self.lost = 0
+        self.partial = 0
+        self.bad = 0
+        self._last_counter: int | None = None
+        self._seq = -1
+        self._pending_counter: int | None = None
+        self._pending: dict[int, dict[str, Any]] = {}
+        self._pending_t: tuple[int, int] = (0, 0)
+
+    @property
+    def frames_per_sample(self) -> int:
+        return len(self.frame_ids)
+
+    def reset(self) -> None:
+        """Forget the pending sample and the counter history (after a bus reopen)."""
+        self._pending_counter = None
+        self._pending = {}
+        self._last_counter = None
+
+    def decode(self, msg: can.Message, t_ns: int) -> list[Reading]:
+        """Feed one frame; returns the completed (or flushed partial) samples, usually 0 or 1."""
+        fid = msg.arbitration_id
+        if fid not in self._msgs or msg.is_error_frame or msg.is_remote_frame:
+            return []
+        try:
+            sig = self._msgs[fid].decode(bytes(msg.data), decode_choices=False, scaling=False)
+        except Exception:
+            self.bad += 1
+            return []
+        counter = int(sig.get("Counter", 0))
+        out: list[Reading] = []
+        if self._pending_counter is not None and counter != self._pending_counter:
+            out.append(self._flush())
+        if self._pending_counter is None:
+            self._pending_counter = counter
+            self._pending_t = (t_ns, int(round(msg.timestamp * 1e9)))
+        if fid in self._pending:
+            # the same frame twice for one counter value: keep the first, count it as bad
+            self.bad += 1
+            return out
+        self._pending[fid] = sig
+        if len(self._pending) == len(self.frame_ids):
+            out.append(self._flush())
+        return out
+
+    def flush(self) -> list[Reading]:
+        """Emit a pending incomplete sample (at close)."""
+        return [self._flush()] if self._pending_counter is not None else []
+
+    def _flush(self) -> Reading:
+        counter = self._pending_counter
+        assert counter is not None
+        t_ns, t_bus_ns = self._pending_t
+        if self._last_counter is None:
+            self._seq = counter
+        else:
+            step = (counter - self._last_counter) % 256
+            if step == 0:
+                step = 256
+            self.lost += step - 1
+            self._seq += step
+        self._last_counter = counter
+        n = self.n
+        counts = [math.nan] * n
+        ch_status = [0] * n
+        for fid, sig in self._pending.items():
+            for ch, what, sname in self.channel_signals[fid]:
+                v = sig[sname]
+                if what == "Counts":
+                    counts[ch] = v
+                elif v:
+                    ch_status[ch] |= {
+                        "Saturated": CHANNEL_STATUS_SATURATED,
+                        "Slack": CHANNEL_STATUS_SLACK,
+                        "Fault": CHANNEL_STATUS_FAULT,
+                    }[what]
+        status = 0
+        if len(self._pending) < len(self.frame_ids):
+            status |= STATUS_GAP
+            self.partial += 1
+        tensions = self.calibration.to_newtons(counts)
+        values: dict[str, Any] = {}
+        for i, cable in enumerate(self.cables):
+            values[f"T_{cable}_N"] = float(tensions[i])
+        for i, cable in enumerate(self.cables):
+            c = counts[i]
+            values[f"raw_{cable}_counts"] = int(c) if c == c else -(1 << 31)
+        for i, cable in enumerate(self.cables):
+            values[f"status_{cable}"] = ch_status[i]
+            for bit, sbit in _STATUS_TO_SOURCE:
+                if ch_status[i] & bit:
+                    status |= sbit
+        values["counter"] = counter
+        values["seq"] = self._seq
+        values["t_bus_ns"] = t_bus_ns
+        self._pending_counter = None
+        self._pending = {}
+        return Reading("tensions", t_ns, values, status)
+
+    def describe(self, rate_hz: float) -> StreamDescription:
+        fields: dict[str, FieldDescription] = {}
+        for c in self.cables:
+            fields[f"T_{c}_N"] = FieldDescription("N")
+        for c in self.cables:
+            fields[f"raw_{c}_counts"] = FieldDescription("counts", "int64")
+        for c in self.cables:
+            fields[f"status_{c}"] = FieldDescription("", "int64")
+        fields["counter"] = FieldDescription("", "int64")
+        fields["seq"] = FieldDescription("", "int64")
+        fields["t_bus_ns"] = FieldDescription("ns", "int64")
+        return StreamDescription(
+            fields,
+            rate_hz,
+            "cable tensions (N) and raw counts per cable; raw_* = -2**31 and T = NaN when missing",
+        )
+
+
+CAN_RAW_DESCRIPTION = StreamDescription(
+    {
+        "arbitration_id": FieldDescription("", "int64"),
+        "data": FieldDescription("", "bytes"),
+        "dlc": FieldDescription("", "int64"),
+        "is_extended": FieldDescription("", "int64"),
+        "is_error_frame": FieldDescription("", "int64"),
+        "t_bus_ns": FieldDescription("ns", "int64"),
+    },
+    0.0,
+    "every CAN frame as received (t_bus_ns: the interface's timestamp)",
+)
+
+
+def raw_reading(msg: can.Message, t_ns: int) -> Reading:
+    """A ``can_raw`` reading of one frame."""
+    return Reading(
+        "can_raw",
+        t_ns,
+        {
+            "arbitration_id": msg.arbitration_id,
+            "data": bytes(msg.data),
+            "dlc": msg.dlc,
+            "is_extended": int(msg.is_extended_id),
+            "is_error_frame": int(msg.is_error_frame),
+            "t_bus_ns": int(round(msg.timestamp * 1e9)),
+        },
+        STATUS_BAD_FRAME if msg.is_error_frame else 0,
+    )
+
+
+def build_decoder(
+    origin: str,
+    prefix: str,
+    dbc: str | Path | None,
+    cables: Sequence[str] | None,
+    offset_counts: Any,
+    gain_N_per_count: Any,
+) -> tuple[LoadCellDecoder, str]:
+    """A :class:`LoadCellDecoder` from driver settings; errors name ``origin`` and ``prefix.key``."""
+    dbc_path = Path(dbc) if dbc is not None else DEFAULT_DBC
+    db = load_dbc(dbc_path, origin, f"{prefix}.dbc")
+    if cables is None:
+        n_dbc = len(
+            {
+                int(m.group(1))
+                for msg in db.messages
+                for s in msg.signals
+                if (m := _CH_RE.match(s.name)) and m.group(2) == "Counts"
+            }
+        )
+        cables = default_cable_names(n_dbc)
+    cables = [str(c) for c in cables]
+    if len(set(cables)) != len(cables) or not cables:
+        raise ConfigError(origin, f"{prefix}.cables", f"expected unique cable names, got {cables}")
+    cal = calibration_from_settings(origin, prefix, len(cables), offset_counts, gain_N_per_count)
+    try:
+        dec = LoadCellDecoder(db, cables, cal)
+    except ValueError as exc:
+        raise ConfigError(origin, f"{prefix}.cables", f"{exc} ({dbc_path})") from None
+    return dec, str(dbc_path)
+
+
+class CanLoadCellSource(Source):
+    """Load cells on a CAN bus (python-can), decoded with a DBC.
+
+    Settings (keyword arguments; ``interface``, ``channel`` and ``bitrate`` are required and always
+    passed to python-can, so ``~/can.conf`` and ``CAN_*`` variables never change the bus):
+
+    interface: python-can interface (``"virtual"``, ``"slcan"``, ``"socketcan"``, ``"pcan"``, ...).
+    channel: channel (virtual bus name, serial port of an slcan adapter, ``can0``, ...).
+    bitrate: bus bit rate, bit/s.
+    rate_hz: nominal sample rate of the amplifier (for the frame budget and ``describe``), Hz.
+    dbc: DBC path (default: ``data_samples/loadcell.dbc``).
+    cables: cable names in channel order (default ``c1..c8``).
+    offset_counts, gain_N_per_count: calibration, one value or one per channel.
+    max_bus_load: the largest allowed worst-case bus load fraction (default 0.9).
+    bus_options: extra keyword arguments for ``can.Bus`` (e.g. ``sleep_after_open`` for slcan).
+    raw: emit the ``can_raw`` stream (default True); decode: emit ``tensions`` (default True).
+    reopen_backoff_s: (first, max) delay between reopen attempts, s.
+    """
+
+    kind = "can_loadcell"
+    accepts_origin = True
+
+    def __init__(
+        self,
+        name: str,
+        interface: str,
+        channel: str,
+        bitrate: int,
+        rate_hz: float = 200.0,
+        dbc: str | None = None,
+        cables: Sequence[str] | None = None,
+        offset_counts: Any = None,
+        gain_N_per_count: Any = None,
+        max_bus_load: float = 0.9,
+        bus_options: dict[str, Any] | None = None,
+        raw: bool = True,
+        decode: bool = True,
+        reopen_backoff_s: Sequence[float] = (0.1, 5.0),
+        error_frame_limit: int = 1000,
+        origin: str = "<config>",
+    ) -> None:
+        super().__init__(name)
+        prefix = f"sources.{name}"
+        self.origin = origin
+        if not isinstance(interface, str) or not interface:
+            raise ConfigError(origin, f"{prefix}.interface", "expected a python-can interface name")
+        try:
+            bitrate = int(bitrate)
+            rate_hz = float(rate_hz)
+        except (TypeError, ValueError):
+            raise ConfigError(origin, f"{prefix}.bitrate", "expected numbers") from None
+        self.interface = interface
+        self.channel = str(channel)
+        self.bitrate = bitrate
+        self.rate_hz = rate_hz
+        self.decoder, self.dbc_path = build_decoder(
+            origin, prefix, dbc, cables, offset_counts, gain_N_per_count
+        )
+        self.budget = check_frame_budget(
+            origin, prefix, bitrate, rate_hz, self.decoder.frames_per_sample, 8, False, max_bus_load
+        )
+        self.max_bus_load = float(max_bus_load)
+        self.bus_options = dict(bus_options or {})
+        self.emit_raw = bool(raw)
+        self.emit_decoded = bool(decode)
+        self.backoff = (float(reopen_backoff_s[0]), float(reopen_backoff_s[1]))
+        self.error_frame_limit = int(error_frame_limit)
+        self.bus: can.BusABC | None = None
+        self._next_open = 0.0
+        self._delay = self.backoff[0]
+        self._err_window = (0.0, 0)
+        self._last_state_check = 0.0
+        self._ever_opened = False
+
+    # settings / describe ------------------------------------------------------------------
+    def settings(self) -> dict[str, Any]:
+        return {
+            "interface": self.interface,
+            "channel": self.channel,
+            "bitrate": self.bitrate,
+            "rate_hz": self.rate_hz,
+            "dbc": self.dbc_path,
+            "cables": list(self.decoder.cables),
+            **self.decoder.calibration.to_mapping(),
+            "max_bus_load": self.max_bus_load,
+            "bus_options": dict(self.bus_options),
+            "frame_budget_load": round(self.budget.load, 4),
+        }
+
+    def describe(self) -> dict[str, StreamDescription]:
+        out: dict[str, StreamDescription] = {}
+        if self.emit_raw:
+            d = CAN_RAW_DESCRIPTION
+            out["can_raw"] = StreamDescription(d.fields, self.budget.frames_per_s, d.doc)
+        if self.emit_decoded:
+            out["tensions"] = self.decoder.describe(self.rate_hz)
+        return out
+
+    # lifecycle ----------------------------------------------------------------------------
+    def _make_bus(self) -> can.BusABC:
+        return can.Bus(
+            interface=self.interface,
+            channel=self.channel,
+            bitrate=self.bitrate,
+            **self.bus_options,
+        )
+
+    def _open(self) -> None:
+        try:
+            self.bus = self._make_bus()
+        except (can.CanError, OSError, ValueError) as exc:
+            raise ConfigError(
+                self.origin,
+                f"sources.{self.name}.channel",
+                f"cannot open {self.interface} bus {self.channel!r}: {exc}",
+            ) from None
+        self._ever_opened = True
+
+    def _close(self) -> None:
+        self._drop_bus()
+
+    def _drop_bus(self) -> None:
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception as exc:  # a dead device can fail to shut down; nothing to save
+                log.debug("%s: shutdown failed: %s", self.name, exc)
+
+    def _fail(self, why: str) -> None:
+        self.stats.errors += 1
+        log.warning("%s: %s; reopening the bus in %.2f s", self.name, why, self._delay)
+        self._drop_bus()
+        self.decoder.reset()
+        self._next_open = time.monotonic() + self._delay
+        self._delay = min(self._delay * 2, self.backoff[1])
+
+    def _try_reopen(self, timeout_s: float) -> bool:
+        now = time.monotonic()
+        if now < self._next_open:
+            time.sleep(min(timeout_s, self._next_open - now))
+            return False
+        try:
+            self.bus = self._make_bus()
+        except Exception as exc:
+            log.info("%s: reopen failed: %s", self.name, exc)
+            self._next_open = time.monotonic() + self._delay
+            self._delay = min(self._delay * 2, self.backoff[1])
+            return False
+        self.stats.reopened += 1
+        self._delay = self.backoff[0]
+        log.warning("%s: bus reopened", self.name)
+        return True
+
+    # data ---------------------------------------------------------------------------------
+    def _read(self, timeout_s: float) -> list[Reading]:
+        if self.bus is None and not self._try_reopen(timeout_s):
+            return []
+        bus = self.bus
+        assert bus is not None
+        out: list[Reading] = []
+        deadline = time.monotonic() + timeout_s
+        wait = timeout_s
+        try:
+            while len(out) < 4096:
+                msg = bus.recv(timeout=wait)
+                if msg is None:
+                    if out or time.monotonic() >= deadline:
+                        break
+                    wait = max(0.0, deadline - time.monotonic())
+                    continue
+                wait = 0.0
+                self._handle(msg, out)
+        except (can.CanError, OSError, ValueError) as exc:
+            self._fail(f"receive failed ({type(exc).__name__}: {exc})")
+            return out
+        now = time.monotonic()
+        if now - self._last_state_check > 1.0:
+            self._last_state_check = now
+            try:
+                state = bus.state
+            except Exception:
+                state = None
+            if state == can.BusState.ERROR:
+                self.stats.extra["bus_off"] = self.stats.extra.get("bus_off", 0) + 1
+                self._fail("bus-off")
+        return out
+
+    def _handle(self, msg: can.Message, out: list[Reading]) -> None:
+        t_ns = time.time_ns()
+        if msg.is_error_frame:
+            self.stats.errors += 1
+            self.stats.extra["error_frames"] = self.stats.extra.get("error_frames", 0) + 1
+            t0, k = self._err_window
+            now = time.monotonic()
+            if now - t0 > 1.0:
+                t0, k = now, 0
+            k += 1
+            self._err_window = (t0, k)
+            if k == 1:
+                log.warning(
+                    "%s: CAN error frame (id 0x%X data %s)",
+                    self.name,
+                    msg.arbitration_id,
+                    bytes(msg.data).hex(),
+                )
+            if k > self.error_frame_limit:
+                self._err_window = (now, 0)
+                if self.emit_raw:
+                    out.append(raw_reading(msg, t_ns))
+                raise can.CanOperationError(f"more than {self.error_frame_limit} error frames/s")
+        if self.emit_raw:
+            out.append(raw_reading(msg, t_ns))
+        if self.emit_decoded:
+            lost0, bad0 = self.decoder.lost, self.decoder.bad
+            out.extend(self.decoder.decode(msg, t_ns))
+            self.stats.lost += self.decoder.lost - lost0
+            self.stats.bad += self.decoder.bad - bad0
+            self.stats.extra["partial_samples"] = self.decoder.partial
