@@ -18,6 +18,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     paper.add_argument("--out", required=True, help="output folder")
     paper.set_defaults(func=run_paper)
 
+    caspr = rs.add_parser(
+        "import-caspr", help="make a rig file from a single-body CASPR model (bodies + cables XML)"
+    )
+    caspr.add_argument("bodies", help="CASPR MODEL_bodies.xml")
+    caspr.add_argument("--cables", help="CASPR cables XML (default: MODEL_cables.xml beside it)")
+    caspr.add_argument("--cable-set", dest="cable_set", help="cable set id (default: the default)")
+    caspr.add_argument(
+        "--t-min-N", dest="t_min_N", type=float, default=0.0, help="limit if none given (0 N)"
+    )
+    caspr.add_argument(
+        "--t-max-N", dest="t_max_N", type=float, default=1000.0, help="limit if none (1000 N)"
+    )
+    caspr.add_argument("--out", required=True, help="output rig file (TOML)")
+    caspr.set_defaults(func=run_import_caspr)
+
 
 def run_show(args: argparse.Namespace) -> int:
     import numpy as np
@@ -58,4 +73,22 @@ def run_paper(args: argparse.Namespace) -> int:
         with atomic_output(path) as fh:
             fh.write(rig_toml(rig, header=f"{rig.description}\nWritten by `cdpr rig paper`."))
         print(f"wrote {path}")
+    return 0
+
+
+def run_import_caspr(args: argparse.Namespace) -> int:
+    from ..caspr import import_caspr
+    from ..config import atomic_output, file_sha256, rig_toml
+
+    rig = import_caspr(args.bodies, args.cables, args.cable_set, args.t_min_N, args.t_max_N)
+    hashes = f"bodies sha256={file_sha256(args.bodies)}; cables sha256={file_sha256(rig.source)}"
+    with atomic_output(args.out) as fh:
+        fh.write(
+            rig_toml(
+                rig, header=f"{rig.description}\n{hashes}\nWritten by `cdpr rig import-caspr`."
+            )
+        )
+    print(
+        f"cdpr rig import-caspr: {rig.n_cables} cables, mass {rig.mass_kg:g} kg, wrote {args.out}"
+    )
     return 0
