@@ -1,26 +1,39 @@
-"""Tension distribution: one contract, several methods.
+"""Tension distribution: one contract, four methods, batched over poses.
 
 Every method solves ``A T = w`` for cable tensions ``T`` (..., m) within per-cable limits
 ``t_min_N <= T <= t_max_N`` and returns a :class:`TensionResult`.  ``A`` is the structure matrix
-(..., 6, m) and ``w`` (..., 6) the wrench the cables must apply on the platform, which for a static
-platform is ``w = -(G + W_ext)`` (see :mod:`cdpr.analysis.dynamics`).  All methods are batched over
-the leading dimensions.
+(..., n, m) (n = 6 for a spatial rig) and ``w`` (..., n) the wrench the cables must apply on the
+platform, which for a static platform is ``w = -(G + W_ext)`` (see :mod:`cdpr.analysis.dynamics`).
+All methods are batched over the leading dimensions (no Python loop over poses: the batch is cut in
+chunks of :data:`CHUNK` poses and each chunk is processed struct-of-arrays, batch index last) and
+accept limits that differ per cable and per pose.
 
 Objectives (named, because they differ):
 
-- ``closed-form`` (Pott 2009): ``T = T_mid + A^+ (w - A T_mid)``, the min ``|T - T_mid|_2`` solution
-  of the equality alone; feasible only if it happens to respect the limits.
-- ``improved-closed-form`` (Pott 2014): the closed form, then clamp the worst violator at its limit,
-  drop it and re-solve; approximates min ``|T - T_mid|_2`` with the limits.
-- ``penalty`` (the paper): min ``|T - T_min|_2`` with the constraints as penalties, lambda schedule.
-- ``exact``: the exact min ``|T - T_ref|_2`` s.t. ``A T = w`` and the limits, with ``T_ref = T_mid``
-  by default; certifies infeasibility.
+- ``closed-form`` (Pott 2009): ``T = T_mid + A^+ (w - A T_mid)``, ``T_mid = (t_min + t_max)/2``, the
+  min ``|T - T_mid|_2`` solution of the equality alone; feasible only if it respects the limits.
+- ``improved-closed-form`` (Pott 2014): the closed form, then while a cable violates its limits,
+  clamp the worst violator at the limit it violates, move its force to the wrench and re-solve the
+  closed form for the remaining cables (each with its own ``T_mid``); fails when fewer than n cables
+  would remain or the reduced matrix loses rank.  An approximation of min ``|T - T_mid|_2`` with the
+  limits: when it succeeds after one clamp it is the exact optimum; after two or more it can be a
+  feasible but sub-optimal point (docs/tension.md measures how often).
+- ``penalty`` (the paper, eq. after (7)): min ``|T - T_min|_2^2 + lambda (|A' T - w'|^2 +
+  |min(T - t_min, 0)|^2 + |max(T - t_max, 0)|^2)`` for an increasing schedule of lambda, warm
+  started, each stage solved exactly by a semismooth Newton (active-set) iteration.  ``A'``, ``w'``
+  are ``A``, ``w`` with unit-norm rows.  Converges to the exact min ``|T - T_min|_2`` as lambda grows.
+- ``exact``: the exact min ``|T - T_ref|_2`` s.t. ``A T = w`` and the limits, ``T_ref = T_mid`` by
+  default (``t_ref_N=t_min`` gives the penalty method's objective), for m - n <= 2 (null-space
+  polygon: the closest point of a convex polygon to the origin); certifies infeasibility.
+
+Rank-deficient (or numerically singular, see :data:`PIVOT_TOL`) structure matrices do not raise:
+the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,6 +43,24 @@ from .errors import InputError
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+IntArray = NDArray[np.int8]
+
+STATUS_OK = 0
+"""Status code: a feasible solution was found."""
+STATUS_INFEASIBLE = 1
+"""Status code: no tension distribution within the limits (certified by ``exact``) or the method's
+answer violates the limits / equality."""
+STATUS_RANK_DEFICIENT = 2
+"""Status code: the structure matrix (or the reduced one) is rank deficient at this pose."""
+STATUS_GAVE_UP = 3
+"""Status code (improved closed form): clamping would leave fewer than n free cables."""
+STATUS_NAMES = {
+    STATUS_OK: "ok",
+    STATUS_INFEASIBLE: "infeasible",
+    STATUS_RANK_DEFICIENT: "rank-deficient structure matrix",
+    STATUS_GAVE_UP: "too few free cables left (improved closed form gave up)",
+}
+"""Human-readable meaning of each status code."""
 
 
 @dataclass(frozen=True)
@@ -43,6 +74,7 @@ class TensionResult:
     max_violation_N: (...,) worst bound violation ``max(t_min - T, T - t_max, 0)``, N.
     objective: the objective this method minimises, e.g. ``"min |T - T_mid|_2"``.
     method: the method's registered name.
+    status: (...,) int8 status code (see :data:`STATUS_NAMES`), or None.
     """
 
     tensions_N: FloatArray
@@ -51,10 +83,23 @@ class TensionResult:
     max_violation_N: FloatArray
     objective: str
     method: str
+    status: IntArray | None = None
 
 
 FEASIBILITY_TOL_N = 1e-6
-"""Tolerance (N) on the residual and the bounds when a result is declared feasible."""
+"""Tolerance (N) on the residual and the bounds when a result is declared feasible, relative to
+``1 + max |t_max|`` of the pose."""
+
+CHUNK = 2048
+"""Poses per chunk: bounds the working memory (well under 1 KiB per pose) and keeps it in cache."""
+
+PIVOT_TOL = 1e-12
+"""Smallest Cholesky pivot of ``A' A'^T`` (``A'``: A with unit-norm rows, so the diagonal is 1)
+accepted; below it (``cond(A') > ~1e6``) the pose is flagged rank deficient."""
+
+_NULL_TOL = 1e-20  # |null-space row|^2 below which a cable does not move in the null space
+_TINY = 1e-280  # replaces 0 as a divisor: turns "parallel" constraints into +-huge bounds
+_BIG = 1e100  # line parameters beyond this come from parallel, violated constraints
 
 
 def check_problem(
@@ -62,7 +107,7 @@ def check_problem(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Validate and broadcast a tension-distribution problem.
 
-    Returns ``A`` (..., 6, m), ``w`` (..., 6), ``t_min`` (..., m), ``t_max`` (..., m) with common
+    Returns ``A`` (..., n, m), ``w`` (..., n), ``t_min`` (..., m), ``t_max`` (..., m) with common
     leading dimensions.
     """
     A = as_float_array(A, "A")
@@ -103,14 +148,195 @@ def finish(
     feasible = (res <= FEASIBILITY_TOL_N * scale) & (viol <= FEASIBILITY_TOL_N * scale)
     if ok is not None:
         feasible &= ok
-    return TensionResult(T, feasible, res, viol, objective, method)
+    status = np.where(feasible, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
+    return TensionResult(T, feasible, res, viol, objective, method, status)
 
 
-def _pinv_apply(A: FloatArray, v: FloatArray) -> FloatArray:
-    """``A^+ v`` (..., m) for full-row-rank ``A`` (..., n, m): ``A^T (A A^T)^-1 v``."""
-    AAt = A @ np.swapaxes(A, -1, -2)
-    y = np.linalg.solve(AAt, v[..., None])
-    return (np.swapaxes(A, -1, -2) @ y)[..., 0]
+# ---------------------------------------------------------------------------------------------
+# Batch plumbing: flatten the leading dims, cut in chunks, go struct-of-arrays (batch index last).
+
+
+def _flat(x: FloatArray, k: int) -> FloatArray:
+    """(lead..., *trailing k dims) -> (N, *trailing); no copy when possible."""
+    return x.reshape((-1,) + x.shape[x.ndim - k :])
+
+
+def _soa(x: FloatArray, s: int, e: int) -> FloatArray:
+    """Rows s:e of a (N, ...) array as a contiguous (..., C) array, or (..., 1) if constant."""
+    if x.strides[0] == 0:  # broadcast along the batch: keep one copy
+        return np.ascontiguousarray(x[0][..., None])
+    return np.ascontiguousarray(np.moveaxis(x[s:e], 0, -1))
+
+
+def _ref_from_options(lo: FloatArray, hi: FloatArray, t_ref_N: ArrayLike | None) -> FloatArray:
+    if t_ref_N is None:
+        return 0.5 * (lo + hi)
+    ref = check_trailing(t_ref_N, "t_ref_N", (lo.shape[-1],))
+    return np.broadcast_to(ref, np.broadcast_shapes(ref.shape, lo.shape))
+
+
+class _Factor:
+    """Row-equilibrated Cholesky factor of ``A' A'^T`` for a chunk, struct-of-arrays.
+
+    ``A' = diag(rs) A`` has unit-norm rows (this changes neither ``{T: A T = w}`` nor the
+    min-norm solution, and makes the normal equations well scaled).
+    """
+
+    def __init__(self, At: FloatArray) -> None:
+        n = At.shape[0]
+        rn = np.sqrt(np.einsum("imc,imc->ic", At, At))
+        self.rs = np.divide(1.0, rn, out=np.zeros_like(rn), where=rn > 0)
+        self.As = At * self.rs[:, None, :]
+        G = np.einsum("imc,jmc->ijc", self.As, self.As)
+        L: list[list[FloatArray]] = [[] for _ in range(n)]
+        self.inv_diag: list[FloatArray] = []
+        ok = np.ones(At.shape[-1], dtype=bool)
+        for j in range(n):
+            p = G[j, j].copy()
+            for k in range(j):
+                p -= L[j][k] * L[j][k]
+            ok &= p > PIVOT_TOL
+            d = np.sqrt(np.maximum(p, PIVOT_TOL))
+            inv_d = 1.0 / d
+            for i in range(j + 1, n):
+                v = G[i, j].copy()
+                for k in range(j):
+                    v -= L[i][k] * L[j][k]
+                L[i].append(v * inv_d)
+            L[j].append(d)
+            self.inv_diag.append(inv_d)
+        self.L = L
+        self.ok = ok
+        self.n = n
+
+    def subset(self, idx: NDArray[np.intp]) -> _Factor:
+        """The factor of the poses ``idx`` of the chunk."""
+        sub = object.__new__(_Factor)
+        sub.rs, sub.As, sub.n = _take(self.rs, idx), _take(self.As, idx), self.n
+        sub.L = [[x[idx] for x in row] for row in self.L]
+        sub.inv_diag = [x[idx] for x in self.inv_diag]
+        sub.ok = self.ok[idx]
+        return sub
+
+    def forward(self, r: FloatArray) -> FloatArray:
+        """``z = L^-1 r`` for r (n, ...) with the batch last."""
+        L, inv_diag = self.L, self.inv_diag
+        z = np.empty_like(r)
+        for i in range(self.n):
+            v = r[i].copy()
+            for k in range(i):
+                v -= L[i][k] * z[k]
+            z[i] = v * inv_diag[i]
+        return z
+
+    def backward(self, z: FloatArray) -> FloatArray:
+        """``y = L^-T z`` for z (n, C)."""
+        L, inv_diag = self.L, self.inv_diag
+        y = np.empty_like(z)
+        for i in range(self.n - 1, -1, -1):
+            v = z[i].copy()
+            for k in range(i + 1, self.n):
+                v -= L[k][i] * y[k]
+            y[i] = v * inv_diag[i]
+        return y
+
+    def pinv(self, r: FloatArray) -> FloatArray:
+        """``A^+ r`` (m, C) for r (n, C) in the units of the unscaled rows."""
+        y = self.backward(self.forward(r * self.rs))
+        return np.einsum("imc,ic->mc", self.As, y)
+
+    def orthonormal_rows(self) -> FloatArray:
+        """``B = L^-1 A'`` (n, m, C): orthonormal rows spanning the row space of A."""
+        L, inv_diag = self.L, self.inv_diag
+        B = np.empty_like(self.As)
+        for i in range(self.n):
+            v = self.As[i].copy()
+            for k in range(i):
+                v -= L[i][k] * B[k]
+            B[i] = v * inv_diag[i]
+        return B
+
+
+def _take(x: Any, idx: NDArray[np.intp]) -> Any:
+    """Batch entries ``idx`` of a batch-last array, as a contiguous array (fancy indexing on the
+    last axis would give a strided one)."""
+    return np.take(x, idx, axis=-1)
+
+
+def _apply(At: FloatArray, T: FloatArray) -> FloatArray:
+    """``A T`` (n, C) for At (n, m, C) and T (m, C)."""
+    return np.einsum("imc,mc->ic", At, T)
+
+
+def _summary(
+    At: FloatArray, w: FloatArray, T: FloatArray, lo: FloatArray, hi: FloatArray
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Residual (C,), max violation (C,) and feasible (C,) of T (m, C), struct-of-arrays."""
+    r = _apply(At, T) - w
+    res = np.sqrt(np.einsum("ic,ic->c", r, r))
+    viol = np.maximum(np.maximum(lo - T, T - hi).max(axis=0), 0.0)
+    tol = FEASIBILITY_TOL_N * (1.0 + np.abs(hi).max(axis=0))
+    return res, viol, (res <= tol) & (viol <= tol)
+
+
+class _Chunked:
+    """Runs a struct-of-arrays kernel chunk by chunk and assembles a :class:`TensionResult`."""
+
+    def __init__(self, A: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray) -> None:
+        self.lead = A.shape[:-2]
+        self.n, self.m = A.shape[-2:]
+        self.A, self.w = _flat(A, 2), _flat(w, 1)
+        self.lo, self.hi = _flat(lo, 1), _flat(hi, 1)
+        self.N = self.A.shape[0]
+
+    def run(
+        self, kernel: Any, extra: tuple[FloatArray, ...], objective: str, method: str
+    ) -> TensionResult:
+        N, m = self.N, self.m
+        T_out = np.empty((N, m))
+        res_out = np.empty(N)
+        viol_out = np.empty(N)
+        feas_out = np.empty(N, dtype=bool)
+        status_out = np.empty(N, dtype=np.int8)
+        extra_f = tuple(_flat(x, 1) for x in extra)
+        for s in range(0, N, CHUNK):
+            e = min(N, s + CHUNK)
+            At = _soa(self.A, s, e)
+            if At.shape[-1] == 1 and e - s > 1:
+                At = np.ascontiguousarray(np.broadcast_to(At, At.shape[:-1] + (e - s,)))
+            w = _soa(self.w, s, e)
+            lo, hi = _soa(self.lo, s, e), _soa(self.hi, s, e)
+            ex = tuple(_soa(x, s, e) for x in extra_f)
+            T, status = kernel(At, w, lo, hi, *ex)
+            res, viol, feas = _summary(At, w, T, lo, hi)
+            feas &= status == STATUS_OK
+            status = np.where(feas | (status != STATUS_OK), status, STATUS_INFEASIBLE)
+            T_out[s:e] = T.T
+            res_out[s:e], viol_out[s:e], feas_out[s:e], status_out[s:e] = res, viol, feas, status
+        lead = self.lead
+        return TensionResult(
+            T_out.reshape(lead + (m,)),
+            feas_out.reshape(lead),
+            res_out.reshape(lead),
+            viol_out.reshape(lead),
+            objective,
+            method,
+            status_out.reshape(lead).astype(np.int8),
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed form (Pott 2009)
+
+
+def _closed_form_kernel(
+    At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray
+) -> tuple[FloatArray, IntArray]:
+    f = _Factor(At)
+    mid = 0.5 * (lo + hi)
+    T = mid + f.pinv(w - _apply(At, np.broadcast_to(mid, At.shape[1:])))
+    status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
+    return T, status
 
 
 def closed_form(
@@ -119,25 +345,405 @@ def closed_form(
     """Pott's closed form: ``T = T_mid + A^+ (w - A T_mid)``, ``T_mid = (t_min + t_max)/2``.
 
     The minimiser of ``|T - T_mid|_2`` subject to ``A T = w`` only; feasible when it respects limits.
+    A: (..., n, m); w: (..., n) (N, N m); t_min_N, t_max_N: (..., m) or (m,) (N).
     """
     A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
+    return _Chunked(A_, w_, lo, hi).run(
+        _closed_form_kernel, (), "min |T - T_mid|_2 (equality only)", "closed-form"
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Improved closed form (Pott 2014)
+
+
+def _improved_kernel(
+    At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray
+) -> tuple[FloatArray, IntArray]:
+    n, m, C = At.shape
+    lo = np.broadcast_to(lo, (m, C))
+    hi = np.broadcast_to(hi, (m, C))
     mid = 0.5 * (lo + hi)
-    T = mid + _pinv_apply(A_, w_ - np.einsum("...ij,...j->...i", A_, mid))
-    return finish(A_, w_, T, lo, hi, "min |T - T_mid|_2 (equality only)", "closed-form")
+    T_out = np.empty((m, C))
+    status_out = np.full(C, STATUS_INFEASIBLE, dtype=np.int8)
+    free = np.ones((m, C), dtype=bool)
+    T_fix = np.zeros((m, C))
+    idx = np.arange(C)
+    tol = 1e-9 * (1.0 + np.abs(hi).max(axis=0))
+    for _ in range(m - n + 1):
+        A_k = _take(At, idx)
+        fr = _take(free, idx)
+        frf = fr.astype(np.float64)
+        Tf = _take(T_fix, idx)
+        mid_k, lo_k, hi_k = _take(mid, idx), _take(lo, idx), _take(hi, idx)
+        Af = A_k * frf
+        f = _Factor(Af)
+        r = _take(w, idx) - _apply(A_k, Tf) - _apply(Af, mid_k)
+        T = np.where(fr, mid_k + f.pinv(r), Tf)
+        T_out[:, idx] = T
+        v_lo = lo_k - T
+        v_hi = T - hi_k
+        v = np.where(fr, np.maximum(v_lo, v_hi), -np.inf)
+        worst = np.argmax(v, axis=0)
+        ar = np.arange(idx.size)
+        vmax = v[worst, ar]
+        rank_bad = ~f.ok
+        done = (vmax <= tol[idx]) & ~rank_bad
+        status_out[idx[done]] = STATUS_OK
+        status_out[idx[rank_bad]] = STATUS_RANK_DEFICIENT
+        n_free = fr.sum(axis=0)
+        give_up = ~done & ~rank_bad & (n_free - 1 < n)
+        status_out[idx[give_up]] = STATUS_GAVE_UP
+        go = ~done & ~rank_bad & ~give_up
+        if not go.any():
+            break
+        g, j = idx[go], worst[go]
+        T_fix[j, g] = np.where(v_lo[j, ar[go]] > v_hi[j, ar[go]], lo[j, g], hi[j, g])
+        free[j, g] = False
+        idx = g
+    return T_out, status_out
 
 
-Method = Callable[[ArrayLike, ArrayLike, ArrayLike, ArrayLike], TensionResult]
+def improved_closed_form(
+    A: ArrayLike, w: ArrayLike, t_min_N: ArrayLike, t_max_N: ArrayLike
+) -> TensionResult:
+    """Pott's improved closed form (2014), each cable with its own limits and its own ``T_mid``.
 
-METHODS: dict[str, Method] = {"closed-form": closed_form}
+    Closed form; while a free cable violates its limits: clamp the worst violator (largest
+    violation in N) at the limit it violates, move its force to the wrench, re-solve the closed form
+    for the free cables.  ``status``: OK, GAVE_UP (fewer than n free cables would remain) or
+    RANK_DEFICIENT (the reduced structure matrix lost rank).
+    """
+    A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
+    return _Chunked(A_, w_, lo, hi).run(
+        _improved_kernel,
+        (),
+        "min |T - T_mid|_2 (approximate: clamp worst violator, re-solve)",
+        "improved-closed-form",
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Exact min |T - T_ref|_2 for m - n <= 2 (null-space polygon)
+
+
+def _null_space(f: _Factor, r: int) -> list[FloatArray]:
+    """r orthonormal null-space vectors of A, each (m, C), from the orthonormal rows B.
+
+    Column j of the projector ``P = I - B^T B`` is the null-space part of ``e_j``; the column
+    with the largest norm (``P_jj``, and ``sum_j P_jj = r``) is taken, then deflated.
+    """
+    B = f.orthonormal_rows()
+    m, C = B.shape[1:]
+    ar = np.arange(C)
+    diag = 1.0 - np.einsum("imc,imc->mc", B, B)
+    out: list[FloatArray] = []
+    for _ in range(r):
+        j = np.argmax(diag, axis=0)
+        v = -np.einsum("imc,ic->mc", B, B[:, j, ar])
+        v[j, ar] += 1.0
+        for u in out:  # deflate (twice: Gram-Schmidt with re-orthogonalisation)
+            v -= u * np.einsum("mc,mc->c", u, v)
+            v -= u * np.einsum("mc,mc->c", u, v)
+        v /= np.sqrt(np.einsum("mc,mc->c", v, v))
+        diag = diag - v * v
+        out.append(v)
+    return out
+
+
+def _polygon(
+    n1: FloatArray, n2: FloatArray, lo_: FloatArray, hi_: FloatArray, tol: FloatArray
+) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Closest point ``lam`` (2 x (K,)) to the origin of ``{lam: lo_ <= n1 lam1 + n2 lam2 <= hi_}``.
+
+    n1, n2, lo_, hi_: (m, K); tol (K,): the constraints are relaxed by tol when intersected.  The
+    origin is assumed infeasible.  By the KKT conditions (``lam* = -sum mu_k g_k`` with
+    ``|lam*|^2 = -sum mu_k h_k > 0`` for constraints ``g_k . lam <= h_k``) the optimum lies on the
+    line of a constraint the origin violates; on each such line the foot of the origin is clipped
+    into the line's feasible interval (the line intersected with the other 2m - 1 half-planes), and
+    the candidate of least norm wins.  Poses are bucketed by their number of violated constraints,
+    so most poses check one or two lines.  Returns lam1, lam2 (K,) and found (K,) (False: the
+    polygon is empty).
+    """
+    m, K = n1.shape
+    q = n1 * n1 + n2 * n2  # |n_i|^2, (m, K)
+    good = q > _NULL_TOL
+    # lines 0..m-1: n_i . lam = lo_i (violated at 0 if lo_i > 0); m..2m-1: = hi_i (if hi_i < 0)
+    V = np.concatenate([(lo_ > tol) & good, (hi_ < -tol) & good])
+    cnt = V.sum(axis=0)
+    out = (np.zeros(K), np.zeros(K), np.zeros(K, dtype=bool))
+    width = hi_ - lo_ + 2 * tol
+    lower = lo_ - tol
+    prev = 0
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for kb in (1, 2, 4, 2 * m):
+            sel = np.flatnonzero((cnt > prev) & (cnt <= kb))
+            prev = kb
+            if sel.size:
+                _polygon_lines(n1, n2, lo_, hi_, q, V, lower, width, kb, sel, out)
+    return out
+
+
+def _polygon_lines(
+    n1: FloatArray,
+    n2: FloatArray,
+    lo_: FloatArray,
+    hi_: FloatArray,
+    q: FloatArray,
+    V: BoolArray,
+    lower: FloatArray,
+    width: FloatArray,
+    kb: int,
+    sel: NDArray[np.intp],
+    out: tuple[FloatArray, FloatArray, BoolArray],
+) -> None:
+    """:func:`_polygon` for the poses ``sel``, which violate at most ``kb`` constraints at 0."""
+    m = n1.shape[0]
+    Ks = sel.size
+    ar = np.arange(Ks)[None, :]
+    Vs = _take(V, sel)
+    if kb < 2 * m:  # the first kb violated lines of each pose
+        Vc = Vs.copy()
+        picks = []
+        for _ in range(kb):
+            j = np.argmax(Vc, axis=0)
+            picks.append(j)
+            Vc[j, ar[0]] = False
+        lines = np.stack(picks)  # (kb, Ks)
+    else:
+        lines = np.broadcast_to(np.arange(2 * m)[:, None], (2 * m, Ks))
+    valid = Vs[lines, ar]
+    i = lines % m
+    n1s, n2s, los, his = _take(n1, sel), _take(n2, sel), _take(lo_, sel), _take(hi_, sel)
+    n1i, n2i, qi = n1s[i, ar], n2s[i, ar], _take(q, sel)[i, ar]
+    c = np.where(lines < m, los[i, ar], his[i, ar])
+    qi = np.where(valid, qi, 1.0)
+    t = c / qi  # foot of the origin on the line is t n_i
+    ri = 1.0 / np.sqrt(qi)
+    M = n1i[:, None] * n1s[None]  # n_i . n_l, (kb, m, Ks)
+    M += n2i[:, None] * n2s[None]
+    e = n1i[:, None] * n2s[None]  # e = n_l . d_i with d_i = (-n2_i, n1_i) / |n_i|
+    e -= n2i[:, None] * n1s[None]
+    e *= ri[:, None]
+    e += np.copysign(_TINY, e)  # no zero divisor: parallel lines give +-huge bounds
+    inv = np.divide(1.0, e, out=e)
+    a = _take(lower, sel)[None] - t[:, None] * M  # (kb, m, Ks): s e >= a, s e <= a + width
+    b = a + _take(width, sel)[None]
+    a *= inv
+    b *= inv
+    slo = np.minimum(a, b).max(axis=1)  # (kb, Ks)
+    shi = np.maximum(a, b, out=b).min(axis=1)
+    s = np.minimum(np.maximum(0.0, slo), shi)
+    ok = valid & (slo <= shi) & (np.abs(s) < _BIG)
+    norm2 = np.where(ok, c * c / qi + s * s, np.inf)
+    best = np.argmin(norm2, axis=0)
+    ab = np.arange(Ks)
+    f = np.isfinite(norm2[best, ab])
+    tb, sb, rb = t[best, ab], np.where(f, s[best, ab], 0.0), ri[best, ab]
+    n1b, n2b = n1i[best, ab], n2i[best, ab]
+    lam1, lam2, found = out
+    lam1[sel] = tb * n1b - sb * n2b * rb
+    lam2[sel] = tb * n2b + sb * n1b * rb
+    found[sel] = f
+
+
+def _interval(
+    n1: FloatArray, lo_: FloatArray, hi_: FloatArray, tol: FloatArray
+) -> tuple[FloatArray, BoolArray]:
+    """Closest point to 0 of ``{lam: lo_ <= n1 lam <= hi_}`` (1-D null space); (K,), found."""
+    d = np.where(n1 >= 0, np.maximum(n1, _TINY), np.minimum(n1, -_TINY))
+    a, b = (lo_ - tol) / d, (hi_ + tol) / d
+    slo = np.minimum(a, b).max(axis=0)
+    shi = np.maximum(a, b).min(axis=0)
+    s = np.minimum(np.maximum(0.0, slo), shi)
+    found = (slo <= shi) & (np.abs(s) < _BIG)
+    return np.where(found, s, 0.0), found
+
+
+def _exact_kernel(
+    At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray, ref: FloatArray
+) -> tuple[FloatArray, IntArray]:
+    n, m, C = At.shape
+    r = m - n
+    f = _Factor(At)
+    ref = np.broadcast_to(ref, (m, C))
+    Tp = ref + f.pinv(w - _apply(At, ref))
+    Tp += f.pinv(w - _apply(At, Tp))  # one step of iterative refinement
+    lo_ = lo - Tp
+    hi_ = hi - Tp
+    tol = 1e-10 * (1.0 + np.abs(hi).max(axis=0))
+    tol = np.broadcast_to(tol, (C,))
+    need = ((lo_ > tol) | (hi_ < -tol)).any(axis=0) & f.ok
+    status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
+    T = Tp
+    if r == 0:
+        status[need] = STATUS_INFEASIBLE
+        return T, status
+    idx = np.flatnonzero(need)
+    if idx.size == 0:
+        return T, status
+    if idx.size < C:  # only the poses whose T_p violates a limit need the null space
+        sub = f.subset(idx)
+    else:
+        sub = f
+    N = _null_space(sub, r)
+    lo_k, hi_k, tol_k = _take(lo_, idx), _take(hi_, idx), tol[idx]
+    if r == 1:
+        lam, found = _interval(N[0], lo_k, hi_k, tol_k)
+        T[:, idx] += N[0] * lam
+    else:
+        lam1, lam2, found = _polygon(N[0], N[1], lo_k, hi_k, tol_k)
+        T[:, idx] += N[0] * lam1 + N[1] * lam2
+    status[idx[~found]] = STATUS_INFEASIBLE
+    return T, status
+
+
+def exact(
+    A: ArrayLike,
+    w: ArrayLike,
+    t_min_N: ArrayLike,
+    t_max_N: ArrayLike,
+    *,
+    t_ref_N: ArrayLike | None = None,
+) -> TensionResult:
+    """Exact min ``|T - T_ref|_2`` s.t. ``A T = w``, ``t_min <= T <= t_max``, for m - n <= 2.
+
+    ``T_ref`` defaults to ``T_mid = (t_min + t_max)/2``; ``t_ref_N=t_min_N`` gives the penalty
+    method's objective.  With ``T_p = T_ref + A^+ (w - A T_ref)`` and an orthonormal null-space
+    basis ``N`` (m, m - n), ``T = T_p + N lam`` and ``|T - T_ref|^2 = |T_p - T_ref|^2 + |lam|^2``:
+    the answer is the point of the polygon (interval for m = n + 1) ``{lam: limits}`` closest to
+    the origin.  ``feasible=False`` with ``status == STATUS_INFEASIBLE`` certifies (to a relative
+    tolerance of 1e-10) that no tensions within the limits balance ``w``.
+    A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
+    """
+    A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
+    n, m = A_.shape[-2:]
+    if m - n > 2:
+        raise InputError(f"exact: supports m - n <= 2 redundant cables, got n={n}, m={m}")
+    ref = _ref_from_options(lo, hi, t_ref_N)
+    if ref.shape[:-1] != lo.shape[:-1]:
+        lead = np.broadcast_shapes(ref.shape[:-1], lo.shape[:-1])
+        A_, w_ = np.broadcast_to(A_, lead + (n, m)), np.broadcast_to(w_, lead + (n,))
+        lo, hi = np.broadcast_to(lo, lead + (m,)), np.broadcast_to(hi, lead + (m,))
+        ref = np.broadcast_to(ref, lead + (m,))
+    objective = "min |T - T_mid|_2" if t_ref_N is None else "min |T - T_ref|_2"
+    return _Chunked(A_, w_, lo, hi).run(_exact_kernel, (ref,), objective, "exact")
+
+
+# ---------------------------------------------------------------------------------------------
+# The paper's penalty method
+
+
+PENALTY_LAMBDAS = tuple(10.0**k for k in range(0, 11))
+"""The default lambda schedule of :func:`penalty` (geometric, warm started)."""
+
+
+def _penalty_kernel(
+    At: FloatArray,
+    w: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    lambdas: tuple[float, ...] = PENALTY_LAMBDAS,
+    newton_iters: int = 8,
+) -> tuple[FloatArray, IntArray]:
+    n, m, C = At.shape
+    rn = np.sqrt(np.einsum("imc,imc->ic", At, At))
+    rs = np.divide(1.0, rn, out=np.zeros_like(rn), where=rn > 0)
+    As = (At * rs[:, None, :]).transpose(2, 0, 1)  # (C, n, m), unit rows
+    ws = (w * rs).T  # (C, n)
+    lo_c = np.broadcast_to(lo, (m, C)).T
+    hi_c = np.broadcast_to(hi, (m, C)).T
+    AtA = np.einsum("cim,cik->cmk", As, As)
+    Atw = np.einsum("cim,ci->cm", As, ws)
+    eye = np.eye(m)
+    T = lo_c.copy()
+    for lam in lambdas:
+        for _ in range(newton_iters):
+            below, above = T < lo_c, T > hi_c
+            act = (below | above).astype(np.float64)
+            bound = np.where(below, lo_c, hi_c) * act
+            H = eye + lam * (AtA + act[:, :, None] * eye)
+            rhs = lo_c + lam * (Atw + bound)
+            T_new = np.linalg.solve(H, rhs[..., None])[..., 0]
+            same = ((T_new < lo_c) == below) & ((T_new > hi_c) == above)
+            T = T_new
+            if same.all():
+                break
+    return T.T.copy(), np.zeros(C, dtype=np.int8)
+
+
+def penalty(
+    A: ArrayLike,
+    w: ArrayLike,
+    t_min_N: ArrayLike,
+    t_max_N: ArrayLike,
+    *,
+    lambdas: tuple[float, ...] = PENALTY_LAMBDAS,
+) -> TensionResult:
+    """The paper's penalty-function method: min ``|T - T_min|_2`` with the constraints as penalties.
+
+    Minimises ``|T - t_min|^2 + lambda (|A' T - w'|^2 + |min(T - t_min, 0)|^2 +
+    |max(T - t_max, 0)|^2)`` (``A'``, ``w'``: unit-norm rows) for each lambda of the increasing
+    schedule ``lambdas``, warm started from the previous stage (from ``T = t_min`` at first); each
+    stage is a convex piecewise quadratic solved exactly by a semismooth Newton (active-set)
+    iteration.  The squared norm replaces the paper's norm (same minimiser, smooth).  The result
+    approaches the exact min ``|T - T_min|_2`` solution as lambda grows (error O(1/lambda), see
+    docs/tension.md); ``feasible`` uses the same tolerance as the other methods.
+    """
+    A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
+    lams = tuple(float(x) for x in lambdas)
+    if not lams or any(not (x > 0) for x in lams):
+        raise InputError(f"lambdas: expected positive penalty weights, got {lambdas!r}")
+
+    def kernel(
+        At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray
+    ) -> tuple[FloatArray, IntArray]:
+        return _penalty_kernel(At, w, lo, hi, lams)
+
+    return _Chunked(A_, w_, lo, hi).run(
+        kernel, (), "min |T - T_min|_2 (penalty, lambda schedule)", "penalty"
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+class Method(Protocol):
+    """A tension-distribution method: ``(A, w, t_min_N, t_max_N, **options) -> TensionResult``."""
+
+    def __call__(
+        self, A: ArrayLike, w: ArrayLike, t_min_N: ArrayLike, t_max_N: ArrayLike, /
+    ) -> TensionResult: ...
+
+
+METHODS: dict[str, Method] = {
+    "closed-form": closed_form,
+    "improved-closed-form": improved_closed_form,
+    "penalty": penalty,
+    "exact": exact,
+}
 """Registered tension-distribution methods by name."""
 
 
 def distribute(
-    method: str, A: ArrayLike, w: ArrayLike, t_min_N: ArrayLike, t_max_N: ArrayLike
+    method: str,
+    A: ArrayLike,
+    w: ArrayLike,
+    t_min_N: ArrayLike,
+    t_max_N: ArrayLike,
+    **options: Any,
 ) -> TensionResult:
-    """Run the registered tension-distribution ``method`` (see :data:`METHODS`)."""
+    """Run the registered tension-distribution ``method`` (see :data:`METHODS`).
+
+    ``options`` go to the method (``t_ref_N`` for ``exact``, ``lambdas`` for ``penalty``).
+    """
     try:
         fn = METHODS[method]
     except KeyError:
         raise InputError(f"method: expected one of {sorted(METHODS)}, got {method!r}") from None
-    return fn(A, w, t_min_N, t_max_N)
+    try:
+        return fn(A, w, t_min_N, t_max_N, **options)  # type: ignore[call-arg]
+    except TypeError as exc:
+        if options:
+            raise InputError(f"{method}: unsupported options {sorted(options)}: {exc}") from None
+        raise
