@@ -224,3 +224,52 @@ def aero_coefficients(
         Cm=M_B[..., 1] / (qS * float(chord_m)),
         Cn=M_B[..., 2] / (qS * float(span_m)),
     )
+
+
+COEFFICIENT_NAMES: tuple[str, ...] = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
+"""Order of the coefficients returned by :func:`coefficient_matrix`."""
+
+
+def coefficient_matrix(
+    R_O_P: ArrayLike,
+    dynamic_pressure_Pa: ArrayLike,
+    area_m2: float,
+    span_m: float,
+    chord_m: float,
+    mrp_P_m: ArrayLike = (0.0, 0.0, 0.0),
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+) -> FloatArray:
+    """Linear map ``K`` (..., 6, 6) with ``[CD, CY, CL, Cl, Cm, Cn] = K @ W_O`` at a given attitude.
+
+    ``W_O`` (..., 6) is the aerodynamic wrench at P in {O} axes; the other arguments are those of
+    :func:`aero_coefficients`.  For a fixed attitude the coefficients are linear in the wrench, so a
+    wrench covariance ``Sigma_W`` gives the coefficient covariance ``K Sigma_W K^T`` (the attitude's
+    own error, which turns the axes, is left out: it adds about ``|F| sigma_angle``).
+    """
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    q = as_float_array(dynamic_pressure_Pa, "dynamic_pressure_Pa")
+    if np.any(~np.isfinite(q)) or np.any(q <= 0):
+        raise InputError("dynamic_pressure_Pa: expected finite values > 0 Pa")
+    for name, v in (("area_m2", area_m2), ("span_m", span_m), ("chord_m", chord_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name}: expected a finite value > 0, got {v}")
+    mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
+    r = np.einsum("...ij,...j->...i", R, mrp)
+    R_B_O = body_from_tunnel(R, nose_P, up_P)
+    alpha, beta = flow_angles(R, nose_P, up_P)
+    sign = np.array([-1.0, 1.0, -1.0])[:, None]
+    Fmap = sign * (wind_from_body(alpha, beta) @ R_B_O)  # (..., 3, 3): (D, Y, L) from F_O
+    # moment about the MRP: M - r x F = M + skew(F) r = M - skew(r) F
+    rx = np.zeros(r.shape[:-1] + (3, 3))
+    rx[..., 0, 1], rx[..., 0, 2] = -r[..., 2], r[..., 1]
+    rx[..., 1, 0], rx[..., 1, 2] = r[..., 2], -r[..., 0]
+    rx[..., 2, 0], rx[..., 2, 1] = -r[..., 1], r[..., 0]
+    shape = np.broadcast_shapes(Fmap.shape[:-2], R_B_O.shape[:-2], np.shape(q))
+    K = np.zeros(shape + (6, 6))
+    K[..., :3, :3] = Fmap
+    K[..., 3:, :3] = -R_B_O @ rx
+    K[..., 3:, 3:] = R_B_O
+    qS = (q * float(area_m2))[..., None, None]
+    scale = np.array([1.0, 1.0, 1.0, 1 / float(span_m), 1 / float(chord_m), 1 / float(span_m)])
+    return np.asarray(K * scale[:, None] / qS, dtype=np.float64)

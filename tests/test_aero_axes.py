@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 
 from cdpr.analysis.aero import (
+    COEFFICIENT_NAMES,
     aero_coefficients,
     air_density,
     body_axes_in_platform,
     body_from_tunnel,
+    coefficient_matrix,
     dynamic_pressure,
     flow_angles,
     transfer_moment,
@@ -153,3 +155,20 @@ def test_batched_and_custom_nose() -> None:
     np.testing.assert_allclose(res.drag_N, 1.0)
     with pytest.raises(InputError, match="up_P"):
         body_axes_in_platform([1, 0, 0], [2, 0, 0])
+
+
+def test_coefficient_matrix_by_hand_and_against_aero_coefficients() -> None:
+    # level platform, MRP at P: D = Fx, Y = Fy, L = Fz, l = -Mx, m = My, n = -Mz (x_B = -x_O, z_B = -z_O)
+    q, S, b, c = 250.0, 0.02, 0.25, 0.08
+    K = coefficient_matrix(np.eye(3), q, S, b, c)
+    np.testing.assert_allclose(
+        K, np.diag([1, 1, 1, -1 / b, 1 / c, -1 / b]) / (q * S), rtol=1e-14, atol=1e-14
+    )
+    # at any attitude and MRP, K @ W reproduces aero_coefficients (hand-checked above)
+    rng = np.random.default_rng(0)
+    R = rotation_from_euler(rng.normal(0, 0.3, (5, 3)))
+    W = rng.normal(size=(5, 6))
+    K = coefficient_matrix(R, q, S, b, c, [0.02, 0.01, -0.03])
+    res = aero_coefficients(W, R, q, S, b, c, [0.02, 0.01, -0.03])
+    coeffs = np.stack([getattr(res, n) for n in COEFFICIENT_NAMES], axis=-1)
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", K, W), coeffs, rtol=1e-12, atol=1e-14)

@@ -53,7 +53,8 @@ def _A(q: np.ndarray) -> np.ndarray:
     return np.array(cols).T
 
 
-def _write(tmp: Path, n: int = 4, seed: int = 1):
+def _write(tmp: Path, n: int = 4, seed: int = 1, load: np.ndarray | None = None):
+    """Pose, wind-on and wind-off tension CSVs for known loads (random, or ``load`` at P_ref)."""
     rng = np.random.default_rng(seed)
     q = np.column_stack(
         [
@@ -64,6 +65,9 @@ def _write(tmp: Path, n: int = 4, seed: int = 1):
         ]
     )
     W = rng.normal(0, [2.0, 0.3, 3.0, 0.005, 0.02, 0.005], (n, 6))
+    if load is not None:
+        q = np.tile([0.5, 0.0, 0.335, 0.0, 0.0, 0.0], (n, 1))
+        W = np.tile(load, (n, 1))
     G = np.array([0, 0, -MASS * G0, 0, 0, 0])
     Tw, T0 = [], []
     for i in range(n):
@@ -226,3 +230,40 @@ def test_subprocess_exit_code_and_message(tmp_path: Path) -> None:
     assert proc.stderr.count("\n") == 1
     assert "miss.csv" in proc.stderr and "T_front_left_top_N" in proc.stderr
     assert not out.exists()
+
+
+def test_aero_coefficients_by_hand(tmp_path: Path) -> None:
+    # level platform, 2 N drag, 3 N lift, 0.01 N m about +y_O (= +y_B: nose-up pitching moment)
+    _write(tmp_path, n=2, load=np.array([2.0, 0.0, 3.0, 0.0, 0.01, 0.0]))
+    V, p, T, S, b, c = 20.0, 101325.0, 288.15, 0.02, 0.2441, 0.08
+    q = 0.5 * p / (287.05287 * T) * V**2  # ideal gas, about 245 Pa
+    args = ["wrench", "--rig", str(RIG), "--poses", str(tmp_path / "poses.csv")]
+    args += ["--tensions", str(tmp_path / "T.csv"), "--tare", str(tmp_path / "T0.csv")]
+    args += ["--airspeed-mps", str(V), "--pressure-Pa", str(p), "--temperature-K", str(T)]
+    args += ["--area-m2", str(S), "--span-m", str(b), "--chord-m", str(c)]
+    assert main([*args, "--out", str(tmp_path / "aero.csv")]) == 0
+    df = _read(tmp_path / "aero.csv")
+    np.testing.assert_allclose(df["alpha_rad"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(df["beta_rad"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(df["CD"], 2.0 / (q * S), rtol=1e-6)
+    np.testing.assert_allclose(df["CL"], 3.0 / (q * S), rtol=1e-6)
+    np.testing.assert_allclose(df["Cm"], 0.01 / (q * S * c), rtol=1e-5)
+    np.testing.assert_allclose(df[["CY", "Cl", "Cn"]].to_numpy(), 0.0, atol=1e-6)
+    # at zero angles with the MRP at P the coefficients are scaled wrench components
+    np.testing.assert_allclose(df["sd_CD"], df["sd_fx_N"] / (q * S), rtol=1e-6)
+    np.testing.assert_allclose(df["sd_CL"], df["sd_fz_N"] / (q * S), rtol=1e-6)
+    np.testing.assert_allclose(df["sd_Cl"], df["sd_mx_Nm"] / (q * S * b), rtol=1e-6)
+    np.testing.assert_allclose(df["sd_Cm"], df["sd_my_Nm"] / (q * S * c), rtol=1e-6)
+    assert "# aero: V 20 m/s" in (tmp_path / "aero.csv").read_text()
+
+
+def test_aero_options_incomplete_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    _write(tmp_path, n=2)
+    err = _run_bad(
+        tmp_path,
+        capsys,
+        ["--tensions", str(tmp_path / "T.csv"), "--airspeed-mps", "20", "--density-kgpm3", "1.2"],
+    )
+    assert "--area-m2" in err
+    err = _run_bad(tmp_path, capsys, ["--tensions", str(tmp_path / "T.csv"), "--span-m", "0.2"])
+    assert "--span-m" in err and "--airspeed-mps" in err

@@ -61,15 +61,108 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         action="store_true",
         help="subtract M qdd + C from the pose time series (needs a t_ns column)",
     )
+    aero = p.add_argument_group("aerodynamic coefficients (optional)")
+    aero.add_argument("--airspeed-mps", dest="airspeed_mps", type=float, help="free-stream speed")
+    aero.add_argument("--density-kgpm3", dest="density_kgpm3", type=float, help="air density")
+    aero.add_argument("--pressure-Pa", dest="pressure_Pa", type=float, help="static pressure")
+    aero.add_argument("--temperature-K", dest="temperature_K", type=float, help="air temperature")
+    aero.add_argument("--area-m2", dest="area_m2", type=float, help="reference area S")
+    aero.add_argument("--span-m", dest="span_m", type=float, help="reference span b")
+    aero.add_argument("--chord-m", dest="chord_m", type=float, help="reference chord c")
+    aero.add_argument(
+        "--mrp-P-m",
+        dest="mrp_P_m",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="moment reference point in {P} (m, default P)",
+    )
+    aero.add_argument(
+        "--nose-P",
+        dest="nose_P",
+        type=float,
+        nargs=3,
+        default=(-1.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="model nose direction in {P} (default -1 0 0: upstream)",
+    )
+    aero.add_argument(
+        "--up-P",
+        dest="up_P",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 1.0),
+        metavar=("X", "Y", "Z"),
+        help="model up direction in {P} (default 0 0 1)",
+    )
     p.add_argument("--out", required=True, help="output wrench CSV")
     p.set_defaults(func=run)
+
+
+def _aero_setup(args: argparse.Namespace) -> tuple[float, str] | None:
+    """Dynamic pressure (Pa) and a provenance note, or None without ``--airspeed-mps``."""
+    from cdpr.analysis.aero import air_density, dynamic_pressure
+    from cdpr.analysis.errors import ConfigError
+
+    given = [
+        f
+        for f in ("density_kgpm3", "pressure_Pa", "temperature_K", "area_m2", "span_m", "chord_m")
+        if getattr(args, f) is not None
+    ]
+    if args.airspeed_mps is None:
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise ConfigError("command line", flag, "needs --airspeed-mps")
+        return None
+    for f in ("airspeed_mps", "area_m2", "span_m", "chord_m"):
+        v = getattr(args, f)
+        flag = "--" + f.replace("_", "-")
+        if v is None:
+            raise ConfigError("command line", flag, "required for the aerodynamic coefficients")
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError("command line", flag, f"expected a finite value > 0, got {v}")
+    if args.density_kgpm3 is not None:
+        if args.pressure_Pa is not None or args.temperature_K is not None:
+            raise ConfigError(
+                "command line", "--density-kgpm3", "give either it or --pressure-Pa/--temperature-K"
+            )
+        rho = args.density_kgpm3
+        if not (math.isfinite(rho) and rho > 0):
+            raise ConfigError("command line", "--density-kgpm3", f"expected > 0, got {rho}")
+        note = f"rho {rho:g} kg/m^3"
+    else:
+        if args.pressure_Pa is None or args.temperature_K is None:
+            raise ConfigError(
+                "command line",
+                "--density-kgpm3",
+                "required (or both --pressure-Pa and --temperature-K)",
+            )
+        for flag, v in (
+            ("--pressure-Pa", args.pressure_Pa),
+            ("--temperature-K", args.temperature_K),
+        ):
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError("command line", flag, f"expected a finite value > 0, got {v}")
+        rho = float(air_density(args.pressure_Pa, args.temperature_K))
+        note = (
+            f"rho {rho:.6g} kg/m^3 from p {args.pressure_Pa:g} Pa, T {args.temperature_K:g} K "
+            "(ideal gas, dry air)"
+        )
+    q = float(dynamic_pressure(rho, args.airspeed_mps))
+    note = (
+        f"V {args.airspeed_mps:g} m/s, {note}, q {q:.6g} Pa; S {args.area_m2:g} m^2, "
+        f"b {args.span_m:g} m, c {args.chord_m:g} m; MRP_P {list(args.mrp_P_m)} m; "
+        f"nose_P {list(args.nose_P)}, up_P {list(args.up_P)}; AIAA body/wind axes"
+    )
+    return q, note
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from cdpr.analysis.conventions import WRENCH_COLUMNS
-    from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.kinematics import cable_vectors
     from cdpr.analysis.rotations import rotation_from_euler
     from cdpr.analysis.uncertainty import wrench_covariance
@@ -86,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         if not (math.isfinite(v) and v >= 0):
             raise ConfigError("command line", flag, f"expected a finite value >= 0, got {v}")
 
+    aero = _aero_setup(args)
     rig = load_rig(args.rig)
     table, poses = read_poses(args.poses)
     n = len(poses)
@@ -136,6 +230,25 @@ def run(args: argparse.Namespace) -> int:
         out[col] = W[:, k]
     for k, col in enumerate(WRENCH_COLUMNS):
         out[f"sd_{col}"] = sd[:, k]
+    if aero is not None:
+        from cdpr.analysis.aero import COEFFICIENT_NAMES, aero_coefficients, coefficient_matrix
+
+        q_Pa, aero_note = aero
+        R = rotation_from_euler(poses[:, 3:])
+        ref = (q_Pa, args.area_m2, args.span_m, args.chord_m, args.mrp_P_m, args.nose_P, args.up_P)
+        try:
+            res = aero_coefficients(W, R, *ref)
+            K = coefficient_matrix(R, *ref)
+        except InputError as exc:
+            raise ConfigError("command line", "--nose-P/--up-P", str(exc)) from None
+        out["alpha_rad"] = res.alpha_rad
+        out["beta_rad"] = res.beta_rad
+        for name in COEFFICIENT_NAMES:
+            out[name] = getattr(res, name)
+        cov_c = K @ cov.total @ np.swapaxes(K, -1, -2)
+        sd_c = np.sqrt(np.clip(np.diagonal(cov_c, axis1=-2, axis2=-1), 0.0, None))
+        for k, name in enumerate(COEFFICIENT_NAMES):
+            out[f"sd_{name}"] = sd_c[:, k]
     method = "tare: W_ext = A (T0 - Tw)" if T0 is not None else "absolute: W_ext = -A Tw - G"
     if D is not None:
         method += " - (M qdd + C)"
@@ -153,6 +266,8 @@ def run(args: argparse.Namespace) -> int:
         ),
         "units": "W_ext on the platform at P, {O} axes; N and N m; sd_* standard deviations",
     }
+    if aero is not None:
+        header["aero"] = aero_note
     write_table(args.out, out, header)
     print(f"cdpr wrench: {n} poses, {method.split(':')[0]} method, wrote {args.out}")
     return 0
