@@ -1,0 +1,78 @@
+"""``cdpr sensitivity``: the paper's force-sensitivity study (Figs. 6-15, Table 3) and its report.
+
+``cdpr sensitivity --paper --out DIR`` runs every sweep with the documented defaults (see
+docs/sensitivity.md and the "Assumptions" section of the report); ``--config FILE.toml`` overrides
+any option (sections ``[cubic]``, ``[flat]``, ``[aero]``, ``[study]``).  Writes CSV tables, PNG
+figures and ``report.md`` into DIR.  An option out of its range, or a rig that cannot hold its
+platform anywhere in a sweep, is a one-line error naming the option (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "sensitivity",
+        help="force-sensitivity study of the paper (Figs. 6-15) and reproduction report",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--paper", action="store_true", help="the paper's studies, default options")
+    p.add_argument(
+        "--config", help="TOML file overriding options ([cubic], [flat], [aero], [study])"
+    )
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--layout", choices=("crossed", "cube"), help="cubic cable layout (override)")
+    p.add_argument(
+        "--no-flat-grid",
+        action="store_true",
+        help="skip the full Table 3 grid (11 x 11 x 9 x 10 configurations)",
+    )
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from cdpr.analysis.errors import InputError
+
+    from .. import __version__
+    from ..sensitivity_report import StudyOptions, options_from_toml, run_study, validate_options
+
+    if not args.paper and not args.config:
+        raise InputError("give --paper (the paper's studies) and/or --config FILE.toml")
+    opts = options_from_toml(args.config) if args.config else StudyOptions()
+    source = args.config or "command line"
+    if args.layout:
+        opts.cubic.layout = args.layout
+    if args.no_flat_grid:
+        opts.flat.full_grid = False
+    validate_options(opts, source)
+    if args.no_progress:
+        summary = run_study(opts, args.out, source=source, version=__version__)
+    else:
+        summary = _with_progress(opts, args.out, source, __version__, run_study)
+    print(
+        f"cdpr sensitivity: {len(summary['files'])} files in {args.out} "
+        f"({summary['elapsed_s']:.1f} s); report: {summary['report']}"
+    )
+    return 0
+
+
+def _with_progress(opts, out, source, version, run_study):  # type: ignore[no-untyped-def]
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    with Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        transient=False,
+    ) as bar:
+
+        def progress(label: str, total: int):  # type: ignore[no-untyped-def]
+            task = bar.add_task(label, total=total)
+            return lambda n: bar.advance(task, n)
+
+        return run_study(opts, out, progress=progress, source=source, version=version)
