@@ -1,0 +1,537 @@
+"""Marker detection: fiducials with edge-based sub-pixel corners, IR blobs and their labelling.
+
+Fiducials (:class:`FiducialDetector`): OpenCV's ArUco detector finds and decodes the markers (on the
+full frame, or only in small windows around the corners predicted from the last pose when tracking);
+every corner is then refined by fitting straight lines to the four outer edges of the black square:
+sub-pixel edge points from the gradient centroid across the edge (unbiased for a symmetric blur,
+unlike ``cornerSubPix`` on the L-shaped outer corners, which moves them inward by ~0.2 px), undistorted
+to the normalised image plane, a total-least-squares line per side, corners at the intersections.
+
+Point markers (:func:`detect_blobs`, :class:`PointMatcher`): threshold, connected components on a
+4x downsampled copy (or windows around predicted positions), intensity-weighted centroids at full
+resolution; correspondence to the layout by scored hypotheses (2-point similarity alignments of the
+reference projection, refined by PnP, scored by robust reprojection cost), accepted only with a
+margin over the runner-up labelling; then frame-to-frame tracking from the last pose.  Every frame
+whose labelling is not unique is flagged ``FLAG_AMBIGUOUS``; labels are never guessed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import cv
+from .camera_model import CameraModel
+from .markers import MarkerLayout
+from .pose import (
+    FLAG_AMBIGUOUS,
+    FLAG_FEW_POINTS,
+    FLAG_HIGH_RESIDUAL,
+    FLAG_NO_POSE,
+    FLAG_TRACK_RESET,
+    PoseEstimate,
+    estimate_pose,
+    failed_pose,
+)
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+def bilinear(gray: NDArray[np.uint8], x: F64, y: F64) -> F64:
+    """Bilinear samples of ``gray`` at (x, y) px (pixel centres at integers), clamped at the border."""
+    h, w = gray.shape
+    x = np.clip(x, 0, w - 1.000001)
+    y = np.clip(y, 0, h - 1.000001)
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    g = gray.astype(np.float64) if gray.dtype != np.float64 else gray
+    a = g[y0, x0] * (1 - fx) + g[y0, x0 + 1] * fx
+    b = g[y0 + 1, x0] * (1 - fx) + g[y0 + 1, x0 + 1] * fx
+    return a * (1 - fy) + b * fy
+
+
+# ------------------------------------------------------------------------------------ fiducials
+def refine_marker_corners(
+    gray: NDArray[np.uint8],
+    corners_px: ArrayLike,
+    cells: int,
+    camera: CameraModel,
+    iterations: int = 2,
+) -> tuple[F64, NDArray[np.bool_]]:
+    """Refine (N, 4, 2) marker corners by line fits to the outer edges (see the module docstring).
+
+    ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).  Returns the
+    refined corners and a mask of markers whose refinement succeeded (others keep their input).
+    """
+    C = np.asarray(corners_px, np.float64).reshape(-1, 4, 2).copy()
+    ok = np.ones(len(C), dtype=bool)
+    if len(C) == 0:
+        return C, ok
+    sub = gray if gray.dtype == np.float64 else gray.astype(np.float64)
+    for m in range(len(C)):
+        c = C[m]
+        for _ in range(iterations):
+            lines = []
+            good = True
+            for i in range(4):
+                a, b = c[i], c[(i + 1) % 4]
+                L = float(np.linalg.norm(b - a))
+                if L < 8:
+                    good = False
+                    break
+                d = (b - a) / L
+                nrm = np.array([-d[1], d[0]])
+                cell_px = L / cells
+                R = float(np.clip(0.45 * cell_px, 1.5, 3.5))
+                ts = np.linspace(0.12, 0.88, max(8, int(L / 1.5)))
+                ss = np.arange(-R, R + 1e-9, 0.25)
+                px = a[0] + ts[:, None] * L * d[0] + ss[None, :] * nrm[0]
+                py = a[1] + ts[:, None] * L * d[1] + ss[None, :] * nrm[1]
+                prof = bilinear(sub, px, py)
+                g = np.abs(np.diff(prof, axis=1))
+                gmax = g.max(axis=1, keepdims=True)
+                wgt = np.clip(g - 0.25 * gmax, 0, None)
+                sw = wgt.sum(axis=1)
+                use = (sw > 0) & (gmax[:, 0] > 8.0)
+                if use.sum() < 4:
+                    good = False
+                    break
+                smid = 0.5 * (ss[1:] + ss[:-1])
+                s_star = (wgt * smid).sum(axis=1)[use] / sw[use]
+                e = (a + ts[use, None] * L * d) + s_star[:, None] * nrm
+                xn = cv.undistort_to_normalized(e, camera.K, camera.dist)
+                mu = xn.mean(axis=0)
+                _, _, vt = np.linalg.svd(xn - mu, full_matrices=False)
+                n_line = vt[1]
+                lines.append((n_line, float(n_line @ mu)))
+            if not good:
+                ok[m] = False
+                break
+            new_n = []
+            for i in range(4):
+                n1, d1 = lines[(i - 1) % 4]
+                n2, d2 = lines[i]
+                A = np.stack([n1, n2])
+                if abs(np.linalg.det(A)) < 1e-9:
+                    good = False
+                    break
+                new_n.append(np.linalg.solve(A, [d1, d2]))
+            if not good:
+                ok[m] = False
+                break
+            pts = np.concatenate([np.array(new_n), np.ones((4, 1))], axis=1)
+            c = cv.project_points(pts, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+        if ok[m] and np.all(np.isfinite(c)) and np.abs(c - C[m]).max() < 3.0:
+            C[m] = c
+        else:
+            ok[m] = False
+    return C, ok
+
+
+@dataclass
+class FiducialDetector:
+    """ArUco/AprilTag detection for a fiducial layout, with edge refinement and ROI tracking.
+
+    ``roi_margin``: window around a predicted marker, as a fraction of its size (plus 12 px).
+    """
+
+    layout: MarkerLayout
+    camera: CameraModel
+    roi_margin: float = 0.35
+    edge_refine: bool = True
+    _det: cv.ArucoDetector = field(init=False)
+
+    def __post_init__(self) -> None:
+        self._det = cv.ArucoDetector(
+            self.layout.dictionary,
+            cv.ArucoDetectorSettings(refinement="none" if self.edge_refine else "subpix"),
+        )
+        self._known = set(int(i) for i in self.layout.ids)
+        self._cells = cv.dictionary_marker_cells(self.layout.dictionary) + 2
+
+    def detect(self, gray: NDArray[np.uint8], predicted: F64 | None = None) -> tuple[I64, F64]:
+        """Markers of the layout in ``gray``: ids (N,) and corners (N, 4, 2) px.
+
+        predicted: optional (M, 4, 2) corners of every layout marker (layout order) from the last
+        pose; markers are then searched only in windows around them, falling back to the full
+        frame if any is missing.
+        """
+        ids: I64
+        corners: F64
+        if predicted is not None:
+            ids, corners = self._detect_windows(gray, predicted)
+            if len(ids) < len(self._known):
+                ids, corners = self._full(gray)
+        else:
+            ids, corners = self._full(gray)
+        if self.edge_refine and len(ids):
+            corners, _ = refine_marker_corners(gray, corners, self._cells, self.camera)
+        return ids, corners
+
+    def _full(self, gray: NDArray[np.uint8]) -> tuple[I64, F64]:
+        c, ids = self._det.detect(gray)
+        keep = np.array([int(i) in self._known for i in ids], dtype=bool)
+        c, ids = c[keep], ids[keep]
+        ids, first = np.unique(ids, return_index=True)  # a duplicated id: keep one (rare)
+        return ids, c[first]
+
+    def _detect_windows(self, gray: NDArray[np.uint8], predicted: F64) -> tuple[I64, F64]:
+        h, w = gray.shape
+        out_ids, out_c = [], []
+        for mid, pc in zip(self.layout.ids, np.asarray(predicted).reshape(-1, 4, 2), strict=True):
+            if not np.all(np.isfinite(pc)):
+                continue
+            size = np.linalg.norm(pc[0] - pc[2])
+            pad = self.roi_margin * size + 12
+            x0 = int(max(np.floor(pc[:, 0].min() - pad), 0))
+            x1 = int(min(np.ceil(pc[:, 0].max() + pad), w))
+            y0 = int(max(np.floor(pc[:, 1].min() - pad), 0))
+            y1 = int(min(np.ceil(pc[:, 1].max() + pad), h))
+            if x1 - x0 < 16 or y1 - y0 < 16:
+                continue
+            c, ids = self._det.detect(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            sel = ids == mid
+            if sel.sum() == 1:
+                out_ids.append(int(mid))
+                out_c.append(c[sel][0] + [x0, y0])
+        if not out_ids:
+            return np.zeros(0, np.int64), np.zeros((0, 4, 2))
+        return np.asarray(out_ids, np.int64), np.stack(out_c)
+
+
+# ------------------------------------------------------------------------------------ blobs
+@dataclass
+class BlobSettings:
+    """Blob detection: threshold (DN), area limits (px at full resolution), coarse downsampling."""
+
+    threshold_dn: float = 100.0
+    min_area_px: float = 6.0
+    max_area_px: float = 5000.0
+    coarse_factor: int = 4
+    window_px: int = 0  # half-size of the search window around predictions (0: automatic)
+
+
+def _centroid(
+    gray: NDArray[np.uint8], x0: int, y0: int, x1: int, y1: int, thr: float
+) -> tuple[float, float, float, float] | None:
+    """Intensity-weighted centroid of the blob in a window: weights ``I - background`` on the blob
+    pixels (above ``thr``) dilated by 2 px; background = median of the window border."""
+    win = gray[y0:y1, x0:x1].astype(np.float64)
+    if win.size == 0:
+        return None
+    border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
+    bg = float(np.median(border))
+    mask = win > thr
+    area = float(mask.sum())
+    if area == 0:
+        return None
+    # dilate the mask by 2 px (cheap shifts)
+    m = mask.copy()
+    for _ in range(2):
+        d = m.copy()
+        d[1:] |= m[:-1]
+        d[:-1] |= m[1:]
+        d[:, 1:] |= m[:, :-1]
+        d[:, :-1] |= m[:, 1:]
+        m = d
+    wgt = np.where(m, np.clip(win - bg, 0, None), 0.0)
+    s = wgt.sum()
+    if s <= 0:
+        return None
+    ys, xs = np.mgrid[y0:y1, x0:x1]
+    return float((wgt * xs).sum() / s), float((wgt * ys).sum() / s), area, float(win.max())
+
+
+def detect_blobs(
+    gray: NDArray[np.uint8], settings: BlobSettings | None = None, predicted: F64 | None = None
+) -> F64:
+    """Bright blobs: (N, 3) ``[x_px, y_px, area_px]`` (intensity-weighted centroids).
+
+    predicted: optional (M, 2) positions to search around (windows of ``window_px``), else the whole
+    frame is scanned on a ``coarse_factor`` downsampled copy and each blob measured at full size.
+    """
+    s = settings or BlobSettings()
+    h, w = gray.shape
+    windows: list[tuple[int, int, int, int]] = []
+    if predicted is not None:
+        hw = s.window_px or 24
+        for x, y in np.asarray(predicted).reshape(-1, 2):
+            if np.isfinite(x) and np.isfinite(y):
+                windows.append(
+                    (
+                        int(max(x - hw, 0)),
+                        int(max(y - hw, 0)),
+                        int(min(x + hw + 1, w)),
+                        int(min(y + hw + 1, h)),
+                    )
+                )
+    else:
+        f = max(int(s.coarse_factor), 1)
+        small = cv.downsample_area(gray[: h - h % f, : w - w % f], f) if f > 1 else gray
+        # a blob's mean over f x f cells is lower: use half the threshold above the background
+        n, _, stats = cv.connected_components(cv.threshold(small, s.threshold_dn * 0.5))
+        for k in range(1, n):
+            x, y, bw, bh, _area = stats[k]
+            windows.append(
+                (
+                    max(x * f - 3, 0),
+                    max(y * f - 3, 0),
+                    min((x + bw) * f + 3, w),
+                    min((y + bh) * f + 3, h),
+                )
+            )
+    out = []
+    for x0, y0, x1, y1 in windows:
+        sub = gray[y0:y1, x0:x1]
+        if sub.size == 0:
+            continue
+        n, labels, stats = cv.connected_components(
+            cv.threshold(np.ascontiguousarray(sub), s.threshold_dn)
+        )
+        for k in range(1, n):
+            bx, by, bw, bh, area = stats[k]
+            if area < s.min_area_px or area > s.max_area_px:
+                continue
+            pad = 3
+            c = _centroid(gray, max(x0 + bx - pad, 0), max(y0 + by - pad, 0),
+                          min(x0 + bx + bw + pad, w), min(y0 + by + bh + pad, h), s.threshold_dn)  # fmt: skip
+            if c is not None:
+                out.append((c[0], c[1], c[2]))
+    if not out:
+        return np.zeros((0, 3))
+    b = np.asarray(out)
+    # windows may overlap: merge duplicates closer than 1 px
+    keep = np.ones(len(b), bool)
+    for i in range(len(b)):
+        if keep[i]:
+            dup = np.linalg.norm(b[i + 1 :, :2] - b[i, :2], axis=1) < 1.0
+            keep[i + 1 :][dup] = False
+    return b[keep]
+
+
+# ------------------------------------------------------------------------------------ labelling
+@dataclass
+class MatchResult:
+    """Labelling of blobs: ``labels[m]`` = index of the blob seen as layout marker m, or -1;
+    ``margin`` = cost gap to the runner-up labelling (chi-square units; inf if none); the pose."""
+
+    labels: I64
+    margin: float
+    pose: PoseEstimate
+    flags: int
+    hypotheses: int = 0
+
+
+@dataclass
+class PointMatcher:
+    """Label blobs with the markers of a ``"points"`` layout and estimate the pose.
+
+    reference: ``(position_O_m, R_O_P)`` the nominal pose (the rig's reference pose) used for
+    acquisition; sigma_px: centroid noise (px, per coordinate); gate_px: association radius after
+    the pose fit; margin_min: required cost gap (chi-square units) over the runner-up labelling;
+    max_angle_deg / scale_range: the span of image-plane rotations and scales tried at acquisition.
+    """
+
+    layout: MarkerLayout
+    camera: CameraModel
+    reference: tuple[F64, F64]
+    sigma_px: float = 0.05
+    gate_px: float = 3.0
+    margin_min: float = 25.0
+    min_markers: int = 5
+    max_angle_deg: float = 60.0
+    scale_range: tuple[float, float] = (0.6, 1.6)
+    track_gate_px: float = 30.0
+    _last: tuple[F64, F64] | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        self.P = self.layout.point_centers_m
+        self.normals = self.layout.point_normals
+        R_C_P, t = self.camera.pose_C_P(*self.reference)
+        self._ref = (cv.rotation_vector(R_C_P), t)
+        self._ref_px = cv.project_points(self.P, *self._ref, self.camera.K, self.camera.dist)
+
+    def reset(self) -> None:
+        """Forget the last pose (next frame is acquired from scratch)."""
+        self._last = None
+
+    # -- scoring -------------------------------------------------------------------------------
+    def _associate(self, rvec: F64, tvec: F64, blobs: F64) -> tuple[I64, float, float]:
+        """Labels by nearest blob within the gate; cost (chi-square units) and crowding margin."""
+        proj = cv.project_points(self.P, rvec, tvec, self.camera.K, self.camera.dist)
+        d = np.linalg.norm(proj[:, None, :] - blobs[None, :, :2], axis=2)  # (M, N)
+        labels = np.full(len(self.P), -1, np.int64)
+        order = np.argsort(d, axis=1)
+        nearest = d[np.arange(len(self.P)), order[:, 0]]
+        second = (
+            d[np.arange(len(self.P)), order[:, 1]]
+            if d.shape[1] > 1
+            else np.full(len(self.P), np.inf)
+        )
+        within = nearest < self.gate_px
+        labels[within] = order[within, 0]
+        # a blob claimed by two markers is not a valid labelling: drop both
+        vals, counts = np.unique(labels[labels >= 0], return_counts=True)
+        for v in vals[counts > 1]:
+            labels[labels == v] = -1
+        chi_gate = (self.gate_px / self.sigma_px) ** 2 / 2
+        cost = float(np.sum(np.where(labels >= 0, (nearest / self.sigma_px) ** 2 / 2, chi_gate)))
+        crowd = float(np.min(np.where(within, second - nearest, np.inf))) if within.any() else 0.0
+        return labels, cost, crowd
+
+    def _fit(
+        self, labels: I64, blobs: F64, guess: tuple[F64, F64] | None
+    ) -> tuple[F64, F64] | None:
+        sel = labels >= 0
+        if sel.sum() < 4:
+            return None
+        obj, img = self.P[sel], blobs[labels[sel], :2]
+        if guess is None:
+            ok, r, t = cv.solve_pnp(obj, img, self.camera.K, self.camera.dist, "sqpnp")
+            if not ok:
+                return None
+        else:
+            r, t = guess
+        r, t = cv.refine_pnp_lm(obj, img, self.camera.K, self.camera.dist, r, t)
+        if t[2] <= 0:
+            return None
+        # visibility: labelled disks must face the camera
+        R = cv.rodrigues(r)
+        pc = self.P[sel] @ R.T + t
+        if np.any(np.einsum("ij,ij->i", self.normals[sel] @ R.T, pc) >= 0):
+            return None
+        return r, t
+
+    def _finalize(self, labels: I64, blobs: F64, margin: float, flags: int, nh: int) -> MatchResult:
+        sel = labels >= 0
+        if sel.sum() < 4:
+            return MatchResult(
+                labels,
+                margin,
+                failed_pose(FLAG_FEW_POINTS),
+                flags | FLAG_FEW_POINTS | FLAG_NO_POSE,
+                nh,
+            )
+        pose = estimate_pose(self.P[sel], blobs[labels[sel], :2], self.camera, self.sigma_px,
+                             max_rms_px=max(4 * self.sigma_px * np.sqrt(2), 0.3))  # fmt: skip
+        flags |= pose.flags
+        if sel.sum() < self.min_markers:
+            flags |= FLAG_FEW_POINTS
+        if margin < self.margin_min:
+            flags |= FLAG_AMBIGUOUS
+        pose.flags = flags
+        if not (flags & (FLAG_AMBIGUOUS | FLAG_NO_POSE | FLAG_HIGH_RESIDUAL)):
+            self._last = (pose.rvec_C, pose.tvec_C_m)
+        else:
+            self._last = None
+        return MatchResult(labels, margin, pose, flags, nh)
+
+    # -- public --------------------------------------------------------------------------------
+    def match(self, blobs: ArrayLike) -> MatchResult:
+        """Label (N, >=2) blob positions (px) and estimate the pose; tracks from the last frame."""
+        b = np.asarray(blobs, np.float64).reshape(
+            -1, np.asarray(blobs).shape[-1] if np.size(blobs) else 3
+        )
+        if len(b) < 4:
+            self._last = None
+            return MatchResult(np.full(len(self.P), -1, np.int64), 0.0, failed_pose(FLAG_FEW_POINTS),
+                               FLAG_FEW_POINTS | FLAG_NO_POSE)  # fmt: skip
+        if self._last is not None:
+            res = self._track(b)
+            if res is not None:
+                return res
+            flags = FLAG_TRACK_RESET
+        else:
+            flags = 0
+        return self._acquire(b, flags)
+
+    def _track(self, b: F64) -> MatchResult | None:
+        r, t = self._last  # type: ignore[misc]
+        proj = cv.project_points(self.P, r, t, self.camera.K, self.camera.dist)
+        d = np.linalg.norm(proj[:, None, :] - b[None, :, :2], axis=2)
+        order = np.argsort(d, axis=1)
+        near = d[np.arange(len(self.P)), order[:, 0]]
+        sec = (
+            d[np.arange(len(self.P)), order[:, 1]]
+            if d.shape[1] > 1
+            else np.full(len(self.P), np.inf)
+        )
+        labels = np.where(near < self.track_gate_px, order[:, 0], -1)
+        # unambiguous: the runner-up blob of each marker is much farther than the nearest
+        if np.any((labels >= 0) & (sec < 2 * near + 4 * self.gate_px)):
+            return None
+        if (
+            len(np.unique(labels[labels >= 0])) != (labels >= 0).sum()
+            or (labels >= 0).sum() < self.min_markers
+        ):
+            return None
+        fit = self._fit(labels, b, (r, t))
+        if fit is None:
+            return None
+        labels2, cost, crowd = self._associate(*fit, b)
+        if not np.array_equal(labels2, labels):
+            return None
+        margin = (crowd / self.sigma_px) ** 2 / 2
+        return self._finalize(labels, b, margin, 0, 1)
+
+    def _acquire(self, b: F64, flags: int) -> MatchResult:
+        Q = self._ref_px[:, 0] + 1j * self._ref_px[:, 1]
+        B = b[:, 0] + 1j * b[:, 1]
+        M, N = len(Q), len(B)
+        ma, mb = np.array([(i, j) for i in range(M) for j in range(M) if i != j]).T
+        ba, bb = np.array([(i, j) for i in range(N) for j in range(N) if i != j]).T
+        s = (B[bb][None, :] - B[ba][None, :]) / (Q[mb][:, None] - Q[ma][:, None])  # (PM, PB)
+        ok = (np.abs(s) > self.scale_range[0]) & (np.abs(s) < self.scale_range[1])
+        ok &= np.abs(np.angle(s)) < np.deg2rad(self.max_angle_deg)
+        pi, pj = np.nonzero(ok)
+        if len(pi) == 0:
+            self._last = None
+            return MatchResult(
+                np.full(M, -1, np.int64), 0.0, failed_pose(), flags | FLAG_NO_POSE, 0
+            )
+        ss = s[pi, pj]
+        tt = B[ba[pj]] - ss * Q[ma[pi]]
+        T = ss[:, None] * Q[None, :] + tt[:, None]  # (H, M)
+        d = np.abs(T[:, :, None] - B[None, None, :])  # (H, M, N)
+        gate0 = 0.12 * np.abs(Q - Q.mean()).max() + 10
+        nn = d.argmin(axis=2)
+        dn = d.min(axis=2)
+        lab = np.where(dn < gate0, nn, -1)
+        count = (lab >= 0).sum(axis=1)
+        score = count - 1e-3 * np.minimum(dn, gate0).sum(axis=1) / gate0
+        cand = np.argsort(-score)
+        seen: set[bytes] = set()
+        results: list[tuple[float, I64]] = []
+        for h in cand[:400]:
+            if count[h] < 4:
+                break
+            key = lab[h].tobytes()
+            if key in seen:
+                continue
+            seen.add(key)
+            if len(np.unique(lab[h][lab[h] >= 0])) != (lab[h] >= 0).sum():
+                continue
+            fit = self._fit(lab[h], b, None)
+            if fit is None:
+                continue
+            labels, cost, _ = self._associate(*fit, b)
+            if (labels >= 0).sum() >= 4:
+                fit2 = self._fit(labels, b, fit)
+                if fit2 is not None:
+                    labels, cost, _ = self._associate(*fit2, b)
+            results.append((cost, labels))
+            if len(seen) >= 24:
+                break
+        if not results:
+            self._last = None
+            return MatchResult(
+                np.full(M, -1, np.int64), 0.0, failed_pose(), flags | FLAG_NO_POSE, len(seen)
+            )
+        results.sort(key=lambda x: x[0])
+        best_cost, best = results[0]
+        runner = next((c for c, lab_ in results[1:] if not np.array_equal(lab_, best)), np.inf)
+        return self._finalize(best, b, float(runner - best_cost), flags, len(seen))

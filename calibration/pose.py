@@ -1,0 +1,235 @@
+"""Pose from 2D-3D correspondences: PnP, LM refinement, reprojection error, covariance, outliers.
+
+Pipeline of :func:`estimate_pose`: SQPnP (or the iterative solver from a guess) for a first pose of
+{P} in the camera frame {C}, Levenberg-Marquardt refinement (``cv2.solvePnPRefineLM``), residuals,
+points beyond ``outlier_k`` sigma dropped and the pose refined again, then the covariance
+``Sigma = sigma_px^2 (J^T J)^-1`` from the projection Jacobian ``J`` (2N x 6) with respect to a
+translation ``dt_C`` and a small rotation ``dtheta_C`` applied on the left (``R' = exp(dtheta) R``),
+and everything expressed in the tunnel frame {O} through the camera extrinsics.
+
+Covariance layout (6 x 6): ``[position_O_m (3), rotation_O_rad (3)]``, the rotation part being a
+small rotation vector in {O} axes applied on the left: ``R_true = exp([dtheta]x) R_est``.
+The extrinsics are treated as exact (their error is a constant bias over a run, not noise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cdpr.analysis.rotations import euler_from_rotation, quaternion_from_rotation
+
+from . import cv
+from .camera_model import CameraModel
+
+F64 = NDArray[np.float64]
+
+# status flags of a pose (bit field, shared with detect.py and the camera source)
+FLAG_NO_POSE = 1 << 0  # no pose at all (nothing detected, PnP failed)
+FLAG_FEW_POINTS = 1 << 1  # fewer correspondences than needed for a trustworthy pose
+FLAG_AMBIGUOUS = 1 << 2  # labelling of point markers ambiguous (margin over runner-up too small)
+FLAG_HIGH_RESIDUAL = 1 << 3  # reprojection RMS above the limit
+FLAG_OUTLIERS = 1 << 4  # some correspondences rejected as outliers
+FLAG_TRACK_RESET = 1 << 5  # tracking lost, re-acquired from scratch (informational)
+FLAG_NAMES = {
+    FLAG_NO_POSE: "no_pose",
+    FLAG_FEW_POINTS: "few_points",
+    FLAG_AMBIGUOUS: "ambiguous",
+    FLAG_HIGH_RESIDUAL: "high_residual",
+    FLAG_OUTLIERS: "outliers",
+    FLAG_TRACK_RESET: "track_reset",
+}
+BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL
+"""Flags that make a pose unusable for analysis (outliers and resets are informational)."""
+
+
+def flag_names(flags: int) -> list[str]:
+    """Names of the bits set in ``flags``."""
+    return [n for b, n in FLAG_NAMES.items() if flags & b]
+
+
+@dataclass
+class PoseEstimate:
+    """One pose of {P}: in {O} (``position_O_m`` (3,), ``R_O_P`` (3, 3), ``q_wxyz`` (4,),
+    ``euler_rad`` (3,) Z-Y-X as :mod:`cdpr.analysis.rotations`), in {C} (``rvec_C``, ``tvec_C_m``),
+    reprojection RMS (px, Euclidean per point), per-point residuals (N, 2) px, inlier mask (N,),
+    covariance (6, 6) ``[position_O_m, rotation_O_rad]`` and ``flags`` (see ``FLAG_*``)."""
+
+    position_O_m: F64
+    R_O_P: F64
+    rvec_C: F64
+    tvec_C_m: F64
+    reprojection_rms_px: float
+    residuals_px: F64
+    inliers: NDArray[np.bool_]
+    covariance: F64
+    flags: int = 0
+    n_points: int = 0
+    extra: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not (self.flags & BAD_FLAGS)
+
+    @property
+    def q_wxyz(self) -> F64:
+        return quaternion_from_rotation(self.R_O_P)
+
+    @property
+    def euler_rad(self) -> F64:
+        return euler_from_rotation(self.R_O_P)
+
+    @property
+    def std_position_m(self) -> F64:
+        return np.sqrt(np.diag(self.covariance)[:3])
+
+    @property
+    def std_rotation_rad(self) -> F64:
+        return np.sqrt(np.diag(self.covariance)[3:])
+
+
+def failed_pose(flags: int = FLAG_NO_POSE) -> PoseEstimate:
+    """A placeholder pose (NaN) carrying ``flags``."""
+    nan3 = np.full(3, np.nan)
+    return PoseEstimate(
+        nan3, np.full((3, 3), np.nan), nan3, nan3, float("nan"), np.zeros((0, 2)),
+        np.zeros(0, bool), np.full((6, 6), np.nan), flags | FLAG_NO_POSE, 0,
+    )  # fmt: skip
+
+
+def _exp_so3(w: F64) -> F64:
+    return cv.rodrigues(w)
+
+
+def projection_jacobian(
+    object_points: F64, rvec: F64, tvec: F64, K: F64, dist: F64, step: float = 1e-6
+) -> F64:
+    """J (2N, 6): d(pixels)/d[dt_C (m), dtheta_C (rad, left)], central differences."""
+    R = cv.rodrigues(rvec)
+    cols = []
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = step
+        out = []
+        for sgn in (1.0, -1.0):
+            t = tvec + sgn * d[:3]
+            Rk = _exp_so3(sgn * d[3:]) @ R
+            out.append(
+                cv.project_points(object_points, cv.rotation_vector(Rk), t, K, dist).reshape(-1)
+            )
+        cols.append((out[0] - out[1]) / (2 * step))
+    return np.stack(cols, axis=1)
+
+
+def estimate_pose(
+    object_points_P: ArrayLike,
+    image_points_px: ArrayLike,
+    camera: CameraModel,
+    sigma_px: float,
+    guess: tuple[F64, F64] | None = None,
+    method: str = "sqpnp",
+    min_points: int = 4,
+    outlier_k: float = 5.0,
+    max_rms_px: float = 2.0,
+) -> PoseEstimate:
+    """Pose of {P} from (N, 3) points in {P} (m) and their (N, 2) image positions (px).
+
+    sigma_px: standard deviation of one image coordinate of one point (px), the noise model of the
+    detector; the covariance scales with its square.  guess: optional ``(rvec_C, tvec_C)`` to start
+    the iterative solver from (tracking).  Returns a :class:`PoseEstimate`; on failure its flags
+    say why (the pose is then NaN or untrustworthy).
+    """
+    obj = np.asarray(object_points_P, np.float64).reshape(-1, 3)
+    img = np.asarray(image_points_px, np.float64).reshape(-1, 2)
+    n = len(obj)
+    if n < max(min_points, 3) or n < 4:
+        return failed_pose(FLAG_FEW_POINTS)
+    K, dist = camera.K, camera.dist
+    if guess is not None:
+        ok, rvec, tvec = True, np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)
+    else:
+        ok, rvec, tvec = cv.solve_pnp(obj, img, K, dist, method)
+    if not ok or not np.all(np.isfinite(tvec)):
+        return failed_pose(FLAG_NO_POSE)
+    rvec, tvec = cv.refine_pnp_lm(obj, img, K, dist, rvec, tvec)
+    flags = 0
+    inl = np.ones(n, dtype=bool)
+    res = cv.project_points(obj, rvec, tvec, K, dist) - img
+    r = np.linalg.norm(res, axis=1)
+    bad = r > max(outlier_k * sigma_px * np.sqrt(2), 0.5)
+    if bad.any() and (n - bad.sum()) >= max(min_points, 4):
+        inl = ~bad
+        flags |= FLAG_OUTLIERS
+        rvec, tvec = cv.refine_pnp_lm(obj[inl], img[inl], K, dist, rvec, tvec)
+        res = cv.project_points(obj, rvec, tvec, K, dist) - img
+    if tvec[2] <= 0:
+        return failed_pose(FLAG_NO_POSE)
+    rms = float(np.sqrt(np.mean(np.sum(res[inl] ** 2, axis=1))))
+    if rms > max_rms_px:
+        flags |= FLAG_HIGH_RESIDUAL
+    J = projection_jacobian(obj[inl], rvec, tvec, K, dist)
+    try:
+        cov_C = sigma_px**2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        cov_C = np.full((6, 6), np.inf)
+        flags |= FLAG_FEW_POINTS
+    B = np.zeros((6, 6))
+    B[:3, :3] = camera.R_O_C
+    B[3:, 3:] = camera.R_O_C
+    cov_O = B @ cov_C @ B.T
+    R_C_P = cv.rodrigues(rvec)
+    p_O, R_O_P = camera.pose_O_from_C(R_C_P, tvec)
+    return PoseEstimate(p_O, R_O_P, rvec, tvec, rms, res, inl, cov_O, flags, int(inl.sum()))
+
+
+def pose_error(
+    position_O_m: ArrayLike, R_O_P: ArrayLike, true_position_O_m: ArrayLike, true_R_O_P: ArrayLike
+) -> F64:
+    """Error vector (6,) ``[dp_O (m), dtheta_O (rad)]`` with ``R_true = exp(dtheta) R_est``
+    (the covariance's parametrisation), for NEES tests."""
+    dp = np.asarray(position_O_m, np.float64) - np.asarray(true_position_O_m, np.float64)
+    dR = np.asarray(true_R_O_P, np.float64) @ np.asarray(R_O_P, np.float64).T
+    # estimate minus truth, consistently: R_est = exp(-dtheta) R_true  ->  use log(R_est R_true^T)
+    dth = cv.rotation_vector(dR.T)
+    return np.concatenate([dp, dth])
+
+
+def nees(error6: ArrayLike, covariance: ArrayLike) -> float:
+    """Normalised estimation error squared ``e^T Sigma^-1 e`` (chi-square with 6 dof if consistent)."""
+    e = np.asarray(error6, np.float64)
+    return float(e @ np.linalg.solve(np.asarray(covariance, np.float64), e))
+
+
+def camera_pose_from_points(
+    object_points_O: ArrayLike,
+    image_points_px: ArrayLike,
+    camera: CameraModel,
+    sigma_px: float,
+) -> tuple[F64, F64, F64, float]:
+    """Extrinsics from points known in {O}: ``(R_O_C, position_O_m, covariance (6, 6), rms_px)``.
+
+    The covariance is of ``[position_O_m of the camera, rotation_O_rad]`` (left rotation in {O}).
+    """
+    cam0 = CameraModel(camera.K, camera.dist, camera.image_size_px)  # {O} = {C} for the solve
+    est = estimate_pose(object_points_O, image_points_px, cam0, sigma_px)
+    if est.flags & (FLAG_NO_POSE | FLAG_FEW_POINTS):
+        from cdpr.analysis.errors import InputError
+
+        raise InputError(f"extrinsics: PnP failed ({', '.join(flag_names(est.flags))})")
+    R_C_O = cv.rodrigues(est.rvec_C)
+    t_C_O = est.tvec_C_m
+    R_O_C = R_C_O.T
+    c_O = -R_O_C @ t_C_O
+    # covariance of (c_O, theta_O) from that of (t_C, theta_C): first-order propagation
+    cov_C = est.covariance  # in "{O}" = {C} here
+    # c = -R^T t ; dc = -R^T dt + [c]x (R^T dtheta_C)   (left perturbation R' = exp(dth) R)
+    Rt = R_O_C
+    cx = np.array([[0, -c_O[2], c_O[1]], [c_O[2], 0, -c_O[0]], [-c_O[1], c_O[0], 0]])
+    G = np.zeros((6, 6))
+    G[:3, :3] = -Rt
+    G[:3, 3:] = cx @ Rt
+    G[3:, 3:] = -Rt  # R_O_C' = R^T exp(-dth): rotation error in {O} = -R^T dth
+    cov = G @ cov_C @ G.T
+    return R_O_C, c_O, cov, est.reprojection_rms_px
