@@ -407,6 +407,7 @@ class VirtualRig:
         self.aero = aero if aero is not None else schedule.aero
         self.seed = schedule.seed if seed is None else int(seed)
         self.t0_ns: int | None = None
+        self.speed = 1.0  # time scale of the run that set t0_ns (host time = t0 + t_rel / speed)
         self.cable_names = list(rig.cable_names)
         m = rig.n_cables
         rng = np.random.default_rng(self.seed)
@@ -559,10 +560,9 @@ class VirtualRig:
         before quantisation, ``counts`` (n, m), ``channel_status`` (n, m) bits 1 sat 2 slack
         4 fault, ``sent`` (n,) False in dropouts, ``port_up`` (n,), ``fault_code`` (n, m), segment
         index, the calibration, and the tunnel arrays (``tunnel_*``)."""
-        t0 = -1 if self.t0_ns is None else self.t0_ns
         return {
             "t_rel_ns": self.t_rel_ns,
-            "t_ns": self.t_rel_ns + t0 if t0 >= 0 else np.full_like(self.t_rel_ns, -1),
+            "t_ns": self._host_ns(self.t_rel_ns),
             "position_O_m": self.position_O_m,
             "euler_rad": self.euler_rad,
             "quaternion_wxyz": quaternion_from_euler(self.euler_rad),
@@ -580,11 +580,17 @@ class VirtualRig:
             "offset_counts": self.calibration.offset_counts,
             "gain_N_per_count": self.calibration.gain_N_per_count,
             "tunnel_t_rel_ns": self.tunnel_t_rel_ns,
+            "tunnel_t_ns": self._host_ns(self.tunnel_t_rel_ns),
             "tunnel_airspeed_true_mps": self.tunnel_airspeed_true_mps,
             "tunnel_airspeed_mps": self.tunnel_airspeed_mps,
             "tunnel_static_pressure_Pa": self.tunnel_static_pressure_Pa,
             "tunnel_temperature_K": self.tunnel_temperature_K,
         }
+
+    def _host_ns(self, t_rel_ns: np.ndarray) -> np.ndarray:
+        if self.t0_ns is None:
+            return np.full_like(t_rel_ns, -1)
+        return self.t0_ns + np.round(t_rel_ns / self.speed).astype(np.int64)
 
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
         """Write the truth atomically: ``.npz`` (all arrays plus ``cable_names``, ``segment_labels``)
@@ -648,7 +654,8 @@ class VirtualRig:
         """
         if self.t0_ns is None:
             raise RuntimeError("true_pose_at: the rig has not started (t0_ns is None)")
-        return self.pose_at_rel(np.asarray(t_ns, dtype=np.int64) - self.t0_ns)
+        t_rel = (np.asarray(t_ns, dtype=np.int64) - self.t0_ns).astype(np.float64) * self.speed
+        return self.pose_at_rel(t_rel)
 
     # -- frames and lines ------------------------------------------------------------------
     def can_frames(self) -> tuple[list[int], NDArray[np.uint8]]:
@@ -916,6 +923,7 @@ class RigRun:
             self._wait_reader()
             t0 = time.time_ns()
             vr.t0_ns = t0
+            vr.speed = self.speed
             self.started.set()
             lat_ns = int(vr.schedule.sensor.latency_s * 1e9)
             ev_t = np.concatenate([vr.t_rel_ns + lat_ns, vr.tunnel_t_rel_ns])
