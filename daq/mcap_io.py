@@ -305,8 +305,9 @@ def register_stream_codec(pattern: str, factory: CodecFactory) -> None:
 
 def codec_for(stream: str, description: StreamDescription | None) -> StreamCodec:
     """The codec of ``stream``: the first registered pattern that matches, else :func:`flat_codec`."""
+    base = stream.rsplit("/", 1)[-1]
     for pattern, factory in _CODECS:
-        if fnmatch.fnmatchcase(stream, pattern):
+        if fnmatch.fnmatchcase(base, pattern):
             return factory(stream, description)
     return flat_codec(stream, description)
 
@@ -670,8 +671,11 @@ class StreamSummary:
 
 
 def summarize(contents: RunContents) -> list[StreamSummary]:
-    """Per-stream counts, rates, gaps (an interval longer than 3x the median one, or than 3x the
-    nominal period when the channel declares a rate) and readings with a non-zero status."""
+    """Per-stream counts, rates, gaps and readings with a non-zero status.
+
+    A gap is an interval longer than 3x the larger of the nominal period (channel metadata
+    ``rate_hz``) and the 90th-percentile interval (so bursts, e.g. 4 CAN frames per sample, are not
+    gaps)."""
     import numpy as np
 
     out = []
@@ -695,7 +699,7 @@ def summarize(contents: RunContents) -> list[StreamSummary]:
         gaps, max_gap = 0, 0.0
         if n > 2:
             dt = np.diff(t) / 1e9
-            ref = 1.0 / nominal if nominal > 0 else float(np.median(dt))
+            ref = max(1.0 / nominal if nominal > 0 else 0.0, float(np.percentile(dt, 90)))
             if ref > 0:
                 gaps = int(np.count_nonzero(dt > 3 * ref))
             max_gap = float(dt.max())

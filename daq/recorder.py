@@ -194,6 +194,7 @@ class Recorder:
         self._stop_reason = ""
         self._stopped = False
         self._lock = threading.Lock()
+        self._renames: dict[str, dict[str, str]] = {}
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -217,9 +218,17 @@ class Recorder:
                 self._writer.add_attachment(att.name, att.data, att.media_type)
             self._writer.add_stream("event", StreamDescription({}, 0.0, "Run events."))
             self._writer.add_stream("recorder", self._recorder_description())
+            described = {s.name: dict(s.describe()) for s in self.sources}
+            seen: dict[str, int] = {}
+            for d in described.values():
+                for stream in d:
+                    seen[stream] = seen.get(stream, 0) + 1
             for s in self.sources:
-                for stream, desc in s.describe().items():
-                    self._writer.add_stream(stream, desc)
+                # a stream name two sources share becomes <source>/<stream> (topic /<source>/<stream>)
+                ren = {k: f"{s.name}/{k}" for k in described[s.name] if seen[k] > 1}
+                self._renames[s.name] = ren
+                for stream, desc in described[s.name].items():
+                    self._writer.add_stream(ren.get(stream, stream), desc)
             for stream, desc in self._extra_streams.items():
                 self._writer.add_stream(stream, desc)
             self._writer.flush()
@@ -339,6 +348,7 @@ class Recorder:
         c = self._counters[src.name]
         timeout = self.options.read_timeout_s
         backoff = 0.2
+        ren = self._renames.get(src.name, {})
         try:
             while not self._stop.is_set():
                 try:
@@ -356,6 +366,13 @@ class Recorder:
                     backoff = min(2 * backoff, 5.0)
                     continue
                 if batch:
+                    if ren:
+                        batch = [
+                            Reading(ren[r.stream], r.t_ns, r.values, r.status)
+                            if r.stream in ren
+                            else r
+                            for r in batch
+                        ]
                     q.put(batch)
                 elif getattr(src, "exhausted", False):
                     self.event(f"source {src.name}: end of data", level="info")

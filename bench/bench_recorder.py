@@ -1,0 +1,205 @@
+"""``recorder_can_frames``: CAN frames/s the recorder sustains into MCAP with zero drops, one core.
+
+Source (identical for both contestants): 50,000 pre-generated ``can.Message`` frames (8 load-cell
+PDO identifiers, 8 data bytes), cycled at maximum speed.
+
+- cdpr: a :class:`~cdpr.daq.source.Source` hands the frames to the recorder as ``can_raw`` readings
+  (the CAN driver's own frame-to-reading conversion), in batches of <= 2000; recorder threads, bounded
+  queue, JSON messages, zstd chunks closed every 0.5 s and fsynced.  A 5 s probe at full speed measures
+  the writer's capacity C; then the source is paced at 0.9 C for 25 s and must give zero drops and a
+  queue that never holds more than 1 s of frames (else the rate is lowered by 20 % and tried again,
+  15 s).  The value is the paced rate achieved (frames written / elapsed).
+- peer: python-can's own pipeline, ``can.Notifier`` on a bus that yields the same frames at maximum
+  speed, calling ``can.Logger("x.blf")`` (BLFWriter), for 10 s: frames written / elapsed.
+
+Each contestant runs in its own child process pinned to the same single CPU
+(``os.sched_setaffinity``), which also gives a clean peak RSS (``ru_maxrss``) per contestant.
+The issue asks for 60 s; the whole module is kept to about 60 s (5 + 25 + 10 s of measurement).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+N_FRAMES = 50_000
+TARGET = 30_000.0
+
+
+def _messages():  # noqa: ANN202 - child-process helper
+    import can
+
+    return [
+        can.Message(
+            arbitration_id=0x181 + (i % 8),
+            data=bytes(((i * 7 + j) & 0xFF) for j in range(8)),
+            is_extended_id=False,
+            timestamp=i * 3.3e-5,
+        )
+        for i in range(N_FRAMES)
+    ]
+
+
+def _child_recorder(out: str, duration_s: float, rate_hz: float) -> dict:
+    from cdpr.daq.can_source import raw_reading
+    from cdpr.daq.recorder import Recorder, RecorderOptions
+    from cdpr.daq.source import Source, StreamDescription
+
+    msgs = _messages()
+
+    class CycledFrames(Source):
+        def __init__(self, name: str, rate: float) -> None:
+            super().__init__(name)
+            self.rate = rate
+            self.i = 0
+
+        def describe(self) -> dict[str, StreamDescription]:
+            return {"can_raw": StreamDescription({}, 0.0, "bench frames")}
+
+        def _open(self) -> None:
+            self.t0 = time.perf_counter()
+
+        def _close(self) -> None:
+            pass
+
+        def _read(self, timeout_s: float) -> list:
+            k = 2000
+            if self.rate > 0:
+                k = min(k, int(self.rate * (time.perf_counter() - self.t0)) - self.i)
+                if k <= 0:
+                    time.sleep(0.002)
+                    return []
+            now = time.time_ns()
+            i0 = self.i
+            out = [raw_reading(msgs[(i0 + j) % N_FRAMES], now) for j in range(k)]
+            self.i = i0 + k
+            return out
+
+    src = CycledFrames("can0", rate_hz)
+    rec = Recorder([src], out, options=RecorderOptions())
+    t0 = time.perf_counter()
+    rec.start()
+    rec.wait(duration_s)
+    rec.stop()
+    dt = time.perf_counter() - t0
+    st = rec.status()
+    n = st.counts.get("can_raw", 0)
+    return {
+        "written": n,
+        "elapsed_s": dt,
+        "rate": n / dt,
+        "dropped": rec.dropped,
+        "queue_peak": st.extra["queue_peak"]["can0"],
+        "bytes": os.path.getsize(out),
+    }
+
+
+def _child_peer(out: str, duration_s: float) -> dict:
+    import can
+
+    msgs = _messages()
+
+    class CycledBus(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="bench")
+            self.i = 0
+
+        def _recv_internal(self, timeout):  # noqa: ANN001, ANN202
+            m = msgs[self.i % N_FRAMES]
+            self.i += 1
+            return m, False
+
+        def send(self, msg, timeout=None) -> None:  # noqa: ANN001
+            raise NotImplementedError
+
+    bus = CycledBus()
+    logger = can.Logger(out)
+    t0 = time.perf_counter()
+    notifier = can.Notifier(bus, [logger], timeout=0.1)
+    time.sleep(duration_s)
+    notifier.stop()  # also stops (flushes and closes) the logger
+    n = bus.i
+    dt = time.perf_counter() - t0
+    bus.shutdown()
+    return {"written": n, "elapsed_s": dt, "rate": n / dt, "bytes": os.path.getsize(out)}
+
+
+def _in_child(kind: str, *args: object) -> dict:
+    """Run one contestant in a child process pinned to one CPU; returns its result and peak RSS."""
+    code = (
+        "import json, os, resource, sys\n"
+        "cpu = min(os.sched_getaffinity(0))\n"
+        "os.sched_setaffinity(0, {cpu})\n"
+        f"sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})\n"
+        "import bench_recorder as b\n"
+        f"r = b._child_{kind}(*json.loads(sys.argv[1]))\n"
+        "r['peak_rss_MiB'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+        "r['cpu'] = cpu\n"
+        "print(json.dumps(r))\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(list(args))],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if res.returncode != 0:
+        raise RuntimeError(f"{kind} child failed: {res.stderr.strip()[-500:]}")
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def run() -> dict[str, dict]:
+    with tempfile.TemporaryDirectory(prefix="bench_recorder_") as d:
+        probe = _in_child("recorder", f"{d}/probe.mcap", 5.0, 0.0)
+        rate = 0.9 * probe["rate"]
+        tries = []
+        sustained = None
+        for duration in (25.0, 15.0, 15.0):
+            r = _in_child("recorder", f"{d}/paced_{len(tries)}.mcap", duration, rate)
+            r["paced_at"] = rate
+            tries.append(r)
+            if r["dropped"] == 0 and r["queue_peak"] <= rate * 1.0:
+                sustained = r
+                break
+            rate *= 0.8
+        peer = _in_child("peer", f"{d}/peer.blf", 10.0)
+    ok = sustained is not None
+    best = sustained or tries[-1]
+    return {
+        "recorder_can_frames": {
+            "value": round(best["rate"], 1) if ok else 0.0,
+            "unit": "frames/s",
+            "peer": "python-can can.Notifier + can.Logger writing BLF, same frames, max speed",
+            "peer_value": round(peer["rate"], 1),
+            "target": TARGET,
+            "dropped": best["dropped"],
+            "queue_peak_frames": best["queue_peak"],
+            "paced_at_frames_per_s": round(best["paced_at"], 1),
+            "duration_s": round(best["elapsed_s"], 2),
+            "probe_capacity_frames_per_s": round(probe["rate"], 1),
+            "bytes_per_frame": round(best["bytes"] / max(best["written"], 1), 2),
+            "peer_bytes_per_frame": round(peer["bytes"] / max(peer["written"], 1), 2),
+            "peak_rss_MiB": round(best["peak_rss_MiB"], 1),
+            "peer_peak_rss_MiB": round(peer["peak_rss_MiB"], 1),
+            "context": (
+                "each contestant in its own process pinned to one CPU; cdpr: 5 s full-speed probe, "
+                f"then paced at 0.9x probe for {best['elapsed_s']:.0f} s with zero drops required "
+                "(not the issue's 60 s, to keep make bench short); MCAP JSON messages, zstd chunks "
+                "closed every 0.5 s and fsynced; peer: 10 s at max speed (no queue, cannot drop)"
+                + ("" if ok else "; NO zero-drop rate found: value 0")
+            ),
+            "tries": [
+                {k: (round(v, 1) if isinstance(v, float) else v) for k, v in t.items()}
+                for t in tries
+            ],
+        }
+    }
+
+
+if __name__ == "__main__":
+    print(json.dumps(run(), indent=2))

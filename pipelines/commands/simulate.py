@@ -1,0 +1,220 @@
+"""``cdpr simulate``: the virtual rig and the recorder end to end, through a real transport.
+
+- ``--transport virtual``: the rig sends CAN frames on a python-can virtual bus in this process;
+- ``--transport slcan`` / ``serial``: the rig runs in a second process
+  (``python -m cdpr.daq.virtual_rig``) and emulates an slcan adapter (or the serial load-cell line
+  protocol) on a pseudo-terminal; this process records it with python-can's ``slcan`` interface
+  (or pyserial).  The tunnel conditions always go out as ``$TUN`` lines on a second pty.
+
+The run is ``<out>/<date>_<time>_<label>.mcap``; the truth (poses, wrench, tensions) is written
+beside it as ``<run>.truth.npz``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "simulate",
+        help="run the virtual rig through a real transport and record it (MCAP run + truth)",
+    )
+    p.add_argument("--rig", required=True, help="rig file (TOML)")
+    p.add_argument("--schedule", required=True, help="virtual-rig schedule (TOML)")
+    p.add_argument("--out", required=True, help="output folder for the run")
+    p.add_argument(
+        "--transport",
+        choices=("virtual", "slcan", "serial"),
+        default="virtual",
+        help="virtual: in-process python-can bus; slcan/serial: emulator in a second process on a pty",
+    )
+    p.add_argument(
+        "--fault",
+        action="append",
+        default=[],
+        metavar="KIND:START_S:DURATION_S[:CABLE]",
+        help="add a fault to the schedule (kinds: docs/daq_drivers.md), repeatable",
+    )
+    p.add_argument("--label", help="test-point label (default: the schedule's name)")
+    p.add_argument("--duration", type=float, help="stop recording after this many seconds")
+    p.add_argument("--speed", type=float, default=1.0, help="time scale of the schedule")
+    p.add_argument("--seed", type=int, help="random seed (default: the schedule's)")
+    p.add_argument("--quiet", action="store_true", help="no live view")
+    p.set_defaults(func=run)
+
+
+def _parse_fault(text: str) -> dict[str, Any]:
+    from cdpr.analysis.errors import ConfigError
+
+    parts = text.split(":")
+    if len(parts) not in (3, 4):
+        raise ConfigError("--fault", text, "expected KIND:START_S:DURATION_S[:CABLE]")
+    try:
+        f: dict[str, Any] = {
+            "kind": parts[0],
+            "start_s": float(parts[1]),
+            "duration_s": float(parts[2]),
+        }
+        if len(parts) == 4:
+            f["cable"] = int(parts[3])
+    except ValueError:
+        raise ConfigError(
+            "--fault", text, "start, duration must be numbers, cable an integer"
+        ) from None
+    return f
+
+
+def run(args: argparse.Namespace) -> int:
+    import tomli_w
+
+    import cdpr.daq.drivers  # noqa: F401
+    from cdpr.analysis.errors import InputError
+    from cdpr.daq.recorder import Attachment, RecorderOptions
+    from cdpr.daq.runs import new_run_path, run_metadata
+    from cdpr.daq.source import create_source
+    from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
+
+    from .. import __version__
+    from ..config import file_sha256, load_rig, load_toml
+    from .record import record_run
+
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration must be > 0 s, got {args.duration}")
+    if not args.speed > 0:
+        raise InputError(f"--speed must be > 0, got {args.speed}")
+    rig = load_rig(args.rig)
+    sched_data = load_toml(args.schedule)
+    faults = [_parse_fault(f) for f in args.fault]
+    if faults:
+        sched_data.setdefault("faults", [])
+        if not isinstance(sched_data["faults"], list):
+            from cdpr.analysis.errors import ConfigError
+
+            raise ConfigError(args.schedule, "faults", "expected an array of tables")
+        sched_data["faults"] = list(sched_data["faults"]) + faults
+    if args.seed is not None:
+        sched_data.setdefault("schedule", {})["seed"] = args.seed
+    schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
+    vr = VirtualRig(rig, schedule)
+    label = args.label or schedule.name
+    path = new_run_path(args.out, label)
+    truth_path = path.with_name(path.stem + ".truth.npz")
+
+    work = Path(tempfile.mkdtemp(prefix="cdpr-sim-"))
+    child: subprocess.Popen[str] | None = None
+    rig_run: Any = None
+    try:
+        sched_file = work / "schedule.toml"
+        sched_file.write_bytes(tomli_w.dumps(sched_data).encode())
+        link = work / "loadcell"
+        tunnel_link = work / "tunnel"
+        channel = f"cdpr-sim-{os.getpid()}-{time.monotonic_ns()}"
+        if args.transport == "virtual":
+            settings = vr.source_settings("virtual", channel=channel, tunnel_link=str(tunnel_link))
+        else:
+            cmd = [
+                sys.executable, "-m", "cdpr.daq.virtual_rig",
+                "--rig", str(args.rig), "--schedule", str(sched_file),
+                "--transport", args.transport, "--pty-link", str(link),
+                "--tunnel-link", str(tunnel_link), "--truth", str(truth_path),
+                "--wait-reader", "15", "--speed", str(args.speed),
+            ]  # fmt: skip
+            child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            assert child.stdout is not None
+            line = child.stdout.readline()
+            if not line.startswith("READY"):
+                err = child.stderr.read() if child.stderr else ""
+                raise InputError(f"virtual rig process failed to start: {(line + err).strip()}")
+            settings = vr.source_settings(
+                args.transport, link=str(link), tunnel_link=str(tunnel_link)
+            )
+        sources = [create_source(kind, name, s, origin=str(args.schedule))
+                   for name, (kind, s) in settings.items()]  # fmt: skip
+        # readers exist before the rig starts sending (a virtual bus only delivers to open buses)
+        for s in sources:
+            if s.name != "tunnel":
+                s.open()
+        if args.transport == "virtual":
+            rig_run = vr.start("virtual", channel=channel, tunnel_link=tunnel_link,
+                               wait_reader_s=0.0, speed=args.speed)  # fmt: skip
+        for s in sources:
+            s.open()  # the tunnel pty exists now
+
+        def watch(rec: Any) -> None:
+            def waiter() -> None:
+                if rig_run is not None:
+                    rig_run.done.wait()
+                elif child is not None:
+                    child.wait()
+                time.sleep(0.3)  # the last frames in flight
+                rec.request_stop("schedule done")
+
+            threading.Thread(target=waiter, name="sim-watch", daemon=True).start()
+
+        md = run_metadata(
+            label=label,
+            start_ns=time.time_ns(),
+            software_version=__version__,
+            rig=rig.name,
+            rig_sha256=file_sha256(args.rig),
+            calibration_ids={"loadcell": f"virtual-rig:{schedule.name}:seed{schedule.seed}"},
+            config={
+                "command": "simulate",
+                "transport": args.transport,
+                "schedule_file": str(args.schedule),
+                "schedule": sched_data,
+                "faults_added": faults,
+                "speed": args.speed,
+                "sources": {n: {"kind": k, **s} for n, (k, s) in settings.items()},
+            },
+            notes=f"virtual rig, schedule {schedule.name}, transport {args.transport}",
+            extra={"command": "simulate", "truth_file": truth_path.name},
+        )
+        attachments = [
+            Attachment.from_file(args.rig, "rig/" + Path(args.rig).name),
+            Attachment(
+                "schedule/" + Path(args.schedule).name, sched_file.read_bytes(), "application/toml"
+            ),
+        ]
+        dbc = getattr(sources[0], "dbc_path", None)
+        if dbc:
+            attachments.append(Attachment.from_file(dbc, "calibration/" + Path(dbc).name))
+        if args.transport == "virtual":
+            rig_run.started.wait(5.0)
+        record_run(
+            sources,
+            path,
+            metadata=md,
+            attachments=attachments,
+            options=RecorderOptions(),
+            duration_s=args.duration,
+            quiet=args.quiet,
+            t_min_N=list(rig.t_min_N),
+            t_max_N=list(rig.t_max_N),
+            on_started=watch,
+        )
+    finally:
+        if rig_run is not None:
+            rig_run.stop()
+            if path.exists():
+                vr.write_truth(truth_path)
+        if child is not None:
+            if child.poll() is None:
+                child.terminate()
+            try:
+                child.wait(10)
+            except subprocess.TimeoutExpired:
+                child.kill()
+        shutil.rmtree(work, ignore_errors=True)
+    print(f"truth written to {truth_path}")
+    return 0

@@ -1,0 +1,187 @@
+"""MCAP run files: channels and schemas, time-bounded chunks, recovery of truncated files, never
+overwrite.  Every file is also read by the independent reader (@mcap/core via node)."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+from test_recorder_helpers import node_read
+
+from cdpr.analysis.errors import CdprError, InputError
+from cdpr.daq.mcap_io import McapRunWriter, read_run, recover_run
+from cdpr.daq.runs import new_run_path, run_name
+from cdpr.daq.source import FieldDescription, Reading, StreamDescription
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _tension_desc() -> StreamDescription:
+    return StreamDescription(
+        {"T_c1_N": FieldDescription("N"), "raw_c1_counts": FieldDescription("", "int64")},
+        100.0,
+        "tensions",
+    )
+
+
+def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path) -> None:
+    p = tmp_path / "run.mcap"
+    w = McapRunWriter(p)
+    w.add_stream("tensions", _tension_desc())
+    w.add_metadata("run", {"rig": "flat", "calibration_ids": {"lc": "abc"}})
+    w.add_attachment("rig/flat.toml", b"[rig]\nname='flat'\n", "application/toml")
+    for i in range(500):
+        w.write(Reading("tensions", T0 + i * 10_000_000, {"T_c1_N": 40.0 + i, "raw_c1_counts": i}))
+    w.write(
+        Reading("tensions", T0 + 501 * 10_000_000, {"T_c1_N": math.nan, "raw_c1_counts": -1}, 16)
+    )
+    for i in range(7):
+        w.write(
+            Reading(
+                "pose",
+                T0 + i,
+                {
+                    "position_O_m": [0.5, 0.0, 0.3 + i],
+                    "quaternion_xyzw": [0, 0, 0, 1],
+                    "rms_px": 0.2,
+                },
+            )
+        )
+    w.write(Reading("image_cam0", T0, {"data": b"\xff\xd8\xff\xe0jpeg", "format": "jpeg"}))
+    w.write(Reading("event", T0, {"message": "wind on", "level": "warning"}))
+    w.finish()
+
+    node = node_read(p)
+    assert node["complete"] and node["error"] is None and node["bad_json"] == 0
+    assert node["topics"] == {"/tensions": 501, "/pose": 7, "/image_cam0": 1, "/event": 1}
+    assert node["statistics"]["per_topic"] == node["topics"]
+    assert node["schemas"] == {
+        "/tensions": "cdpr.tensions",
+        "/pose": "foxglove.PoseInFrame",
+        "/image_cam0": "foxglove.CompressedImage",
+        "/event": "foxglove.Log",
+    }
+    assert [m["name"] for m in node["metadata"]] == ["run"]
+    assert node["attachments"] == [
+        {"name": "rig/flat.toml", "media_type": "application/toml", "size": 18}
+    ]
+
+    rc = read_run(p)
+    assert rc.complete and rc.error is None
+    t, body = rc.messages["/tensions"][3]
+    assert t == T0 + 3 * 10_000_000 and body == {"T_c1_N": 43.0, "raw_c1_counts": 3, "status": 0}
+    assert rc.messages["/tensions"][-1][1]["T_c1_N"] is None  # NaN -> null (strict JSON)
+    pose = rc.messages["/pose"][2][1]
+    assert pose["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 2.3}
+    assert pose["pose"]["orientation"]["w"] == 1.0 and pose["rms_px"] == 0.2
+    assert pose["timestamp"] == {"sec": 1_700_000_000, "nsec": 2}
+    img = rc.messages["/image_cam0"][0][1]
+    assert base64.b64decode(img["data"]) == b"\xff\xd8\xff\xe0jpeg" and img["format"] == "jpeg"
+    assert rc.messages["/event"][0][1]["level"] == 3  # foxglove.Log WARNING
+    assert json.loads(rc.metadata["run"]["calibration_ids"]) == {"lc": "abc"}
+    sch = rc.channels["/tensions"].schema
+    assert sch["properties"]["T_c1_N"] == {"type": "number", "description": "unit: N"}
+    assert json.loads(rc.channels["/tensions"].metadata["units"]) == {"T_c1_N": "N"}
+
+
+def test_a_chunk_is_on_disk_within_the_flush_interval_while_the_file_is_open(
+    tmp_path: Path,
+) -> None:
+    """The python mcap writer alone keeps everything below 1 MiB in memory; ours closes chunks by
+    time: a copy of the open file, read by the independent reader, has the old messages."""
+    p = tmp_path / "open.mcap"
+    w = McapRunWriter(p, chunk_size=1 << 20, flush_interval_s=0.2)
+    w.add_stream("tensions", _tension_desc())
+    n = 0
+    t_end = time.monotonic() + 0.7
+    while time.monotonic() < t_end:
+        w.write(Reading("tensions", time.time_ns(), {"T_c1_N": 1.0, "raw_c1_counts": n}))
+        n += 1
+        w.maybe_flush()
+        time.sleep(0.002)
+    snap = tmp_path / "snap.mcap"
+    shutil.copyfile(p, snap)
+    w.finish()
+    node = node_read(snap)
+    assert not node["complete"] and node["error"] is None
+    got = node["topics"].get("/tensions", 0)
+    # at most one flush interval (0.2 s at <= 500 Hz -> <= 100 messages) plus one loop is missing
+    assert n - 110 <= got < n, (got, n)
+    assert node["chunks"] >= 2
+
+
+@pytest.mark.parametrize("cut_fraction", [0.35, 0.6, 0.97])
+def test_recover_salvages_every_complete_chunk(tmp_path: Path, cut_fraction: float) -> None:
+    p = tmp_path / "full.mcap"
+    w = McapRunWriter(p, chunk_size=4096)
+    w.add_metadata("run", {"label": "x"})
+    w.add_stream("tensions", _tension_desc())
+    for i in range(5000):
+        w.write(Reading("tensions", T0 + i, {"T_c1_N": float(i), "raw_c1_counts": i}))
+    w.finish()
+    data = p.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * cut_fraction)])
+    ind = node_read(cut)  # what an independent streaming reader gets from the damaged file
+    assert not ind["complete"]
+    out, contents = recover_run(cut)
+    assert out == tmp_path / "cut.recovered.mcap"
+    assert not contents.complete and contents.error is not None
+    node = node_read(out)
+    assert node["complete"] and node["error"] is None
+    n = node["topics"]["/tensions"]
+    assert n == ind["topics"].get("/tensions", 0) == len(contents.messages["/tensions"])
+    assert 0 < n <= 5000
+    if cut_fraction < 0.9:
+        assert n < 5000
+    # the salvaged messages are the first n, intact
+    rc = read_run(out)
+    assert [b["raw_c1_counts"] for _, b in rc.messages["/tensions"]] == list(range(n))
+    assert rc.metadata["run"] == {"label": "x"}
+    assert rc.metadata["recovery"]["source_complete"] == "false"
+    with pytest.raises(InputError, match="never overwritten"):
+        recover_run(cut)
+
+
+def test_recover_struct_error_cut_inside_a_record_header(tmp_path: Path) -> None:
+    p = tmp_path / "a.mcap"
+    w = McapRunWriter(p, chunk_size=2048)
+    w.add_stream("tensions", _tension_desc())
+    for i in range(2000):
+        w.write(Reading("tensions", T0 + i, {"T_c1_N": 0.5, "raw_c1_counts": i}))
+    w.flush()
+    size_after_flush = p.stat().st_size
+    w.finish()
+    cut = tmp_path / "b.mcap"
+    cut.write_bytes(p.read_bytes()[: size_after_flush + 5])  # 5 bytes of the next record header
+    out, contents = recover_run(cut)
+    assert len(contents.messages["/tensions"]) == 2000
+    assert node_read(out)["topics"]["/tensions"] == 2000
+
+
+def test_overwrite_refused_and_names(tmp_path: Path) -> None:
+    p = tmp_path / "r.mcap"
+    p.write_bytes(b"precious")
+    with pytest.raises(InputError, match="never overwritten"):
+        McapRunWriter(p)
+    assert p.read_bytes() == b"precious"
+    t = 1_763_800_000_123_000_000  # 2025-11-22 08:26:40 UTC
+    assert run_name("TP 3 / alpha=5°", t) == "20251122_082640_TP-3-alpha-5"
+    first = new_run_path(tmp_path, "tp", t)
+    first.write_bytes(b"x")
+    second = new_run_path(tmp_path, "tp", t)
+    assert first.name == "20251122_082640_tp.mcap" and second.name == "20251122_082640_tp_2.mcap"
+
+
+def test_not_an_mcap_file_is_a_clear_error(tmp_path: Path) -> None:
+    p = tmp_path / "x.mcap"
+    p.write_text("hello")
+    with pytest.raises(CdprError, match="not an MCAP file"):
+        read_run(p)
+    with pytest.raises(CdprError, match="file not found"):
+        read_run(tmp_path / "missing.mcap")
