@@ -112,8 +112,8 @@ def flow_angles(
     """
     R_B_O = body_from_tunnel(R_O_P, nose_P, up_P)
     vel_B = -R_B_O[..., :, 0]  # R_B_O @ (-1, 0, 0)
-    alpha = np.arctan2(vel_B[..., 2], vel_B[..., 0])
-    beta = np.arcsin(np.clip(vel_B[..., 1], -1.0, 1.0))
+    alpha = np.arctan2(vel_B[..., 2], vel_B[..., 0]) + 0.0  # + 0.0: no negative zeros
+    beta = np.arcsin(np.clip(vel_B[..., 1], -1.0, 1.0)) + 0.0
     return alpha, beta
 
 
