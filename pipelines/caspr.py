@@ -59,14 +59,19 @@ class CasprCable:
 def _parse(path: str | os.PathLike[str]) -> ET.Element:
     p = Path(path)
     try:
-        return ET.parse(p).getroot()
+        data = p.read_bytes()
     except FileNotFoundError:
         raise ConfigError(str(p), "", "file not found") from None
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
+    if b"<!ENTITY" in data:
+        # CASPR files never declare entities; refusing them rules out entity-expansion attacks
+        raise ConfigError(str(p), "DOCTYPE", "entity declarations are not supported")
+    try:
+        return ET.fromstring(data)
     except ET.ParseError as exc:
         line, col = exc.position
         raise ConfigError(str(p), f"line {line}, column {col}", f"malformed XML: {exc}") from None
-    except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
 
 
 def _text(src: str, parent: ET.Element, tag: str, where: str) -> str:

@@ -172,6 +172,14 @@ def test_errors_name_file_and_element(tmp_path: Path) -> None:
         import_caspr(CASPR / "CAROCA_bodies.xml", cable_set="with_rotating_pulleys")
     with pytest.raises(ConfigError, match=r"cable_set\[id=nope\]: not found"):
         import_caspr(CASPR / "CAROCA_bodies.xml", cable_set="nope")
+    bomb = (
+        '<?xml version="1.0"?><!DOCTYPE b [<!ENTITY a "aaaa">]><bodies_system>&a;</bodies_system>'
+    )
+    (tmp_path / "E_bodies.xml").write_text(bomb)
+    with pytest.raises(ConfigError, match=r"E_bodies\.xml: DOCTYPE: entity declarations"):
+        import_caspr(tmp_path / "E_bodies.xml", tmp_path / "M_cables.xml")
+    with pytest.raises(ConfigError, match=r"nothere_bodies\.xml: file not found"):
+        import_caspr(tmp_path / "nothere_bodies.xml")
     bad = BODY.format(q="0 0 1 0 0 0", extra="").replace("<mass>2.0</mass>", "<mass>heavy</mass>")
     (tmp_path / "B_bodies.xml").write_text(bad)
     with pytest.raises(ConfigError, match=r"B_bodies\.xml: link_rigid\[num=1\]/physical/mass"):

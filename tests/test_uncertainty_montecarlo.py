@@ -10,13 +10,14 @@ right; we allow 5 standard errors (false-alarm rate below 1e-4 per entry, and th
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import InputError
 from cdpr.analysis.kinematics import structure_matrix
-from cdpr.analysis.rigs import flat_rig
 from cdpr.analysis.rotations import rotation_from_euler
 from cdpr.analysis.uncertainty import (
     pose_jacobian,
@@ -24,6 +25,9 @@ from cdpr.analysis.uncertainty import (
     wrench_covariance,
 )
 from cdpr.analysis.wrench import recover_wrench
+from cdpr.pipelines.config import load_rig
+
+FLAT = Path(__file__).resolve().parents[1] / "data_samples" / "flat_optimum.toml"
 
 N = 40_000
 SIGMA_T = 0.05  # N
@@ -33,7 +37,7 @@ POSE_SD = np.array([SIGMA_POS] * 3 + [SIGMA_ANG] * 3)
 
 
 def _setup():
-    rig = flat_rig(51, 28, 0.67, 0.5)  # same geometry as data_samples/flat_optimum.toml
+    rig = load_rig(FLAT)
     q = np.concatenate([rig.reference_position_O_m + [0.01, -0.005, 0.02], [0.01, 0.02, -0.01]])
     R = rotation_from_euler(q[3:])
     A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, q[:3], R)
