@@ -13,6 +13,7 @@ allowed fraction of the bit rate, naming the configuration key at fault.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -92,7 +93,9 @@ def check_frame_budget(
     if rate_hz <= 0:
         raise ConfigError(origin, f"{key_prefix}.rate_hz", f"must be > 0 Hz, got {rate_hz}")
     if not 0 < max_load <= 1:
-        raise ConfigError(origin, f"{key_prefix}.max_bus_load", f"must be in (0, 1], got {max_load}")
+        raise ConfigError(
+            origin, f"{key_prefix}.max_bus_load", f"must be in (0, 1], got {max_load}"
+        )
     b = frame_budget(bitrate, rate_hz, frames_per_sample, data_bytes, extended, max_load)
     if not b.fits:
         cap = max_load * bitrate / (can_frame_bits(data_bytes, extended) * frames_per_sample)
@@ -101,7 +104,7 @@ def check_frame_budget(
             f"{key_prefix}.rate_hz",
             f"{rate_hz:g} Hz x {frames_per_sample} frames/sample = {b.frames_per_s:.0f} frames/s "
             f"needs {b.bits_per_s / 1e3:.0f} kbit/s worst case ({100 * b.load:.0f} % of "
-            f"{bitrate / 1e3:.0f} kbit/s, limit {100 * max_load:.0f} %): at most {cap:.0f} Hz fits",
+            f"{bitrate / 1e3:.0f} kbit/s, limit {100 * max_load:.0f} %): at most {math.floor(cap)} Hz fits",
         )
     return b
 
@@ -163,7 +166,9 @@ def calibration_from_settings(
         try:
             a = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ConfigError(origin, f"{key_prefix}.{key}", f"expected numbers, got {value!r}") from None
+            raise ConfigError(
+                origin, f"{key_prefix}.{key}", f"expected numbers, got {value!r}"
+            ) from None
         if a.ndim == 0:
             a = np.full(n_channels, float(a))
         if a.shape != (n_channels,):

@@ -61,7 +61,7 @@ def check_serial_budget(
             origin,
             f"{prefix}.rate_hz",
             f"{rate_hz:g} lines/s of up to {line_bytes} bytes need {need:.0f} baud, more than "
-            f"{baudrate} (at most {baudrate / (line_bytes * BITS_PER_BYTE):.0f} Hz fits)",
+            f"{baudrate} (at most {baudrate // (line_bytes * BITS_PER_BYTE)} Hz fits)",
         )
 
 
