@@ -267,3 +267,15 @@ def test_aero_options_incomplete_exit_2(tmp_path: Path, capsys: pytest.CaptureFi
     assert "--area-m2" in err
     err = _run_bad(tmp_path, capsys, ["--tensions", str(tmp_path / "T.csv"), "--span-m", "0.2"])
     assert "--span-m" in err and "--airspeed-mps" in err
+
+
+def test_single_tare_row_for_differing_poses_warns(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _write(tmp_path, n=3)
+    pd.read_csv(tmp_path / "T0.csv").iloc[:1].to_csv(tmp_path / "T0one.csv", index=False)
+    args = ["wrench", "--rig", str(RIG), "--poses", str(tmp_path / "poses.csv")]
+    args += ["--tensions", str(tmp_path / "T.csv"), "--tare", str(tmp_path / "T0one.csv")]
+    assert main([*args, "--out", str(tmp_path / "w.csv")]) == 0
+    assert "one tare row" in capsys.readouterr().err
+    assert len(_read(tmp_path / "w.csv")) == 3

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 DEFAULT_TENSION_SIGMA_N = 0.05
 DEFAULT_POSE_SIGMA_M = 0.5e-3
@@ -191,6 +192,15 @@ def run(args: argparse.Namespace) -> int:
             f"expected {n} rows (one per pose in {args.poses}), got {len(Tw)}",
         )
     T0 = read_tensions(args.tare, rig, n) if args.tare else None
+    if T0 is not None and n > 1 and np.ptp(poses, axis=0).max() > 1e-9:
+        import pandas as pd
+
+        if len(pd.read_csv(args.tare, comment="#")) == 1:
+            print(
+                f"cdpr wrench: warning: one tare row in {args.tare} used for poses that differ; "
+                "the tare method assumes T0 measured at each pose",
+                file=sys.stderr,
+            )
 
     lengths = np.linalg.norm(
         cable_vectors(
