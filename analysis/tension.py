@@ -97,6 +97,7 @@ PIVOT_TOL = 1e-12
 """Smallest Cholesky pivot of ``A' A'^T`` (``A'``: A with unit-norm rows, so the diagonal is 1)
 accepted; below it (``cond(A') > ~1e6``) the pose is flagged rank deficient."""
 
+_REL_TOL = 1e-12  # exact: constraints relaxed by this times (1 + max t_max) when intersected
 _NULL_TOL = 1e-20  # |null-space row|^2 below which a cable does not move in the null space
 _TINY = 1e-280  # replaces 0 as a divisor: turns "parallel" constraints into +-huge bounds
 _BIG = 1e100  # line parameters beyond this come from parallel, violated constraints
@@ -571,7 +572,7 @@ def _exact_kernel(
     Tp += f.pinv(w - _apply(At, Tp))  # one step of iterative refinement
     lo_ = lo - Tp
     hi_ = hi - Tp
-    tol = 1e-10 * (1.0 + np.abs(hi).max(axis=0))
+    tol = _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
     tol = np.broadcast_to(tol, (C,))
     need = ((lo_ > tol) | (hi_ < -tol)).any(axis=0) & f.ok
     status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
@@ -638,38 +639,60 @@ PENALTY_LAMBDAS = tuple(10.0**k for k in range(0, 11))
 """The default lambda schedule of :func:`penalty` (geometric, warm started)."""
 
 
+_STEPS = 0.5 ** np.arange(12)  # backtracking grid of the penalty method's Newton steps
+
+
 def _penalty_kernel(
     At: FloatArray,
     w: FloatArray,
     lo: FloatArray,
     hi: FloatArray,
     lambdas: tuple[float, ...] = PENALTY_LAMBDAS,
-    newton_iters: int = 8,
+    newton_iters: int = 30,
 ) -> tuple[FloatArray, IntArray]:
     n, m, C = At.shape
     rn = np.sqrt(np.einsum("imc,imc->ic", At, At))
     rs = np.divide(1.0, rn, out=np.zeros_like(rn), where=rn > 0)
-    As = (At * rs[:, None, :]).transpose(2, 0, 1)  # (C, n, m), unit rows
-    ws = (w * rs).T  # (C, n)
-    lo_c = np.broadcast_to(lo, (m, C)).T
-    hi_c = np.broadcast_to(hi, (m, C)).T
+    As = np.ascontiguousarray((At * rs[:, None, :]).transpose(2, 0, 1))  # (C, n, m), unit rows
+    ws = np.ascontiguousarray((w * rs).T)  # (C, n)
+    lo_c = np.ascontiguousarray(np.broadcast_to(lo, (m, C)).T)
+    hi_c = np.ascontiguousarray(np.broadcast_to(hi, (m, C)).T)
     AtA = np.einsum("cim,cik->cmk", As, As)
     Atw = np.einsum("cim,ci->cm", As, ws)
     eye = np.eye(m)
+
+    def objective(T: FloatArray, k: NDArray[np.intp], lam: float) -> FloatArray:
+        """Penalised objective of T (..., K, m) at the poses k."""
+        r = np.einsum("kim,...km->...ki", As[k], T) - ws[k]
+        lo_k, hi_k = lo_c[k], hi_c[k]
+        pen = (r * r).sum(-1)
+        pen += (np.minimum(T - lo_k, 0.0) ** 2).sum(-1) + (np.maximum(T - hi_k, 0.0) ** 2).sum(-1)
+        return ((T - lo_k) ** 2).sum(-1) + lam * pen
+
     T = lo_c.copy()
+    converged = np.ones(C, dtype=bool)
     for lam in lambdas:
+        k = np.arange(C)
         for _ in range(newton_iters):
-            below, above = T < lo_c, T > hi_c
+            Tk, lo_k, hi_k = T[k], lo_c[k], hi_c[k]
+            below, above = Tk < lo_k, Tk > hi_k
             act = (below | above).astype(np.float64)
-            bound = np.where(below, lo_c, hi_c) * act
-            H = eye + lam * (AtA + act[:, :, None] * eye)
-            rhs = lo_c + lam * (Atw + bound)
-            T_new = np.linalg.solve(H, rhs[..., None])[..., 0]
-            same = ((T_new < lo_c) == below) & ((T_new > hi_c) == above)
-            T = T_new
-            if same.all():
+            H = eye + lam * (AtA[k] + act[:, :, None] * eye)
+            rhs = lo_k + lam * (Atw[k] + np.where(below, lo_k, hi_k) * act)
+            d = np.linalg.solve(H, rhs[..., None])[..., 0] - Tk
+            # Newton step of the current piece; backtrack on a grid if it leaves the piece badly
+            f = objective(Tk[None] + _STEPS[:, None, None] * d[None], k, lam)
+            best = np.argmin(f, axis=0)
+            Tk = Tk + _STEPS[best][:, None] * d
+            T[k] = Tk
+            same = np.all(((Tk < lo_k) == below) & ((Tk > hi_k) == above), axis=-1)
+            done = same & (best == 0)
+            k = k[~done]
+            if k.size == 0:
                 break
-    return T.T.copy(), np.zeros(C, dtype=np.int8)
+        converged[k] = False
+    status = np.where(converged, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
+    return np.ascontiguousarray(T.T), status
 
 
 def penalty(
