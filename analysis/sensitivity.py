@@ -238,7 +238,8 @@ def gravity_load(
 class SensitivityResult:
     """Sensitivity of a batch of configurations (leading dims ``...``).
 
-    S_N: (...,) paper eq. 12, N; NaN where the configuration is singular.
+    S_N: (...,) paper eq. 12, N; NaN where the configuration is singular or where the method
+        reports a rank-deficient (reduced) structure matrix (its tensions are then undefined).
     delta_T_N: (..., m) ``T0 - Tw``, N.
     T0_N, Tw_N: (..., m) wind-off and loaded tensions, N.
     feasible_wind_off: (...,) the method found feasible tensions against gravity alone.
@@ -369,21 +370,23 @@ def sensitivity(
         np.broadcast_to(hi0, lead + (m,)),
     )
     sing = np.broadcast_to(sing0, lead)
+    # A method that reports a rank-deficient (reduced) matrix has no tensions to offer: S undefined.
+    failed = np.zeros(lead, dtype=bool)
     for r in (r0, rw):
         if r.status is not None:
-            sing = sing | np.broadcast_to(np.asarray(r.status) == STATUS_RANK_DEFICIENT, lead)
+            failed = failed | np.broadcast_to(np.asarray(r.status) == STATUS_RANK_DEFICIENT, lead)
     T0 = np.broadcast_to(r0.tensions_N, lead + (m,))
     dT = T0 - rw.tensions_N
     S = sensitivity_value(dT)
-    nan = np.where(sing, np.nan, 1.0)
-    feas0 = np.broadcast_to(r0.feasible, lead) & ~sing
+    nan = np.where(sing | failed, np.nan, 1.0)
+    feas0 = np.broadcast_to(r0.feasible, lead) & ~sing & ~failed
     return SensitivityResult(
         S_N=S * nan,
         delta_T_N=dT * nan[..., None],
         T0_N=T0 * nan[..., None],
         Tw_N=rw.tensions_N * nan[..., None],
         feasible_wind_off=feas0,
-        feasible=feas0 & rw.feasible,
+        feasible=feas0 & rw.feasible & ~failed,
         singular=np.array(sing),
         method=method,
     )

@@ -783,6 +783,11 @@ def _why_k(d: str, best: pd.Series, g: pd.DataFrame, o: StudyOptions) -> str:
     )
 
 
+def _at(e: pd.DataFrame, value: float) -> str:
+    hit = e[np.isclose(e.value, value)]
+    return f"{hit.S_N.iloc[0]:.3g} N" if len(hit) else "not in the sweep"
+
+
 def _why_flat(p: str, e: pd.DataFrame, ok: bool) -> str:
     if ok:
         return (
@@ -929,7 +934,7 @@ def build_report(
             line(
                 f"{fig}: S highest at {p} = {target:g} ({method})",
                 f"S highest at {p} = {best.value:g} (S = {best.S_N:.3g} N at {Vmax:g} m/s; "
-                f"S at {target:g}: {e[np.isclose(e.value, target)].S_N.iloc[0]:.3g} N; range "
+                f"S at {target:g}: {_at(e, target)}; range "
                 f"{e.S_N.min():.3g}-{e.S_N.max():.3g} N)",
                 ok,
                 _why_flat(p, e, ok),
