@@ -138,9 +138,15 @@ def solve_pnp(
             r = np.asarray(rvec0, dtype=np.float64).reshape(3, 1).copy()
             t = np.asarray(tvec0, dtype=np.float64).reshape(3, 1).copy()
             ok, r, t = cv2.solvePnP(
-                obj, img, np.asarray(K, np.float64), _dist(dist), r, t, True,
+                obj,
+                img,
+                np.asarray(K, np.float64),
+                _dist(dist),
+                r,
+                t,
+                True,
                 cv2.SOLVEPNP_ITERATIVE,
-            )  # fmt: skip
+            )
         else:
             ok, r, t = cv2.solvePnP(obj, img, np.asarray(K, np.float64), _dist(dist), flags=flag)
     except cv2.error:
@@ -211,6 +217,20 @@ def remap(
         np.ascontiguousarray(map_x, dtype=np.float32),
         np.ascontiguousarray(map_y, dtype=np.float32),
         cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=float(border_value),
+    )
+
+
+def warp_perspective(
+    src: NDArray[Any], H: ArrayLike, size_wh: tuple[int, int], border_value: float = 0.0
+) -> NDArray[Any]:
+    """``dst(x) = src(H^-1 x)`` (bilinear), pixel-centre convention, outside -> ``border_value``."""
+    return cv2.warpPerspective(
+        src,
+        np.asarray(H, np.float64),
+        (int(size_wh[0]), int(size_wh[1])),
+        flags=cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=float(border_value),
     )
@@ -465,9 +485,11 @@ class CharucoBoard:
         self.square_m, self.marker_m = float(square_m), float(marker_m)
         self.dictionary = dictionary
         self.board = cv2.aruco.CharucoBoard(
-            (self.squares_x, self.squares_y), self.square_m, self.marker_m,
+            (self.squares_x, self.squares_y),
+            self.square_m,
+            self.marker_m,
             aruco_dictionary(dictionary),
-        )  # fmt: skip
+        )
         self.board.setLegacyPattern(bool(legacy_pattern))
         params = cv2.aruco.CharucoParameters()
         dparams = cv2.aruco.DetectorParameters()

@@ -297,8 +297,14 @@ def detect_blobs(
             if area < s.min_area_px or area > s.max_area_px:
                 continue
             pad = 3
-            c = _centroid(gray, max(x0 + bx - pad, 0), max(y0 + by - pad, 0),
-                          min(x0 + bx + bw + pad, w), min(y0 + by + bh + pad, h), s.threshold_dn)  # fmt: skip
+            c = _centroid(
+                gray,
+                max(x0 + bx - pad, 0),
+                max(y0 + by - pad, 0),
+                min(x0 + bx + bw + pad, w),
+                min(y0 + by + bh + pad, h),
+                s.threshold_dn,
+            )
             if c is not None:
                 out.append((c[0], c[1], c[2]))
     if not out:
@@ -416,8 +422,13 @@ class PointMatcher:
                 flags | FLAG_FEW_POINTS | FLAG_NO_POSE,
                 nh,
             )
-        pose = estimate_pose(self.P[sel], blobs[labels[sel], :2], self.camera, self.sigma_px,
-                             max_rms_px=max(4 * self.sigma_px * np.sqrt(2), 0.3))  # fmt: skip
+        pose = estimate_pose(
+            self.P[sel],
+            blobs[labels[sel], :2],
+            self.camera,
+            self.sigma_px,
+            max_rms_px=max(4 * self.sigma_px * np.sqrt(2), 0.3),
+        )
         flags |= pose.flags
         if sel.sum() < self.min_markers:
             flags |= FLAG_FEW_POINTS
@@ -438,8 +449,12 @@ class PointMatcher:
         )
         if len(b) < 4:
             self._last = None
-            return MatchResult(np.full(len(self.P), -1, np.int64), 0.0, failed_pose(FLAG_FEW_POINTS),
-                               FLAG_FEW_POINTS | FLAG_NO_POSE)  # fmt: skip
+            return MatchResult(
+                np.full(len(self.P), -1, np.int64),
+                0.0,
+                failed_pose(FLAG_FEW_POINTS),
+                FLAG_FEW_POINTS | FLAG_NO_POSE,
+            )
         if self._last is not None:
             res = self._track(b)
             if res is not None:

@@ -94,9 +94,17 @@ def failed_pose(flags: int = FLAG_NO_POSE) -> PoseEstimate:
     """A placeholder pose (NaN) carrying ``flags``."""
     nan3 = np.full(3, np.nan)
     return PoseEstimate(
-        nan3, np.full((3, 3), np.nan), nan3, nan3, float("nan"), np.zeros((0, 2)),
-        np.zeros(0, bool), np.full((6, 6), np.nan), flags | FLAG_NO_POSE, 0,
-    )  # fmt: skip
+        nan3,
+        np.full((3, 3), np.nan),
+        nan3,
+        nan3,
+        float("nan"),
+        np.zeros((0, 2)),
+        np.zeros(0, bool),
+        np.full((6, 6), np.nan),
+        flags | FLAG_NO_POSE,
+        0,
+    )
 
 
 def _exp_so3(w: F64) -> F64:

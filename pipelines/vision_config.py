@@ -1,0 +1,142 @@
+"""Loaders of the vision files: ChArUco board (TOML), marker layout (TOML), camera model (JSON).
+
+Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the file, the key and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdpr.analysis.errors import ConfigError
+from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
+from cdpr.calibration.intrinsics import BoardSpec, CalibrationSettings
+from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
+
+from .config import load_toml
+
+
+def _number(
+    src: str, table: dict[str, Any], key: str, prefix: str, kind: type, positive: bool = True
+) -> Any:
+    if key not in table:
+        raise ConfigError(src, prefix + key, "missing")
+    v = table[key]
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, int | float)
+        or (kind is int and not isinstance(v, int))
+    ):
+        raise ConfigError(
+            src, prefix + key, f"expected {'an integer' if kind is int else 'a number'}, got {v!r}"
+        )
+    if positive and not v > 0:
+        raise ConfigError(src, prefix + key, f"expected a positive value, got {v!r}")
+    return kind(v)
+
+
+def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSettings]:
+    """A board file: ``[board]`` (squares_x, squares_y, square_m, marker_m, dictionary,
+    legacy_pattern), optional ``[calibration]`` limits and optional ``[pose_O]`` (position_m,
+    euler_rad: Z-Y-X angles of the board frame in {O}) for extrinsics."""
+    src = str(path)
+    data = load_toml(path)
+    b = data.get("board")
+    if not isinstance(b, dict):
+        raise ConfigError(src, "board", "missing [board] table")
+    spec = BoardSpec(
+        squares_x=_number(src, b, "squares_x", "board.", int),
+        squares_y=_number(src, b, "squares_y", "board.", int),
+        square_m=_number(src, b, "square_m", "board.", float),
+        marker_m=_number(src, b, "marker_m", "board.", float),
+        dictionary=str(b.get("dictionary", "DICT_5X5_100")),
+        legacy_pattern=bool(b.get("legacy_pattern", False)),
+    )
+    if spec.squares_x < 3 or spec.squares_y < 3:
+        raise ConfigError(src, "board.squares_x", "expected at least 3 x 3 squares")
+    if spec.marker_m >= spec.square_m:
+        raise ConfigError(src, "board.marker_m", f"must be smaller than square_m ({spec.square_m})")
+    if not spec.dictionary.startswith("DICT_"):
+        raise ConfigError(
+            src, "board.dictionary", f"expected a name like 'DICT_5X5_100', got {spec.dictionary!r}"
+        )
+    try:
+        spec.make()
+    except Exception as exc:  # noqa: BLE001 - OpenCV raises its own error type for bad boards
+        raise ConfigError(src, "board", f"OpenCV cannot build this board: {exc}") from None
+    c = data.get("calibration", {})
+    if not isinstance(c, dict):
+        raise ConfigError(src, "calibration", "expected a table")
+    s = CalibrationSettings()
+    for key, kind in (
+        ("min_corners", int),
+        ("min_views", int),
+        ("max_blur_px", float),
+        ("reject_k", float),
+        ("reject_floor_px", float),
+        ("max_reject_rounds", int),
+    ):
+        if key in c:
+            setattr(s, key, _number(src, c, key, "calibration.", kind))
+    if "fix_k3" in c:
+        if not isinstance(c["fix_k3"], bool):
+            raise ConfigError(
+                src, "calibration.fix_k3", f"expected true or false, got {c['fix_k3']!r}"
+            )
+        s.fix_k3 = c["fix_k3"]
+    pose = data.get("pose_O")
+    if pose is not None:
+        from cdpr.analysis.rotations import rotation_from_euler
+
+        for key in ("position_m", "euler_rad"):
+            v = pose.get(key) if isinstance(pose, dict) else None
+            try:
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):
+                a = np.zeros(0)
+            if a.shape != (3,) or not np.all(np.isfinite(a)):
+                raise ConfigError(src, f"pose_O.{key}", f"expected 3 finite numbers, got {v!r}")
+        spec.position_O_m = np.asarray(pose["position_m"], np.float64)
+        spec.R_O_B = rotation_from_euler(np.asarray(pose["euler_rad"], np.float64))
+    return spec, s
+
+
+def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
+    """A marker layout file (format in :mod:`cdpr.calibration.markers`)."""
+    layout = layout_from_mapping(load_toml(path), source=str(path))
+    if layout.kind == "fiducial":
+        from cdpr.calibration import cv
+
+        try:
+            cv.aruco_dictionary(layout.dictionary)
+        except Exception as exc:  # noqa: BLE001
+            raise ConfigError(str(path), "dictionary", str(exc)) from None
+    return layout
+
+
+def load_camera(path: str | os.PathLike[str]) -> CameraModel:
+    """A camera model JSON file (format in :mod:`cdpr.calibration.camera_model`)."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(str(p), "", "file not found") from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError(str(p), "", f"invalid JSON: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
+    return camera_from_mapping(data, source=str(p))
+
+
+def layout_toml(layout: MarkerLayout, header: str = "") -> str:
+    """A layout as TOML text (for the data samples and round trips)."""
+    import tomli_w
+
+    text = tomli_w.dumps(layout.to_mapping())
+    if header:
+        text = "".join(f"# {line}\n" for line in header.splitlines()) + "\n" + text
+    return text
