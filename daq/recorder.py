@@ -386,17 +386,15 @@ class Recorder:
     def _drain(self, w: McapRunWriter) -> int:
         n = 0
         latest = self._latest
-        write = w.write
         while self._events:
             r = self._events.popleft()
-            write(r)
+            w.write(r)
             latest[r.stream] = r
             n += 1
+        write_many = w.write_many
         for q in self._queues.values():
             for batch in q.take_all():
-                for r in batch:
-                    write(r)
-                n += len(batch)
+                n += write_many(batch)
                 # the latest reading of every stream in the batch (walk back a little)
                 seen: set[str] = set()
                 for r in reversed(batch[-64:]):

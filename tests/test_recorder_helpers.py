@@ -26,7 +26,11 @@ def node_read(path: str | Path) -> dict[str, Any]:
         ["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True, timeout=120
     )
     assert res.returncode == 0, res.stderr
-    return json.loads(res.stdout)
+    out = json.loads(res.stdout)
+    if out["complete"]:  # the summary's chunk and message indexes agree with the data section
+        assert out["indexed"] is not None and out["indexed"]["topics"] == out["topics"], out
+        assert out["indexed"]["chunk_indexes"] == out["chunks"], out
+    return out
 
 
 class VirtualCanRaw(Source):

@@ -6,11 +6,27 @@
 // Usage: node mcap_check.js FILE.mcap
 "use strict";
 const fs = require("fs");
-const { McapStreamReader } = require("@mcap/core");
+const { McapStreamReader, McapIndexedReader } = require("@mcap/core");
 const fzstd = require("fzstd");
 const lz4 = require("lz4js");
 
-function main() {
+// With a valid footer, also read through the summary section: the chunk and message indexes.
+async function indexedCounts(buf, decompressHandlers) {
+  const readable = {
+    size: async () => BigInt(buf.length),
+    read: async (offset, length) => buf.subarray(Number(offset), Number(offset + length)),
+  };
+  const reader = await McapIndexedReader.Initialize({ readable, decompressHandlers });
+  const topics = {};
+  for await (const msg of reader.readMessages()) {
+    const ch = reader.channelsById.get(msg.channelId);
+    const topic = ch ? ch.topic : `#${msg.channelId}`;
+    topics[topic] = (topics[topic] || 0) + 1;
+  }
+  return { topics, chunk_indexes: reader.chunkIndexes.length };
+}
+
+async function main() {
   const path = process.argv[2];
   if (!path) {
     process.stderr.write("usage: mcap_check.js FILE.mcap\n");
@@ -21,7 +37,8 @@ function main() {
     lz4: (data, size) => Uint8Array.from(lz4.decompress(data, Number(size))),
   };
   const reader = new McapStreamReader({ decompressHandlers, validateCrcs: true, includeChunks: true });
-  reader.append(new Uint8Array(fs.readFileSync(path)));
+  const buf = new Uint8Array(fs.readFileSync(path));
+  reader.append(buf);
   const channels = new Map();
   const schemas = new Map();
   const out = {
@@ -34,6 +51,7 @@ function main() {
     messages: 0,
     bad_json: 0,
     statistics: null,
+    indexed: null,
     error: null,
   };
   const decoder = new TextDecoder();
@@ -87,7 +105,17 @@ function main() {
   } catch (e) {
     out.error = String(e && e.message ? e.message : e);
   }
+  if (out.complete) {
+    try {
+      out.indexed = await indexedCounts(buf, decompressHandlers);
+    } catch (e) {
+      out.error = "indexed reader: " + String(e && e.message ? e.message : e);
+    }
+  }
   process.stdout.write(JSON.stringify(out) + "\n");
 }
 
-main();
+main().catch((e) => {
+  process.stderr.write(String(e) + "\n");
+  process.exit(1);
+});
