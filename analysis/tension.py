@@ -90,7 +90,7 @@ FEASIBILITY_TOL_N = 1e-6
 """Tolerance (N) on the residual and the bounds when a result is declared feasible, relative to
 ``1 + max |t_max|`` of the pose."""
 
-CHUNK = 2048
+CHUNK = 4096
 """Poses per chunk: bounds the working memory (well under 1 KiB per pose) and keeps it in cache."""
 
 PIVOT_TOL = 1e-12
@@ -443,8 +443,7 @@ def _null_space(f: _Factor, r: int) -> list[FloatArray]:
         j = np.argmax(diag, axis=0)
         v = -np.einsum("imc,ic->mc", B, B[:, j, ar])
         v[j, ar] += 1.0
-        for u in out:  # deflate (twice: Gram-Schmidt with re-orthogonalisation)
-            v -= u * np.einsum("mc,mc->c", u, v)
+        for u in out:  # deflate: remove the component along the vectors already taken
             v -= u * np.einsum("mc,mc->c", u, v)
         v /= np.sqrt(np.einsum("mc,mc->c", v, v))
         diag = diag - v * v
@@ -473,11 +472,12 @@ def _polygon(
     V = np.concatenate([(lo_ > tol) & good, (hi_ < -tol) & good])
     cnt = V.sum(axis=0)
     out = (np.zeros(K), np.zeros(K), np.zeros(K, dtype=bool))
-    width = hi_ - lo_ + 2 * tol
     lower = lo_ - tol
+    upper = hi_ + tol
+    width = upper - lower
     prev = 0
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        for kb in (1, 2, 4, 2 * m):
+        for kb in (2, 4, 2 * m):
             sel = np.flatnonzero((cnt > prev) & (cnt <= kb))
             prev = kb
             if sel.size:
@@ -562,14 +562,20 @@ def _interval(
 
 
 def _exact_kernel(
-    At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray, ref: FloatArray
+    At: FloatArray,
+    w: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    ref: FloatArray,
+    refine: bool = False,
 ) -> tuple[FloatArray, IntArray]:
     n, m, C = At.shape
     r = m - n
     f = _Factor(At)
     ref = np.broadcast_to(ref, (m, C))
     Tp = ref + f.pinv(w - _apply(At, ref))
-    Tp += f.pinv(w - _apply(At, Tp))  # one step of iterative refinement
+    if refine:
+        Tp += f.pinv(w - _apply(At, Tp))  # one step of iterative refinement
     lo_ = lo - Tp
     hi_ = hi - Tp
     tol = _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
