@@ -332,7 +332,8 @@ def run(args: argparse.Namespace) -> int:
     def row(label: str, x: Any, e: dict[str, Any]) -> str:
         vals = ", ".join(f"{n} = {v:.4g}" for n, v in zip(names, x, strict=True))
         return (f"| {label} | {vals} | {e['S_N'][0]:.4g} | {e['margin_N'][0]:.4g} | "
-                f"{e['condition'][0]:.4g} | {e['std_force_N'][0]:.3g} |")  # fmt: skip
+                f"{e['condition'][0]:.4g} | {e['std_force_N'][0]:.3g} | "
+                f"{'yes' if constraint_violation(e)[0] == 0 else 'no'} |")  # fmt: skip
 
     text = "\n".join(
         [
@@ -342,8 +343,9 @@ def run(args: argparse.Namespace) -> int:
             f"N, condition <= {args.max_condition:g}; bounds {bounds}.\n",
             f"Differential evolution: {result.nit} generations, {result.nfev} evaluations, "
             f"message: {result.message}\n",
-            "| design | variables | S (N) | margin (N) | condition | max force std (N) |",
-            "|---|---|---|---|---|---|",
+            "| design | variables | S (N) | margin (N) | condition | max force std (N) | "
+            "meets constraints |",
+            "|---|---|---|---|---|---|---|",
             row("optimum", xbest, ev_best),
             row("paper", paper, ev_paper),
             "",
