@@ -6,6 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
 .PHONY: demo test lint bench analyze install clean
+RUNS   ?= runs
 
 install: $(STAMP)
 
@@ -26,6 +27,9 @@ lint: $(STAMP)
 
 test: lint
 	$(VENV)/bin/pytest -n 2 -q
+
+analyze: $(STAMP)
+	$(VENV)/bin/cdpr analyze $(RUNS) --out $(OUT)/analysis
 
 bench: $(STAMP)
 	$(PY) bench/run.py
