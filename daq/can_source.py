@@ -86,8 +86,11 @@ class LoadCellDecoder:
     calibration: per-channel offsets and gains (len(cables) channels).
     """
 
-    def __init__(self, db: Any, cables: Sequence[str], calibration: Calibration) -> None:
+    def __init__(
+        self, db: Any, cables: Sequence[str], calibration: Calibration, rate_hz: float = 0.0
+    ) -> None:
         self.db = db
+        self.rate_hz = float(rate_hz)
         self.cables = list(cables)
         self.calibration = calibration
         n = len(self.cables)
@@ -111,6 +114,7 @@ class LoadCellDecoder:
         self.partial = 0
         self.bad = 0
         self._last_counter: int | None = None
+        self._last_t_ns = 0
         self._seq = -1
         self._pending_counter: int | None = None
         self._pending: dict[int, dict[str, Any]] = {}
@@ -121,10 +125,10 @@ class LoadCellDecoder:
         return len(self.frame_ids)
 
     def reset(self) -> None:
-        """Forget the pending sample and the counter history (after a bus reopen)."""
+        """Drop the pending sample (after a bus reopen).  The counter history stays: the device kept
+        counting, so the gap over the outage is counted as lost samples."""
         self._pending_counter = None
         self._pending = {}
-        self._last_counter = None
 
     def decode(self, msg: can.Message, t_ns: int) -> list[Reading]:
         """Feed one frame; returns the completed (or flushed partial) samples, usually 0 or 1."""
@@ -166,9 +170,16 @@ class LoadCellDecoder:
             step = (counter - self._last_counter) % 256
             if step == 0:
                 step = 256
+            if self.rate_hz > 0:
+                # an 8-bit counter wraps every 256 samples: over a long outage, add the whole
+                # wraps the host clock says have passed
+                expected = (t_ns - self._last_t_ns) * 1e-9 * self.rate_hz
+                if expected - step > 128:
+                    step += 256 * int(round((expected - step) / 256))
             self.lost += step - 1
             self._seq += step
         self._last_counter = counter
+        self._last_t_ns = t_ns
         n = self.n
         counts = [math.nan] * n
         ch_status = [0] * n
@@ -262,6 +273,7 @@ def build_decoder(
     cables: Sequence[str] | None,
     offset_counts: Any,
     gain_N_per_count: Any,
+    rate_hz: float = 0.0,
 ) -> tuple[LoadCellDecoder, str]:
     """A :class:`LoadCellDecoder` from driver settings; errors name ``origin`` and ``prefix.key``."""
     dbc_path = Path(dbc) if dbc is not None else DEFAULT_DBC
@@ -281,7 +293,7 @@ def build_decoder(
         raise ConfigError(origin, f"{prefix}.cables", f"expected unique cable names, got {cables}")
     cal = calibration_from_settings(origin, prefix, len(cables), offset_counts, gain_N_per_count)
     try:
-        dec = LoadCellDecoder(db, cables, cal)
+        dec = LoadCellDecoder(db, cables, cal, rate_hz)
     except ValueError as exc:
         raise ConfigError(origin, f"{prefix}.cables", f"{exc} ({dbc_path})") from None
     return dec, str(dbc_path)
@@ -343,7 +355,7 @@ class CanLoadCellSource(Source):
         self.bitrate = bitrate
         self.rate_hz = rate_hz
         self.decoder, self.dbc_path = build_decoder(
-            origin, prefix, dbc, cables, offset_counts, gain_N_per_count
+            origin, prefix, dbc, cables, offset_counts, gain_N_per_count, rate_hz
         )
         self.budget = check_frame_budget(
             origin, prefix, bitrate, rate_hz, self.decoder.frames_per_sample, 8, False, max_bus_load

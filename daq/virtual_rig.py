@@ -790,9 +790,14 @@ class VirtualRig:
         return run
 
     def run_transport(self, transport: str = "virtual", **kwargs: Any) -> RigRun:
-        """Run the whole schedule in the calling thread (blocking); see :meth:`start`."""
+        """Run the whole schedule, blocking until it has been sent, then close the transports;
+        same arguments as :meth:`start` (``kind=`` is accepted as an alias of ``transport``)."""
+        transport = kwargs.pop("kind", transport)
         run = self.start(transport, **kwargs)
-        run.wait()
+        try:
+            run.wait()
+        finally:
+            run.stop()
         return run
 
 
@@ -1026,6 +1031,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--wait-reader", type=float, default=10.0, help="seconds to wait for a reader")
     ap.add_argument("--speed", type=float, default=1.0)
     ap.add_argument("--seed", type=int)
+    ap.add_argument(
+        "--linger", type=float, default=0.5, help="seconds to keep the ports open after the run"
+    )
     a = ap.parse_args(argv)
     from cdpr.analysis.errors import CdprError
 
@@ -1047,6 +1055,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"READY {a.pty_link or a.channel}", flush=True)
     try:
         run.wait()
+        time.sleep(max(0.0, a.linger))  # let the reader drain the pty before it closes
     except KeyboardInterrupt:
         pass
     finally:
