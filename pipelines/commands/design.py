@@ -259,6 +259,11 @@ def run(args: argparse.Namespace) -> int:
             f"bounds {bounds} meets --min-margin {args.min_margin:g} N and --max-condition "
             f"{args.max_condition:g}; widen --bound, relax the constraints or check the rig options"
         )
+    # Start the evolution from the best random designs (constraint-meeting ones first), so the
+    # optimum is never worse than the random search that draws the Pareto cloud.
+    n_pop = max(5, args.popsize * len(names))
+    rank = np.lexsort((-np.nan_to_num(objective_value(args.objective, evs), nan=-1e6), viol))
+    init = Xs[rank[:n_pop]]
     result = differential_evolution(
         cost,
         list(zip(lo, hi, strict=True)),
@@ -268,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
         vectorized=True,
         updating="deferred",
         polish=False,
-        init="sobol",
+        init=init,
         tol=1e-8,
     )
     xbest = np.asarray(result.x)
