@@ -992,9 +992,9 @@ def build_report(
             + ". S grows like 1/sigma_min (slope -1) only for the loads with a component "
             "along the lost direction; the others stay finite, so a sweep can show a huge S next "
             "to a singularity for one load direction and nothing for another. An S that is large "
-            "because A is nearly singular is not a good force balance: the same small sigma_min "
-            "amplifies load-cell noise into the recovered wrench and the tensions leave their "
-            "limits (see the margin and the wrench uncertainty below)."
+            "because A is nearly singular is not a good force balance: the tensions needed for "
+            "the weak-direction loads leave their limits (the margin collapses, see below), and "
+            "the wrench the rig recovers gains no accuracy from it (next section)."
         )
     add("")
     add("## Metrics the paper lacks (per configuration, in the CSV files)\n")
@@ -1007,6 +1007,14 @@ def build_report(
         "negative or -inf when infeasible; `std_*`, the standard deviation of each recovered "
         f"wrench component for load-cell noise sigma = {o.study.sigma_T_N:g} N per reading (tare "
         "method: sqrt(diag(A 2 sigma^2 I A^T))).\n"
+    )
+    add(
+        "What S does not tell: the recovered wrench is `W = A (T0 - Tw)`, so load-cell noise "
+        "reaches it through A itself, `Cov(W) = A Sigma_T A^T`: its standard deviation depends on "
+        "the row norms of A, not on S or on sigma_min. A larger dT for the same W makes the "
+        "tension change easier to see on a load cell, but the absolute accuracy of W is set by "
+        "`std_*`; a design should compare `std_*` (or |W| / std) and the margin, with S as a "
+        "secondary figure (see `cdpr design` for the trade-off between S and the margin).\n"
     )
     add(
         "| configuration | S (N) | condition | sigma_min | margin (N) | std Fx (N) | std Mz (N m) |"
