@@ -15,7 +15,8 @@ between ``$`` and ``*`` written as two upper-case hex digits, and ``\\r\\n`` at 
 
 Example (checksum computed over ``LC,17,...,0``)::
 
-    $LC,17,340000,120345,-2,0,0,0,0,0,0,0*2C\\r\\n
+    $LC,17,340000,120345,-2,0,0,0,0,0,0,0*0C\\r\\n
+    $TUN,3,25.5100,101325.00,293.150*59\\r\\n
 """
 
 from __future__ import annotations

@@ -142,10 +142,12 @@ class PtyPort:
             self._flush_locked(m)
             return True
 
-    def flush(self) -> None:
+    def flush(self) -> int:
+        """Write what the pty could not take before; returns the bytes still pending."""
         with self._lock:
-            if self.master is not None:
+            if self.master is not None and self._pending:
                 self._flush_locked(self.master)
+            return len(self._pending)
 
     def _attached_locked(self, m: int) -> bool:
         p = select.poll()
@@ -266,6 +268,7 @@ class SlcanEmulator:
             if not self.port.present:
                 time.sleep(0.01)
                 continue
+            self.port.flush()  # push out frames the pty could not take at once
             data = self.port.read(0.02)
             if not data:
                 if not self.port.reader_attached() and self.is_open:

@@ -947,7 +947,8 @@ class RigRun:
                 target = mono0 + int(ev_t[e] / self.speed)
                 delay = (target - time.monotonic_ns()) * 1e-9
                 if delay > 0:
-                    if self._stop.wait(delay):
+                    self._flush_ports()
+                    if self._stop.wait(max(0.0, (target - time.monotonic_ns()) * 1e-9)):
                         break
                 k = int(ev_idx[e])
                 if ev_kind[e] == 1:
@@ -971,10 +972,20 @@ class RigRun:
             if vanished:
                 for _, r in self._vanishers:
                     r()
+            end = time.monotonic() + 2.0  # drain what the ptys have not taken yet
+            while self._flush_ports() and time.monotonic() < end and not self._stop.is_set():
+                time.sleep(0.005)
         except BaseException as exc:  # reported to the caller through wait()
             self.error = exc
         finally:
             self.done.set()
+
+    def _flush_ports(self) -> int:
+        """Flush every pty; the bytes still pending."""
+        ports = [getattr(self, "port", None), self._tunnel_port]
+        if self.transport == "slcan":
+            ports.append(self.emulator.port)
+        return sum(p.flush() for p in ports if p is not None)
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Wait for the schedule to finish; re-raises an error of the sender thread."""
