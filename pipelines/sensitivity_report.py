@@ -734,12 +734,18 @@ def plot_singular(scan: pd.DataFrame, out: Path) -> list[str]:
             d = scan[scan.layout == layout]
             for j, load in enumerate(d.load.unique()):
                 e = d[d.load == load]
-                ax.loglog(e.gap, e.S_N, marker=_MARKERS[j], ms=3, label=f"S, {load}")
+                (ln,) = ax.loglog(e.gap, e.S_N, marker=_MARKERS[j], ms=3, label=f"S, {load}")
+                bad = e[e.feasible == 0]
+                ax.plot(bad.gap, bad.S_N, ls="none", marker=_MARKERS[j], ms=6, mfc="white",
+                        mec=ln.get_color())  # fmt: skip
             e = d[d.load == d.load.iloc[0]]
             ax.loglog(e.gap, 1.0 / e.sigma_min, "k:", label="1 / sigma_min")
             ax.set_xlabel("distance to the singular configuration (ratio)")
             ax.set_ylabel("S (N)  /  1 / sigma_min")
-            ax.set_title(f"{layout} layout: {d.approach.iloc[0]}", fontsize=9)
+            ax.set_title(
+                f"{layout} layout: {d.approach.iloc[0]} (exact; hollow: tensions infeasible)",
+                fontsize=9,
+            )
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=7)
     return [name]
@@ -981,8 +987,15 @@ def build_report(
             if len(e) >= 4:
                 x, y = np.log(e.gap.to_numpy()), np.log(e.S_N.to_numpy())
                 slope = float(np.polyfit(x[:8], y[:8], 1)[0])
+                infeas = e[e.feasible == 0]
+                lost = (
+                    f", tensions outside the limits below gap {infeas.gap.max():.1e}"
+                    if len(infeas)
+                    else ""
+                )
                 parts.append(
-                    f"{load}: S ~ gap^{slope:.2f} (S = {e.S_N.iloc[0]:.3g} N at gap {e.gap.iloc[0]:.1e})"
+                    f"{load}: S ~ gap^{slope:.2f} (S = {e.S_N.iloc[0]:.3g} N at gap "
+                    f"{e.gap.iloc[0]:.1e}{lost})"
                 )
         n_s = int(d[d.load == d.load.iloc[0]].singular.sum())
         add(
