@@ -335,3 +335,33 @@ def test_slcan_bus_reopened_after_adapter_vanishes(tmp_path: Path) -> None:
     t2 = [r for r in again if r.stream == "tensions"]
     assert len(t1) == 1 and len(t2) == 1 and not gone
     assert t2[0].values["raw_k3_counts"] == 30 and t2[0].values["counter"] == 2
+
+
+def test_long_outage_counts_whole_counter_wraps() -> None:
+    """An 8-bit counter wraps every 256 samples: the host clock resolves the wraps of an outage."""
+    from cdpr.daq.can_source import build_decoder
+
+    dec, _ = build_decoder("t", "sources.lc", None, None, None, None, rate_hz=100.0)
+    t0 = 1_000_000_000_000
+    for counter, t_ns in ((10, t0), (11, t0 + 10_000_000), (21, t0 + 3_010_000_000)):
+        for m in _frames(counter, [0] * 8):
+            m.timestamp = t_ns / 1e9
+            dec.decode(m, t_ns)
+    # 3 s at 100 Hz = 300 samples later: counter 11 -> 21 is 10 + 256 steps, 265 lost
+    assert dec.lost == 265 and dec._seq == 11 + 266
+
+
+def test_error_frame_flood_reopens_bus() -> None:
+    ch = _chan()
+    tx = can.Bus(interface="virtual", channel=ch, bitrate=1_000_000, receive_own_messages=False)
+    with _source(ch, error_frame_limit=5, reopen_backoff_s=[0.01, 0.05]) as src:
+        for _ in range(10):
+            tx.send(can.Message(arbitration_id=0x20000004, is_error_frame=True, data=b"\0" * 8))
+        for _ in range(5):
+            src.read(0.02)
+        assert src.stats.extra["error_frames"] == 6 and src.stats.reopened == 1
+        for m in _frames(3, [7] * 8):
+            tx.send(m)
+        rd = _read_all(src, 1)
+    tx.shutdown()
+    assert [r.values["raw_k1_counts"] for r in rd if r.stream == "tensions"] == [7]
