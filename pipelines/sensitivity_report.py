@@ -357,9 +357,22 @@ def _metrics_frame(
 
 
 def _require_holdable(
-    res: sens.SensitivityResult, sweep: str, keys: str, source: str, method: str
+    res: sens.SensitivityResult,
+    sweep: str,
+    keys: str,
+    source: str,
+    method: str,
+    singular_keys: str | None = None,
 ) -> None:
     ok = res.feasible_wind_off & ~res.singular
+    if np.all(res.singular):
+        raise ConfigError(
+            source,
+            singular_keys or keys,
+            f"{sweep}: the structure matrix is singular at every configuration of the sweep "
+            "(for instance the 'cube' layout with two equal ratios at mid-height, or k1 = k3 in "
+            "the 'crossed' layout); choose other ratios or another cubic.layout",
+        )
     if not np.any(ok):
         n_sing = int(np.sum(res.singular))
         raise ConfigError(
@@ -388,7 +401,7 @@ def run_cubic(o: StudyOptions, progress: Progress = _no_progress, source: str = 
         t0 = time.perf_counter()
         res = sens.sensitivity(A[:, None], W, G, c.t_min_N, c.t_max_N, method)
         timings[method] = time.perf_counter() - t0
-        _require_holdable(res, "cubic k grid", "cubic.mass_kg", source, method)
+        _require_holdable(res, "cubic k grid", "cubic.mass_kg", source, method, "cubic.k1_values")
         n, k = res.S_N.shape
         df = pd.DataFrame(
             {
@@ -412,7 +425,9 @@ def run_cubic(o: StudyOptions, progress: Progress = _no_progress, source: str = 
         k1, k2, k3 = c.baseline_k
         AZ = sens.structure_matrices(sens.cubic_geometry(k1, k2, k3, Z_m=Z, **geo_kw))
         rz = sens.sensitivity(AZ[:, None], W, G, c.t_min_N, c.t_max_N, method)
-        _require_holdable(rz, "cubic Z sweep", "cubic.Z_values_m", source, method)
+        _require_holdable(
+            rz, "cubic Z sweep", "cubic.Z_values_m", source, method, "cubic.baseline_k"
+        )
         out["Z"].append(
             pd.DataFrame(
                 {

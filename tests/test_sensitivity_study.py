@@ -170,6 +170,16 @@ def test_unholdable_rig_message() -> None:
         sr.run_cubic(o)
 
 
+def test_cube_layout_at_the_papers_optimum_is_reported_singular(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg = _small(tmp_path)
+    rc = main(["sensitivity", "--config", str(cfg), "--layout", "cube", "--out", str(tmp_path / "o"),
+               "--no-progress"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "cubic.baseline_k" in err and "singular" in err
+
+
 def test_cli_needs_paper_or_config(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sensitivity", "--out", str(tmp_path / "o")]) == 2
     assert "--paper" in capsys.readouterr().err
