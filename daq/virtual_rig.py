@@ -649,13 +649,14 @@ class VirtualRig:
     def true_pose_at(self, t_ns: Any) -> tuple[FloatArray, FloatArray]:
         """True pose at host times ``t_ns`` (..., epoch ns): (position_O_m (..., 3), R_O_P (..., 3, 3)).
 
-        Requires ``t0_ns`` (set by :meth:`start` or by the caller).  Times outside the schedule
-        clamp to its ends.
+        Host time maps to schedule time as ``(t_ns - t0_ns) * speed``; times before the start (or
+        any time while ``t0_ns`` is None: the rig has not started) give the initial pose, times
+        after the end the final pose.
         """
+        t = np.asarray(t_ns, dtype=np.int64)
         if self.t0_ns is None:
-            raise RuntimeError("true_pose_at: the rig has not started (t0_ns is None)")
-        t_rel = (np.asarray(t_ns, dtype=np.int64) - self.t0_ns).astype(np.float64) * self.speed
-        return self.pose_at_rel(t_rel)
+            return self.pose_at_rel(np.zeros(t.shape))
+        return self.pose_at_rel((t - self.t0_ns).astype(np.float64) * self.speed)
 
     # -- frames and lines ------------------------------------------------------------------
     def can_frames(self) -> tuple[list[int], NDArray[np.uint8]]:

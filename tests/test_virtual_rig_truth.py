@@ -127,6 +127,13 @@ def test_truth_is_in_equilibrium(rig: Rig) -> None:
     np.testing.assert_allclose(p[1], rig.reference_position_O_m)
     np.testing.assert_allclose(Rp[1], rotation_from_euler([0, math.radians(5), 0]), atol=1e-12)
     np.testing.assert_allclose(Rp[0], np.eye(3), atol=1e-12)
+    # before the rig starts, the camera sees the initial pose; afterwards host time maps by speed
+    p0, R0 = vr.true_pose_at(123)
+    assert p0.shape == (3,) and R0.shape == (3, 3)
+    np.testing.assert_allclose(R0, np.eye(3), atol=1e-12)
+    vr.t0_ns, vr.speed = 10**18, 2.0
+    _, R1 = vr.true_pose_at(10**18 + 375_000_000)  # schedule time 0.75 s
+    np.testing.assert_allclose(R1, Rp[1], atol=1e-12)
 
 
 @pytest.mark.parametrize(
