@@ -82,8 +82,41 @@ def cable_geometry(
 def structure_matrix(
     anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
 ) -> FloatArray:
-    """Structure matrix ``A`` (..., 6, m): columns ``[u_i; r_i x u_i]`` at a batch of poses."""
-    return cable_geometry(anchors_O_m, attach_P_m, position_O_m, R_O_P).A
+    """Structure matrix ``A`` (..., 6, m): columns ``[u_i; r_i x u_i]`` at a batch of poses.
+
+    Same numbers as ``cable_geometry(...).A`` (to rounding), computed component-wise on (..., m)
+    arrays and written straight into a contiguous (..., 6, m) array (the hot path of batch
+    tension distribution).  Raises :class:`InputError` if a cable has zero length at some pose.
+    """
+    b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
+    pp = check_trailing(attach_P_m, "attach_P_m", (3,))
+    p = check_trailing(position_O_m, "position_O_m", (3,))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    if b.ndim < 2 or pp.ndim < 2 or b.shape[-2] != pp.shape[-2]:
+        raise InputError(
+            f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
+        )
+    # r_k = (R pp)_k and l_k = b_k - p_k - r_k, each (..., m)
+    r = [
+        R[..., k, 0, None] * pp[..., 0]
+        + R[..., k, 1, None] * pp[..., 1]
+        + R[..., k, 2, None] * pp[..., 2]
+        for k in range(3)
+    ]
+    lv = [b[..., k] - p[..., k, None] - r[k] for k in range(3)]
+    length = np.sqrt(lv[0] * lv[0] + lv[1] * lv[1] + lv[2] * lv[2])
+    if np.any(length < 1e-12):
+        raise InputError(
+            "structure_matrix: a cable has zero length (anchor on the attachment point)"
+        )
+    m = pp.shape[-2]
+    lead = np.broadcast_shapes(length.shape[:-1], r[0].shape[:-1], b.shape[:-2])
+    A = np.empty(lead + (6, m))
+    u = [np.divide(lv[k], length, out=A[..., k, :]) for k in range(3)]
+    np.subtract(r[1] * u[2], r[2] * u[1], out=A[..., 3, :])
+    np.subtract(r[2] * u[0], r[0] * u[2], out=A[..., 4, :])
+    np.subtract(r[0] * u[1], r[1] * u[0], out=A[..., 5, :])
+    return A
 
 
 def structure_matrix_at(
