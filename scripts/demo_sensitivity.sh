@@ -6,7 +6,7 @@ VENV=${VENV:-.venv}
 OUT=${OUT:-out}
 CDPR="$VENV/bin/cdpr"
 echo "== cdpr sensitivity --paper (cubic 960-case study, Z, deflection; flat Table 3, two methods)"
-"$CDPR" sensitivity --paper --out "$OUT/sensitivity" --no-progress
+"$CDPR" sensitivity --paper --out "$OUT/sensitivity"
 echo
 echo "== cdpr design on the flat prototype rig (maximise S, margin >= 0 N, condition <= 1000)"
 "$CDPR" design --family flat --objective sensitivity --out "$OUT/design" \
