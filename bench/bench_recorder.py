@@ -5,16 +5,18 @@ PDO identifiers, 8 data bytes), cycled at maximum speed.
 
 - cdpr: a :class:`~cdpr.daq.source.Source` hands the frames to the recorder as ``can_raw`` readings
   (the CAN driver's own frame-to-reading conversion), in batches of <= 2000; recorder threads, bounded
-  queue, JSON messages, zstd chunks closed every 0.5 s and fsynced.  A 5 s probe at full speed measures
-  the writer's capacity C; then the source is paced at 0.9 C for 25 s and must give zero drops and a
-  queue that never holds more than 1 s of frames (else the rate is lowered by 20 % and tried again,
-  15 s).  The value is the paced rate achieved (frames written / elapsed).
+  queue, JSON messages, zstd chunks closed every 0.25 s and fsynced.  A 5 s probe measures the
+  writer's capacity C (the source waits while 20k frames are queued); then the source is paced at
+  0.85 C for 20 s and must give zero drops and keep up on average (frames written / elapsed
+  >= 97 % of the paced rate; else the rate is lowered by 25 % and tried again, 12 s).  The value
+  is the paced rate achieved (frames written / elapsed).  ``frames_per_cpu_s`` (frames / process
+  CPU time) is the same capacity, insensitive to other load on the machine.
 - peer: python-can's own pipeline, ``can.Notifier`` on a bus that yields the same frames at maximum
   speed, calling ``can.Logger("x.blf")`` (BLFWriter), for 10 s: frames written / elapsed.
 
 Each contestant runs in its own child process pinned to the same single CPU
 (``os.sched_setaffinity``), which also gives a clean peak RSS (``ru_maxrss``) per contestant.
-The issue asks for 60 s; the whole module is kept to about 60 s (5 + 25 + 10 s of measurement).
+The issue asks for 60 s; the whole module is kept to about 45-70 s (5 + 20 + 10 s of measurement).
 """
 
 from __future__ import annotations
@@ -45,7 +47,9 @@ def _messages():  # noqa: ANN202 - child-process helper
     ]
 
 
-def _child_recorder(out: str, duration_s: float, rate_hz: float) -> dict:
+def _child_recorder(
+    out: str, duration_s: float, rate_hz: float, backpressure: bool = False
+) -> dict:
     from cdpr.daq.can_source import raw_reading
     from cdpr.daq.recorder import Recorder, RecorderOptions
     from cdpr.daq.source import Source, StreamDescription
@@ -69,6 +73,9 @@ def _child_recorder(out: str, duration_s: float, rate_hz: float) -> dict:
 
         def _read(self, timeout_s: float) -> list:
             k = 2000
+            if backpressure and rec.backlog(self.name) > 20_000:
+                time.sleep(0.002)  # probe only: never outrun the writer (no drops by design)
+                return []
             if self.rate > 0:
                 k = min(k, int(self.rate * (time.perf_counter() - self.t0)) - self.i)
                 if k <= 0:
@@ -83,16 +90,20 @@ def _child_recorder(out: str, duration_s: float, rate_hz: float) -> dict:
     src = CycledFrames("can0", rate_hz)
     rec = Recorder([src], out, options=RecorderOptions())
     t0 = time.perf_counter()
+    c0 = time.process_time()
     rec.start()
     rec.wait(duration_s)
     rec.stop()
     dt = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     st = rec.status()
     n = st.counts.get("can_raw", 0)
     return {
         "written": n,
         "elapsed_s": dt,
+        "cpu_s": cpu,
         "rate": n / dt,
+        "per_cpu_s": n / cpu,
         "dropped": rec.dropped,
         "queue_peak": st.extra["queue_peak"]["can0"],
         "bytes": os.path.getsize(out),
@@ -120,13 +131,22 @@ def _child_peer(out: str, duration_s: float) -> dict:
     bus = CycledBus()
     logger = can.Logger(out)
     t0 = time.perf_counter()
+    c0 = time.process_time()
     notifier = can.Notifier(bus, [logger], timeout=0.1)
     time.sleep(duration_s)
     notifier.stop()  # also stops (flushes and closes) the logger
     n = bus.i
     dt = time.perf_counter() - t0
+    cpu = time.process_time() - c0
     bus.shutdown()
-    return {"written": n, "elapsed_s": dt, "rate": n / dt, "bytes": os.path.getsize(out)}
+    return {
+        "written": n,
+        "elapsed_s": dt,
+        "cpu_s": cpu,
+        "rate": n / dt,
+        "per_cpu_s": n / cpu,
+        "bytes": os.path.getsize(out),
+    }
 
 
 def _in_child(kind: str, *args: object) -> dict:
@@ -155,18 +175,20 @@ def _in_child(kind: str, *args: object) -> dict:
 
 def run() -> dict[str, dict]:
     with tempfile.TemporaryDirectory(prefix="bench_recorder_") as d:
-        probe = _in_child("recorder", f"{d}/probe.mcap", 5.0, 0.0)
-        rate = 0.9 * probe["rate"]
+        probe = _in_child("recorder", f"{d}/probe.mcap", 5.0, 0.0, True)
+        rate = 0.85 * probe["rate"]
         tries = []
         sustained = None
-        for duration in (25.0, 15.0, 15.0):
+        for duration in (20.0, 12.0, 12.0):
             r = _in_child("recorder", f"{d}/paced_{len(tries)}.mcap", duration, rate)
             r["paced_at"] = rate
             tries.append(r)
-            if r["dropped"] == 0 and r["queue_peak"] <= rate * 1.0:
+            # sustained: nothing dropped and the writer kept up on average (the queue absorbs the
+            # hiccups of a shared machine, that is its job)
+            if r["dropped"] == 0 and r["rate"] >= 0.97 * rate:
                 sustained = r
                 break
-            rate *= 0.8
+            rate *= 0.75
         peer = _in_child("peer", f"{d}/peer.blf", 10.0)
     ok = sustained is not None
     best = sustained or tries[-1]
@@ -182,15 +204,21 @@ def run() -> dict[str, dict]:
             "paced_at_frames_per_s": round(best["paced_at"], 1),
             "duration_s": round(best["elapsed_s"], 2),
             "probe_capacity_frames_per_s": round(probe["rate"], 1),
+            "frames_per_cpu_s": round(probe["per_cpu_s"], 1),
+            "peer_frames_per_cpu_s": round(peer["per_cpu_s"], 1),
+            "ratio_per_cpu_s": round(probe["per_cpu_s"] / peer["per_cpu_s"], 3),
             "bytes_per_frame": round(best["bytes"] / max(best["written"], 1), 2),
             "peer_bytes_per_frame": round(peer["bytes"] / max(peer["written"], 1), 2),
             "peak_rss_MiB": round(best["peak_rss_MiB"], 1),
             "peer_peak_rss_MiB": round(peer["peak_rss_MiB"], 1),
             "context": (
-                "each contestant in its own process pinned to one CPU; cdpr: 5 s full-speed probe, "
-                f"then paced at 0.9x probe for {best['elapsed_s']:.0f} s with zero drops required "
-                "(not the issue's 60 s, to keep make bench short); MCAP JSON messages, zstd chunks "
-                "closed every 0.5 s and fsynced; peer: 10 s at max speed (no queue, cannot drop)"
+                "each contestant in its own process pinned to one CPU (shared with whatever else "
+                "runs on the machine); cdpr: 5 s probe of the writer capacity (source held back "
+                "when 20k frames are queued), then the source paced at 0.85x that rate for "
+                f"{best['elapsed_s']:.0f} s with zero drops and >= 97 % of it written required (not the "
+                "issue's 60 s, to keep make bench near 60 s); MCAP JSON messages, zstd chunks "
+                "closed every 0.25 s and fsynced; peer: 10 s at max speed (no queue, cannot drop); "
+                "frames_per_cpu_s = frames / CPU time of the process (robust to machine load)"
                 + ("" if ok else "; NO zero-drop rate found: value 0")
             ),
             "tries": [

@@ -2,7 +2,8 @@
 
 Layout (read it with h5py, then ``pandas.DataFrame(f["streams/tensions"][()])``; ``h5dump`` shows it):
 
-- ``/streams/<stream>``: a compound (table) dataset, one row per message: ``t_ns`` (int64, the
+- ``/streams/<stream>``: a compound (table) dataset, one row per message (a per-source stream
+  ``/<source>/<stream>`` is named ``<source>.<stream>``): ``t_ns`` (int64, the
   message log time, ns since the Unix epoch) then one column per JSON field, flattened: nested objects
   as ``parent_child`` (``pose_position_x``), fixed-length arrays as ``name_0``, ``name_1``, ...;
   numbers are float64 (NaN where missing), integers int64 when every value is one, text as
@@ -123,7 +124,7 @@ def export_hdf5(
             f.attrs["source_complete"] = bool(contents.complete)
             streams = f.create_group("streams")
             for topic, msgs in contents.messages.items():
-                name = topic.lstrip("/") or "root"
+                name = topic.lstrip("/").replace("/", ".") or "root"
                 ch = contents.channels.get(topic)
                 blob_fields = _BLOB_FIELDS.get(ch.schema_name if ch else "", ())
                 table, blobs = _stream_table(msgs, blob_fields)

@@ -646,7 +646,7 @@ class McapRunWriter:
         path: str | os.PathLike[str],
         *,
         chunk_size: int = 256 * 1024,
-        flush_interval_s: float = 0.5,
+        flush_interval_s: float = 0.25,
         compression: str = "zstd",
     ) -> None:
         if compression not in ("zstd", "lz4", "none"):

@@ -43,7 +43,7 @@ class RecorderOptions:
 
     queue_readings: int = 200_000
     chunk_size: int = 256 * 1024
-    flush_interval_s: float = 0.5
+    flush_interval_s: float = 0.25
     compression: str = "zstd"
     stats_interval_s: float = 1.0
     read_timeout_s: float = 0.05
@@ -336,6 +336,10 @@ class Recorder:
             stop_reason=self._stop_reason,
             extra={"queue_peak": {k: q.peak for k, q in self._queues.items()}},
         )
+
+    def backlog(self, source: str) -> int:
+        """Readings of ``source`` waiting in its queue."""
+        return self._queues[source].pending
 
     @property
     def dropped(self) -> int:

@@ -12,7 +12,7 @@ Layout (example: ``data_samples/tunnel.toml``; every relative path is relative t
     [recorder]
     out = "runs"                        # default output folder (``--out`` wins)
     chunk_size_kib = 256                # close a chunk above this size ...
-    flush_interval_s = 0.5              # ... or after this long (<= 1 s), then fsync
+    flush_interval_s = 0.25             # ... or after this long (<= 1 s), then fsync
     compression = "zstd"                # zstd | lz4 | none
     queue_readings = 200000             # per-source queue capacity (readings)
 
@@ -64,7 +64,7 @@ class DaqConfig:
     notes: str = ""
     out: Path | None = None
     chunk_size: int = 256 * 1024
-    flush_interval_s: float = 0.5
+    flush_interval_s: float = 0.25
     compression: str = "zstd"
     queue_readings: int = 200_000
     sources: list[SourceConfig] = field(default_factory=list)

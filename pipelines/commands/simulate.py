@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.daq.recorder import Attachment, RecorderOptions
     from cdpr.daq.runs import new_run_path, run_metadata
     from cdpr.daq.source import create_source
-    from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
+    from cdpr.daq.virtual_rig import RigRun, VirtualRig, schedule_from_mapping
 
     from .. import __version__
     from ..config import file_sha256, load_rig, load_toml
@@ -140,15 +140,15 @@ def run(args: argparse.Namespace) -> int:
             )
         sources = [create_source(kind, name, s, origin=str(args.schedule))
                    for name, (kind, s) in settings.items()]  # fmt: skip
-        # readers exist before the rig starts sending (a virtual bus only delivers to open buses)
-        for s in sources:
-            if s.name != "tunnel":
-                s.open()
         if args.transport == "virtual":
-            rig_run = vr.start("virtual", channel=channel, tunnel_link=tunnel_link,
-                               wait_reader_s=0.0, speed=args.speed)  # fmt: skip
+            # the transports exist once the RigRun is built; it sends only after start()
+            rig_run = RigRun(vr, "virtual", channel, None, tunnel_link, 0.0, args.speed)
+        # readers exist before the rig starts sending (a virtual bus only delivers to open buses,
+        # a pty drops what nobody reads)
         for s in sources:
-            s.open()  # the tunnel pty exists now
+            s.open()
+        if rig_run is not None:
+            rig_run.start()
 
         def watch(rec: Any) -> None:
             def waiter() -> None:
