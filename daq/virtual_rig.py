@@ -221,8 +221,9 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
     if not isinstance(segs_raw, list) or not segs_raw:
         raise ConfigError(source, "segments", "expected a non-empty array of [[segments]] tables")
     segs = []
-    ref_p = tuple(float(x) for x in rig.reference_position_O_m)
-    ref_e = tuple(float(x) for x in rig.reference_euler_rad)
+    rp, re_ = rig.reference_position_O_m, rig.reference_euler_rad
+    ref_p = (float(rp[0]), float(rp[1]), float(rp[2]))
+    ref_e = (float(re_[0]), float(re_[1]), float(re_[2]))
     prev_p, prev_e = ref_p, ref_e
     for i, s in enumerate(segs_raw):
         k = f"segments[{i}]"
@@ -451,7 +452,7 @@ class VirtualRig:
         n = max(1, int(round(sch.duration_s * sch.rate_hz)))
         k = np.arange(n)
         self.t_rel_ns = np.round(k * 1e9 / sch.rate_hz).astype(np.int64)
-        t_s = self.t_rel_ns * 1e-9
+        t_s = self.t_rel_ns.astype(np.float64) * 1e-9
         pos, eul, wind, seg = self._state_at(t_s)
         # tensions at the unique states only (a few per segment), then broadcast
         state = np.concatenate([pos, eul, wind[:, None]], axis=1)
@@ -534,7 +535,7 @@ class VirtualRig:
         # -- tunnel conditions ---------------------------------------------------------------
         nt = max(1, int(round(sch.duration_s * sch.tunnel_rate_hz)))
         self.tunnel_t_rel_ns = np.round(np.arange(nt) * 1e9 / sch.tunnel_rate_hz).astype(np.int64)
-        _, _, wind_t, _ = self._state_at(self.tunnel_t_rel_ns * 1e-9)
+        _, _, wind_t, _ = self._state_at(self.tunnel_t_rel_ns.astype(np.float64) * 1e-9)
         self.tunnel_airspeed_true_mps = wind_t
         self.tunnel_airspeed_mps = np.maximum(
             0.0, wind_t + sens.tunnel_airspeed_sd_mps * rng.standard_normal(nt)
@@ -599,12 +600,12 @@ class VirtualRig:
         tr = self.truth()
         if p.suffix == ".npz":
             buf = io.BytesIO()
-            np.savez(
-                buf,
-                cable_names=np.array(self.cable_names),
-                segment_labels=np.array([s.label for s in self.schedule.segments]),
+            arrays: dict[str, Any] = {
+                "cable_names": np.array(self.cable_names),
+                "segment_labels": np.array([s.label for s in self.schedule.segments]),
                 **tr,
-            )
+            }
+            np.savez(buf, allow_pickle=False, **arrays)
             _atomic_write_bytes(p, buf.getvalue())
         elif p.suffix == ".csv":
             cols: dict[str, np.ndarray] = {
