@@ -48,7 +48,7 @@ def bilinear(gray: NDArray[np.uint8], x: F64, y: F64) -> F64:
     x0 = np.floor(x).astype(np.int64)
     y0 = np.floor(y).astype(np.int64)
     fx, fy = x - x0, y - y0
-    g = gray.astype(np.float64) if gray.dtype != np.float64 else gray
+    g = gray
     a = g[y0, x0] * (1 - fx) + g[y0, x0 + 1] * fx
     b = g[y0 + 1, x0] * (1 - fx) + g[y0 + 1, x0 + 1] * fx
     return a * (1 - fy) + b * fy
@@ -61,75 +61,71 @@ def refine_marker_corners(
     cells: int,
     camera: CameraModel,
     iterations: int = 2,
+    samples_per_side: int = 24,
 ) -> tuple[F64, NDArray[np.bool_]]:
     """Refine (N, 4, 2) marker corners by line fits to the outer edges (see the module docstring).
 
     ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).  Returns the
     refined corners and a mask of markers whose refinement succeeded (others keep their input).
+    All markers and sides are processed at once (vectorised).
     """
-    C = np.asarray(corners_px, np.float64).reshape(-1, 4, 2).copy()
-    ok = np.ones(len(C), dtype=bool)
-    if len(C) == 0:
-        return C, ok
-    sub = gray if gray.dtype == np.float64 else gray.astype(np.float64)
-    for m in range(len(C)):
-        c = C[m]
-        for _ in range(iterations):
-            lines = []
-            good = True
-            for i in range(4):
-                a, b = c[i], c[(i + 1) % 4]
-                L = float(np.linalg.norm(b - a))
-                if L < 8:
-                    good = False
-                    break
-                d = (b - a) / L
-                nrm = np.array([-d[1], d[0]])
-                cell_px = L / cells
-                R = float(np.clip(0.45 * cell_px, 1.5, 3.5))
-                ts = np.linspace(0.12, 0.88, max(8, int(L / 1.5)))
-                ss = np.arange(-R, R + 1e-9, 0.25)
-                px = a[0] + ts[:, None] * L * d[0] + ss[None, :] * nrm[0]
-                py = a[1] + ts[:, None] * L * d[1] + ss[None, :] * nrm[1]
-                prof = bilinear(sub, px, py)
-                g = np.abs(np.diff(prof, axis=1))
-                gmax = g.max(axis=1, keepdims=True)
-                wgt = np.clip(g - 0.25 * gmax, 0, None)
-                sw = wgt.sum(axis=1)
-                use = (sw > 0) & (gmax[:, 0] > 8.0)
-                if use.sum() < 4:
-                    good = False
-                    break
-                smid = 0.5 * (ss[1:] + ss[:-1])
-                s_star = (wgt * smid).sum(axis=1)[use] / sw[use]
-                e = (a + ts[use, None] * L * d) + s_star[:, None] * nrm
-                xn = cv.undistort_to_normalized(e, camera.K, camera.dist)
-                mu = xn.mean(axis=0)
-                _, _, vt = np.linalg.svd(xn - mu, full_matrices=False)
-                n_line = vt[1]
-                lines.append((n_line, float(n_line @ mu)))
-            if not good:
-                ok[m] = False
-                break
-            new_n = []
-            for i in range(4):
-                n1, d1 = lines[(i - 1) % 4]
-                n2, d2 = lines[i]
-                A = np.stack([n1, n2])
-                if abs(np.linalg.det(A)) < 1e-9:
-                    good = False
-                    break
-                new_n.append(np.linalg.solve(A, [d1, d2]))
-            if not good:
-                ok[m] = False
-                break
-            pts = np.concatenate([np.array(new_n), np.ones((4, 1))], axis=1)
-            c = cv.project_points(pts, np.zeros(3), np.zeros(3), camera.K, camera.dist)
-        if ok[m] and np.all(np.isfinite(c)) and np.abs(c - C[m]).max() < 3.0:
-            C[m] = c
-        else:
-            ok[m] = False
-    return C, ok
+    C0 = np.asarray(corners_px, np.float64).reshape(-1, 4, 2)
+    N = len(C0)
+    ok = np.ones(N, dtype=bool)
+    if N == 0:
+        return C0.copy(), ok
+    C = C0.copy()
+    T = samples_per_side
+    ts = np.linspace(0.12, 0.88, T)
+    u = np.linspace(-1.0, 1.0, 25)  # profile positions, in units of the half-width R
+    for _ in range(iterations):
+        a = C
+        b = np.roll(C, -1, axis=1)
+        L = np.linalg.norm(b - a, axis=2)  # (N, 4)
+        d = (b - a) / np.maximum(L, 1e-9)[..., None]
+        nrm = np.stack([-d[..., 1], d[..., 0]], axis=-1)
+        R = np.clip(0.45 * L / cells, 1.5, 3.5)  # (N, 4)
+        ss = R[..., None] * u  # (N, 4, Q)
+        base = (
+            a[:, :, None, :] + (ts[None, None, :, None] * L[..., None, None]) * d[:, :, None, :]
+        )  # (N,4,T,2)
+        P = (
+            base[:, :, :, None, :] + ss[:, :, None, :, None] * nrm[:, :, None, None, :]
+        )  # (N,4,T,Q,2)
+        prof = bilinear(gray, P[..., 0], P[..., 1])
+        g = np.abs(np.diff(prof, axis=-1))
+        gmax = g.max(axis=-1, keepdims=True)
+        wgt = np.clip(g - 0.25 * gmax, 0, None)
+        sw = wgt.sum(axis=-1)
+        smid = 0.5 * (ss[..., 1:] + ss[..., :-1])  # (N,4,Q-1)
+        s_star = (wgt * smid[:, :, None, :]).sum(axis=-1) / np.maximum(sw, 1e-12)  # (N,4,T)
+        use = (sw > 0) & (gmax[..., 0] > 8.0)
+        E = base + s_star[..., None] * nrm[:, :, None, :]  # (N,4,T,2)
+        xn = cv.undistort_to_normalized(E.reshape(-1, 2), camera.K, camera.dist).reshape(N, 4, T, 2)
+        wu = use.astype(np.float64)
+        cnt = wu.sum(axis=-1)  # (N,4)
+        mu = (xn * wu[..., None]).sum(axis=2) / np.maximum(cnt, 1)[..., None]
+        dxn = (xn - mu[:, :, None, :]) * wu[..., None]
+        S = np.einsum("nstp,nstq->nspq", dxn, dxn)
+        _, vec = np.linalg.eigh(S)  # ascending eigenvalues: column 0 is the line normal
+        n_line = vec[..., :, 0]  # (N,4,2)
+        dist_line = np.einsum("nsp,nsp->ns", n_line, mu)
+        # corner i = intersection of side i-1 and side i
+        A = np.stack([np.roll(n_line, 1, axis=1), n_line], axis=2)  # (N,4,2,2)
+        rhs = np.stack([np.roll(dist_line, 1, axis=1), dist_line], axis=2)  # (N,4,2)
+        det = np.linalg.det(A)
+        good = (cnt.min(axis=1) >= 4) & (L.min(axis=1) >= 8) & (np.abs(det).min(axis=1) > 1e-9)
+        A = np.where(good[:, None, None, None], A, np.eye(2))
+        X = np.linalg.solve(A, rhs[..., None])[..., 0]  # (N,4,2)
+        pts = np.concatenate([X.reshape(-1, 2), np.ones((N * 4, 1))], axis=1)
+        newC = cv.project_points(pts, np.zeros(3), np.zeros(3), camera.K, camera.dist).reshape(
+            N, 4, 2
+        )
+        ok &= good
+        C = np.where(ok[:, None, None], newC, C)
+    moved = np.abs(C - C0).reshape(N, -1).max(axis=1)
+    ok &= np.all(np.isfinite(C.reshape(N, -1)), axis=1) & (moved < 3.0)
+    return np.where(ok[:, None, None], C, C0), ok
 
 
 @dataclass

@@ -1,0 +1,469 @@
+"""Camera sources: platform pose from marker images, and optionally the compressed frames.
+
+:class:`CameraSource` reads ``cv2.VideoCapture`` (device index or video file, through the adapter
+:mod:`cdpr.calibration.cv`) or a folder of images; :class:`VirtualCameraSource` renders frames at the
+virtual rig's true pose (a ``pose_at(t_ns) -> (position_O_m, R_O_P)`` callable).  Both produce:
+
+- ``"pose"`` readings (every frame): ``position_O_m`` (3,), ``q_wxyz`` (4,), ``euler_rad`` (3,) Z-Y-X,
+  ``reprojection_px`` (RMS, px), ``covariance`` (36,) = the 6x6 ``[position_O_m, rotation_O_rad]``
+  covariance row-major, ``flags`` (bits of :mod:`cdpr.calibration.pose` ``FLAG_*``), ``n_points``,
+  ``frame_index``; status ``STATUS_BAD_FRAME`` when the pose is unusable (NaN or flagged).
+- ``"image"`` readings (every ``image_every``-th frame, 0 = never): ``data`` (JPEG/PNG bytes),
+  ``format`` (``"jpeg"``/``"png"``), ``width``, ``height``, ``frame_index``, ``frame_id``.
+
+Timestamps: device frames get the host time at grab; video files the open time plus the frame's
+position in the file; image folders the open time plus ``index / fps``.  Dropped frames: for a device,
+gaps of more than 1.5 frame periods (``fps`` known) count ``period``-sized losses in ``stats.lost``;
+unreadable files in a folder count as lost.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cdpr.analysis.errors import ConfigError
+from cdpr.calibration import cv
+from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
+from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
+from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
+from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
+from cdpr.calibration.render import RenderSettings, VirtualCamera
+
+from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
+
+PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
+
+
+def _camera(camera: CameraModel | str) -> CameraModel:
+    if isinstance(camera, CameraModel):
+        return camera
+    try:
+        return camera_from_mapping(json.loads(Path(camera).read_text()), source=str(camera))
+    except FileNotFoundError:
+        raise ConfigError(str(camera), "", "file not found") from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError(str(camera), "", f"invalid JSON: {exc}") from None
+
+
+def _layout(layout: MarkerLayout | str) -> MarkerLayout:
+    if isinstance(layout, MarkerLayout):
+        return layout
+    try:
+        with open(layout, "rb") as fh:
+            return layout_from_mapping(tomllib.load(fh), source=str(layout))
+    except FileNotFoundError:
+        raise ConfigError(str(layout), "", "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(layout), "", f"invalid TOML: {exc}") from None
+
+
+class FramePoseEstimator:
+    """Pose of {P} from one gray frame, for either layout kind, with frame-to-frame tracking.
+
+    sigma_px: detector noise per image coordinate (px) used for the covariance; defaults are the
+    values measured on rendered frames (docs/vision.md).  reference: the nominal pose used to
+    acquire point markers (defaults to the camera's ``looks_at_O_m`` with R = I).
+    """
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        layout: MarkerLayout,
+        sigma_px: float | None = None,
+        reference: tuple[ArrayLike, ArrayLike] | None = None,
+        blob_settings: BlobSettings | None = None,
+    ) -> None:
+        self.camera, self.layout = camera, layout
+        if reference is None:
+            p0 = camera.extrinsics_info.get("looks_at_O_m", [0.0, 0.0, 0.0])
+            reference = (np.asarray(p0, np.float64), np.eye(3))
+        ref = (np.asarray(reference[0], np.float64), np.asarray(reference[1], np.float64))
+        if layout.kind == "fiducial":
+            self.sigma_px = FIDUCIAL_SIGMA_PX if sigma_px is None else float(sigma_px)
+            self._fid = FiducialDetector(layout, camera)
+            self._pos = {int(m): k for k, m in enumerate(layout.ids)}
+            self._last: PoseEstimate | None = None
+        else:
+            self.sigma_px = POINT_SIGMA_PX if sigma_px is None else float(sigma_px)
+            self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
+            self._blob = blob_settings or BlobSettings()
+
+    def estimate(self, gray: NDArray[np.uint8]) -> PoseEstimate:
+        """The pose in this frame (flags say when it is not usable)."""
+        if self.layout.kind == "fiducial":
+            pred = None
+            if self._last is not None:
+                pred = cv.project_points(
+                    self.layout.fiducial_corners_m.reshape(-1, 3),
+                    self._last.rvec_C,
+                    self._last.tvec_C_m,
+                    self.camera.K,
+                    self.camera.dist,
+                ).reshape(-1, 4, 2)
+            ids, corners = self._fid.detect(gray, pred)
+            if len(ids) == 0:
+                self._last = None
+                return failed_pose()
+            obj = self.layout.fiducial_corners_m[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
+            guess = (self._last.rvec_C, self._last.tvec_C_m) if self._last is not None else None
+            est = estimate_pose(
+                obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
+            )
+            self._last = est if not (est.flags & BAD_FLAGS) else None
+            return est
+        pred = None
+        last = self._pm._last
+        if last is not None:
+            pred = cv.project_points(
+                self.layout.point_centers_m, last[0], last[1], self.camera.K, self.camera.dist
+            )
+        blobs = detect_blobs(gray, self._blob, pred)
+        if pred is not None and len(blobs) < len(self.layout.points):
+            blobs = detect_blobs(gray, self._blob, None)
+        return self._pm.match(blobs).pose
+
+
+FIDUCIAL_SIGMA_PX = 0.019
+"""Effective corner noise (px) of the edge-refined fiducial corners on our rendered frames, the value
+whose covariance matches the observed pose errors (NEES ~ 6; docs/vision.md)."""
+
+POINT_SIGMA_PX = 0.020
+"""Effective centroid noise (px) of IR blobs on our rendered frames (same calibration)."""
+
+
+def pose_reading(t_ns: int, est: PoseEstimate, frame_index: int, stream: str = "pose") -> Reading:
+    """A ``"pose"`` reading from a :class:`PoseEstimate`."""
+    bad = bool(est.flags & BAD_FLAGS) or not np.all(np.isfinite(est.position_O_m))
+    values = {
+        "position_O_m": est.position_O_m.tolist(),
+        "q_wxyz": est.q_wxyz.tolist() if np.all(np.isfinite(est.R_O_P)) else [float("nan")] * 4,
+        "euler_rad": est.euler_rad.tolist()
+        if np.all(np.isfinite(est.R_O_P))
+        else [float("nan")] * 3,
+        "reprojection_px": float(est.reprojection_rms_px),
+        "covariance": np.asarray(est.covariance, np.float64).reshape(-1).tolist(),
+        "flags": int(est.flags),
+        "n_points": int(est.n_points),
+        "frame_index": int(frame_index),
+    }
+    return Reading(stream, int(t_ns), values, STATUS_BAD_FRAME if bad else 0)
+
+
+def _describe(rate_hz: float, image_every: int) -> dict[str, StreamDescription]:
+    d = {
+        "pose": StreamDescription(
+            {
+                "position_O_m": FieldDescription("m", shape=(3,)),
+                "q_wxyz": FieldDescription("", shape=(4,)),
+                "euler_rad": FieldDescription("rad", shape=(3,)),
+                "reprojection_px": FieldDescription("px"),
+                "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
+                "flags": FieldDescription("", "int64"),
+                "n_points": FieldDescription("", "int64"),
+                "frame_index": FieldDescription("", "int64"),
+            },
+            rate_hz,
+            "platform pose of {P} in {O} from the camera; covariance order [position_O_m, rotation_O_rad]",
+        )
+    }
+    if image_every:
+        d["image"] = StreamDescription(
+            {
+                "data": FieldDescription("", "bytes"),
+                "format": FieldDescription("", "str"),
+                "width": FieldDescription("px", "int64"),
+                "height": FieldDescription("px", "int64"),
+                "frame_index": FieldDescription("", "int64"),
+                "frame_id": FieldDescription("", "str"),
+            },
+            rate_hz / image_every,
+            "compressed camera frames (JPEG/PNG), every image_every-th frame",
+        )
+    return d
+
+
+class _PoseSourceBase(Source):
+    def __init__(
+        self,
+        name: str,
+        camera: CameraModel | str,
+        layout: MarkerLayout | str,
+        image_every: int = 0,
+        image_format: str = "jpeg",
+        jpeg_quality: int = 85,
+        sigma_px: float | None = None,
+        reference: tuple[ArrayLike, ArrayLike] | None = None,
+    ) -> None:
+        super().__init__(name)
+        self.camera = _camera(camera)
+        self.layout = _layout(layout)
+        if image_format not in ("jpeg", "png"):
+            raise ConfigError(
+                "<config>",
+                f"sources.{name}.image_format",
+                f"expected 'jpeg' or 'png', got {image_format!r}",
+            )
+        self.image_every = int(image_every)
+        self.image_format = image_format
+        self.jpeg_quality = int(jpeg_quality)
+        self.estimator = FramePoseEstimator(self.camera, self.layout, sigma_px, reference)
+        self.frame_index = 0
+
+    def _readings(self, t_ns: int, gray: NDArray[np.uint8]) -> list[Reading]:
+        est = self.estimator.estimate(gray)
+        out = [pose_reading(t_ns, est, self.frame_index)]
+        if self.image_every and self.frame_index % self.image_every == 0:
+            data = cv.encode_image(gray, self.image_format, self.jpeg_quality)
+            out.append(
+                Reading(
+                    "image",
+                    t_ns,
+                    {
+                        "data": data,
+                        "format": self.image_format,
+                        "width": int(gray.shape[1]),
+                        "height": int(gray.shape[0]),
+                        "frame_index": self.frame_index,
+                        "frame_id": self.name,
+                    },
+                )
+            )
+        self.frame_index += 1
+        return out
+
+
+class CameraSource(_PoseSourceBase):
+    """Pose (and frames) from a real camera (``device``), a video file or an image folder.
+
+    Exactly one of ``device`` (int index), ``video`` (path) or ``folder`` (path) is given.
+    ``fps``: nominal frame rate (for folders' timestamps and the drop counter; a device's or video's
+    own rate is used if 0).  ``finished`` turns True at the end of a file or folder.
+    """
+
+    kind = "camera"
+
+    def __init__(
+        self,
+        name: str,
+        camera: CameraModel | str,
+        layout: MarkerLayout | str,
+        device: int | None = None,
+        video: str | None = None,
+        folder: str | None = None,
+        fps: float = 0.0,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(name, camera, layout, **kwargs)
+        given = [x is not None for x in (device, video, folder)]
+        if sum(given) != 1:
+            raise ConfigError(
+                "<config>", f"sources.{name}", "give exactly one of device, video, folder"
+            )
+        self.device, self.video, self.folder = device, video, folder
+        self.fps = float(fps)
+        self.finished = False
+        self._cap: cv.VideoCapture | None = None
+        self._files: list[Path] = []
+        self._t0 = 0
+        self._last_t: int | None = None
+
+    def settings(self) -> dict[str, Any]:
+        return {
+            "camera_id": self.camera.id,
+            "device": self.device,
+            "video": self.video,
+            "folder": self.folder,
+            "fps": self.fps,
+            "image_every": self.image_every,
+            "image_format": self.image_format,
+            "sigma_px": self.estimator.sigma_px,
+        }
+
+    def describe(self) -> dict[str, StreamDescription]:
+        return _describe(self.fps, self.image_every)
+
+    def _open(self) -> None:
+        self._t0 = now_ns()
+        self.finished = False
+        if self.folder is not None:
+            p = Path(self.folder)
+            if not p.is_dir():
+                raise ConfigError(str(p), "", "image folder not found")
+            self._files = sorted(f for f in p.iterdir() if f.suffix.lower() in cv.IMAGE_EXTENSIONS)
+            if not self.fps:
+                self.fps = 30.0
+            return
+        target: int | str = self.device if self.device is not None else str(self.video)
+        if self.video is not None and not Path(self.video).exists():
+            raise ConfigError(str(self.video), "", "video file not found")
+        self._cap = cv.VideoCapture(target)
+        if not self._cap.is_opened():
+            raise ConfigError(str(target), "", "cv2.VideoCapture cannot open it")
+        if not self.fps:
+            self.fps = self._cap.fps() or 0.0
+
+    def _close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def _read(self, timeout_s: float) -> list[Reading]:
+        if self.finished:
+            return []
+        if self.folder is not None:
+            while self.frame_index < len(self._files):
+                i = self.frame_index
+                img = cv.read_image(self._files[i])
+                t = self._t0 + int(round(i * 1e9 / self.fps))
+                if img is None:
+                    self.stats.lost += 1
+                    self.frame_index += 1
+                    continue
+                return self._readings(t, img)
+            self.finished = True
+            return []
+        assert self._cap is not None
+        frame = self._cap.read()
+        t_host = now_ns()
+        if frame is None:
+            if self.video is not None:
+                self.finished = True
+            else:
+                self.stats.errors += 1
+            return []
+        gray = cv.to_gray(frame)
+        if self.video is not None:
+            t = self._t0 + int(round(self._cap.position_ms() * 1e6))
+        else:
+            t = t_host
+            if self._last_t is not None and self.fps > 0:
+                period = 1e9 / self.fps
+                gap = (t - self._last_t) / period
+                if gap > 1.5:
+                    self.stats.lost += int(round(gap)) - 1
+            self._last_t = t
+        return self._readings(t, gray)
+
+
+class VirtualCameraSource(_PoseSourceBase):
+    """Frames rendered at the true platform pose, measured like real ones.
+
+    pose_at: ``pose_at(t_ns) -> (position_O_m (3,), R_O_P (3, 3))``, the virtual rig's truth (e.g.
+    ``lambda t: rig.true_pose_at(t)``).  rate_hz: frame rate.  realtime: if True, ``read`` waits for
+    the next frame time of the host clock; if False, every ``read`` returns the next frame at
+    ``t_start_ns + k / rate_hz`` immediately (fast simulation).  truth_stream: also emit
+    ``"pose_truth"`` readings (position_O_m, q_wxyz, euler_rad at the frame time) for checks.
+    """
+
+    kind = "virtual_camera"
+
+    def __init__(
+        self,
+        name: str,
+        camera: CameraModel | str,
+        layout: MarkerLayout | str,
+        pose_at: PoseAt,
+        rate_hz: float = 30.0,
+        realtime: bool = True,
+        t_start_ns: int | None = None,
+        render: RenderSettings | None = None,
+        seed: int | None = None,
+        truth_stream: bool = False,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(name, camera, layout, **kwargs)
+        if rate_hz <= 0:
+            raise ConfigError("<config>", f"sources.{name}.rate_hz", f"expected > 0, got {rate_hz}")
+        self.pose_at = pose_at
+        self.rate_hz = float(rate_hz)
+        self.realtime = bool(realtime)
+        self.t_start_ns = t_start_ns
+        self.truth_stream = truth_stream
+        self.vcam = VirtualCamera(self.camera, render)
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self._k = 0
+
+    def settings(self) -> dict[str, Any]:
+        return {
+            "camera_id": self.camera.id,
+            "layout": self.layout.name,
+            "rate_hz": self.rate_hz,
+            "realtime": self.realtime,
+            "image_every": self.image_every,
+            "image_format": self.image_format,
+            "sigma_px": self.estimator.sigma_px,
+            "seed": self.seed,
+        }
+
+    def describe(self) -> dict[str, StreamDescription]:
+        d = _describe(self.rate_hz, self.image_every)
+        if self.truth_stream:
+            d["pose_truth"] = StreamDescription(
+                {
+                    "position_O_m": FieldDescription("m", shape=(3,)),
+                    "q_wxyz": FieldDescription("", shape=(4,)),
+                    "euler_rad": FieldDescription("rad", shape=(3,)),
+                },
+                self.rate_hz,
+                "true pose at the frame time (virtual rig)",
+            )
+        return d
+
+    def _open(self) -> None:
+        if self.t_start_ns is None:
+            self.t_start_ns = now_ns()
+        self._k = 0
+
+    def _close(self) -> None:
+        pass
+
+    def render(self, position_O_m: ArrayLike, R_O_P: ArrayLike) -> NDArray[np.uint8]:
+        """One frame at a given pose."""
+        if self.layout.kind == "fiducial":
+            return self.vcam.render_fiducials(self.layout, position_O_m, R_O_P, self.rng)
+        return self.vcam.render_points(self.layout, position_O_m, R_O_P, self.rng)
+
+    def _read(self, timeout_s: float) -> list[Reading]:
+        assert self.t_start_ns is not None
+        t = self.t_start_ns + int(round(self._k * 1e9 / self.rate_hz))
+        if self.realtime:
+            wait = (t - now_ns()) / 1e9
+            if wait > timeout_s:
+                time.sleep(max(timeout_s, 0.0))
+                return []
+            if wait > 0:
+                time.sleep(wait)
+            elif -wait > 1.5 / self.rate_hz:  # late: skip the missed frames, count them as lost
+                missed = int(-wait * self.rate_hz)
+                self.stats.lost += missed
+                self._k += missed
+                t = self.t_start_ns + int(round(self._k * 1e9 / self.rate_hz))
+        self._k += 1
+        p, R = self.pose_at(t)
+        p = np.asarray(p, np.float64)
+        R = np.asarray(R, np.float64)
+        out = self._readings(t, self.render(p, R))
+        if self.truth_stream:
+            from cdpr.analysis.rotations import euler_from_rotation, quaternion_from_rotation
+
+            out.append(
+                Reading(
+                    "pose_truth",
+                    t,
+                    {
+                        "position_O_m": p.tolist(),
+                        "q_wxyz": quaternion_from_rotation(R).tolist(),
+                        "euler_rad": euler_from_rotation(R).tolist(),
+                    },
+                )
+            )
+        return out
