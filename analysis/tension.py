@@ -180,33 +180,33 @@ class _Factor:
     """Row-equilibrated Cholesky factor of ``A' A'^T`` for a chunk, struct-of-arrays.
 
     ``A' = diag(rs) A`` has unit-norm rows (this changes neither ``{T: A T = w}`` nor the
-    min-norm solution, and makes the normal equations well scaled).
+    min-norm solution, and makes the normal equations well scaled).  ``L`` (n, n, C) is lower
+    triangular with ``L L^T = A' A'^T``; ``inv_diag`` (n, C) holds ``1 / L_jj``.  The loops run
+    over the n rows only; each step is one numpy call over the whole chunk.
     """
 
     def __init__(self, At: FloatArray) -> None:
-        n = At.shape[0]
+        n, _, C = At.shape
         rn = np.sqrt(np.einsum("imc,imc->ic", At, At))
         self.rs = np.divide(1.0, rn, out=np.zeros_like(rn), where=rn > 0)
         self.As = At * self.rs[:, None, :]
         G = np.einsum("imc,jmc->ijc", self.As, self.As)
-        L: list[list[FloatArray]] = [[] for _ in range(n)]
-        self.inv_diag: list[FloatArray] = []
-        ok = np.ones(At.shape[-1], dtype=bool)
+        L = np.zeros((n, n, C))
+        inv_diag = np.empty((n, C))
+        ok = np.ones(C, dtype=bool)
         for j in range(n):
-            p = G[j, j].copy()
-            for k in range(j):
-                p -= L[j][k] * L[j][k]
+            p = G[j, j] - np.einsum("kc,kc->c", L[j, :j], L[j, :j]) if j else G[0, 0]
             ok &= p > PIVOT_TOL
             d = np.sqrt(np.maximum(p, PIVOT_TOL))
-            inv_d = 1.0 / d
-            for i in range(j + 1, n):
-                v = G[i, j].copy()
-                for k in range(j):
-                    v -= L[i][k] * L[j][k]
-                L[i].append(v * inv_d)
-            L[j].append(d)
-            self.inv_diag.append(inv_d)
+            L[j, j] = d
+            inv_diag[j] = 1.0 / d
+            if j + 1 < n:
+                v = G[j + 1 :, j]
+                if j:
+                    v = v - np.einsum("ikc,kc->ic", L[j + 1 :, :j], L[j, :j])
+                L[j + 1 :, j] = v * inv_diag[j]
         self.L = L
+        self.inv_diag = inv_diag
         self.ok = ok
         self.n = n
 
@@ -214,31 +214,26 @@ class _Factor:
         """The factor of the poses ``idx`` of the chunk."""
         sub = object.__new__(_Factor)
         sub.rs, sub.As, sub.n = _take(self.rs, idx), _take(self.As, idx), self.n
-        sub.L = [[x[idx] for x in row] for row in self.L]
-        sub.inv_diag = [x[idx] for x in self.inv_diag]
+        sub.L, sub.inv_diag = _take(self.L, idx), _take(self.inv_diag, idx)
         sub.ok = self.ok[idx]
         return sub
 
     def forward(self, r: FloatArray) -> FloatArray:
         """``z = L^-1 r`` for r (n, ...) with the batch last."""
         L, inv_diag = self.L, self.inv_diag
-        z = np.empty_like(r)
-        for i in range(self.n):
-            v = r[i].copy()
-            for k in range(i):
-                v -= L[i][k] * z[k]
-            z[i] = v * inv_diag[i]
+        z = np.empty(np.broadcast_shapes(r.shape, inv_diag.shape))
+        z[0] = r[0] * inv_diag[0]
+        for i in range(1, self.n):
+            z[i] = (r[i] - np.einsum("k...,k...->...", L[i, :i], z[:i])) * inv_diag[i]
         return z
 
     def backward(self, z: FloatArray) -> FloatArray:
         """``y = L^-T z`` for z (n, C)."""
-        L, inv_diag = self.L, self.inv_diag
+        L, inv_diag, n = self.L, self.inv_diag, self.n
         y = np.empty_like(z)
-        for i in range(self.n - 1, -1, -1):
-            v = z[i].copy()
-            for k in range(i + 1, self.n):
-                v -= L[k][i] * y[k]
-            y[i] = v * inv_diag[i]
+        y[n - 1] = z[n - 1] * inv_diag[n - 1]
+        for i in range(n - 2, -1, -1):
+            y[i] = (z[i] - np.einsum("kc,kc->c", L[i + 1 :, i], y[i + 1 :])) * inv_diag[i]
         return y
 
     def pinv(self, r: FloatArray) -> FloatArray:
@@ -250,11 +245,9 @@ class _Factor:
         """``B = L^-1 A'`` (n, m, C): orthonormal rows spanning the row space of A."""
         L, inv_diag = self.L, self.inv_diag
         B = np.empty_like(self.As)
-        for i in range(self.n):
-            v = self.As[i].copy()
-            for k in range(i):
-                v -= L[i][k] * B[k]
-            B[i] = v * inv_diag[i]
+        B[0] = self.As[0] * inv_diag[0]
+        for i in range(1, self.n):
+            B[i] = (self.As[i] - np.einsum("kc,kmc->mc", L[i, :i], B[:i])) * inv_diag[i]
         return B
 
 
@@ -519,32 +512,29 @@ def _polygon_lines(
     n1i, n2i, qi = n1s[i, ar], n2s[i, ar], _take(q, sel)[i, ar]
     c = np.where(lines < m, los[i, ar], his[i, ar])
     qi = np.where(valid, qi, 1.0)
-    t = c / qi  # foot of the origin on the line is t n_i
-    ri = 1.0 / np.sqrt(qi)
-    M = n1i[:, None] * n1s[None]  # n_i . n_l, (kb, m, Ks)
-    M += n2i[:, None] * n2s[None]
-    e = n1i[:, None] * n2s[None]  # e = n_l . d_i with d_i = (-n2_i, n1_i) / |n_i|
+    t = c / qi  # foot of the origin on the line is t n_i; points t n_i + s (-n2_i, n1_i)
+    # constraint l along line i: lower_l <= n_l . (t n_i) + s (n_i x n_l) <= lower_l + width_l
+    a = _take(lower, sel)[None] - (t * n1i)[:, None] * n1s[None]  # (kb, m, Ks)
+    a -= (t * n2i)[:, None] * n2s[None]
+    e = n1i[:, None] * n2s[None]
     e -= n2i[:, None] * n1s[None]
-    e *= ri[:, None]
     e += np.copysign(_TINY, e)  # no zero divisor: parallel lines give +-huge bounds
-    inv = np.divide(1.0, e, out=e)
-    a = _take(lower, sel)[None] - t[:, None] * M  # (kb, m, Ks): s e >= a, s e <= a + width
     b = a + _take(width, sel)[None]
-    a *= inv
-    b *= inv
+    a /= e
+    b /= e
     slo = np.minimum(a, b).max(axis=1)  # (kb, Ks)
     shi = np.maximum(a, b, out=b).min(axis=1)
     s = np.minimum(np.maximum(0.0, slo), shi)
     ok = valid & (slo <= shi) & (np.abs(s) < _BIG)
-    norm2 = np.where(ok, c * c / qi + s * s, np.inf)
+    norm2 = np.where(ok, (c * c + s * s * qi * qi) / qi, np.inf)  # |t n_i|^2 + s^2 |n_i|^2
     best = np.argmin(norm2, axis=0)
     ab = np.arange(Ks)
     f = np.isfinite(norm2[best, ab])
-    tb, sb, rb = t[best, ab], np.where(f, s[best, ab], 0.0), ri[best, ab]
+    tb, sb = t[best, ab], np.where(f, s[best, ab], 0.0)
     n1b, n2b = n1i[best, ab], n2i[best, ab]
     lam1, lam2, found = out
-    lam1[sel] = tb * n1b - sb * n2b * rb
-    lam2[sel] = tb * n2b + sb * n1b * rb
+    lam1[sel] = tb * n1b - sb * n2b
+    lam2[sel] = tb * n2b + sb * n1b
     found[sel] = f
 
 
