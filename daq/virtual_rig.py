@@ -59,7 +59,7 @@ from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
 
 from .aero_model import AeroModel, aero_from_mapping
-from .loadcell import INT24_MAX, INT24_MIN, Calibration
+from .loadcell import INT24_MAX, INT24_MIN, Calibration, check_frame_budget
 
 FloatArray = NDArray[np.float64]
 
@@ -342,6 +342,8 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
         raise ConfigError(
             source, "schedule.bitrate", f"expected a positive integer, got {bitrate!r}"
         )
+    # the CAN transports send 4 frames per sample (data_samples/loadcell.dbc): they must fit the bus
+    check_frame_budget(source, "schedule", bitrate, rate, 4)
     return Schedule(
         name=str(sch.get("name", Path(source).stem)),
         segments=tuple(segs),

@@ -147,6 +147,7 @@ def test_truth_is_in_equilibrium(rig: Rig) -> None:
         ({"segments": [{"duration_s": 1.0, "euler_deg": [0, 1]}]}, "segments[0].euler_deg"),
         ({"schedule": {"method": "nope"}}, "schedule.method"),
         ({"schedule": {"rate_hz": 0}}, "schedule.rate_hz"),
+        ({"schedule": {"rate_hz": 1000, "bitrate": 500000}}, "schedule.rate_hz"),  # frame budget
         ({"faults": [{"kind": "slack", "cable": "nope", "duration_s": 1}]}, "faults[0].cable"),
         ({"faults": [{"kind": "meteor", "duration_s": 1}]}, "faults[0].kind"),
         ({"sensor": {"noise": 1}}, "sensor.noise"),
