@@ -609,8 +609,8 @@ def exact(
     method's objective.  With ``T_p = T_ref + A^+ (w - A T_ref)`` and an orthonormal null-space
     basis ``N`` (m, m - n), ``T = T_p + N lam`` and ``|T - T_ref|^2 = |T_p - T_ref|^2 + |lam|^2``:
     the answer is the point of the polygon (interval for m = n + 1) ``{lam: limits}`` closest to
-    the origin.  ``feasible=False`` with ``status == STATUS_INFEASIBLE`` certifies (to a relative
-    tolerance of 1e-10) that no tensions within the limits balance ``w``.
+    the origin.  ``feasible=False`` with ``status == STATUS_INFEASIBLE`` certifies that no tensions
+    within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``.
     A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
     """
     A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
