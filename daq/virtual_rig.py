@@ -787,6 +787,24 @@ class VirtualRig:
             )
         return out
 
+    def make_sources(
+        self,
+        transport: str,
+        channel: str | None = None,
+        link: str | None = None,
+        tunnel_link: str | None = None,
+        origin: str = "<virtual rig>",
+    ) -> dict[str, Any]:
+        """The reader :class:`~cdpr.daq.source.Source` objects of :meth:`source_settings`, built
+        with ``create_source`` (not opened): ``{"loadcell": Source, "tunnel": Source}``."""
+        from . import drivers  # noqa: F401  (registers the driver kinds)
+        from .source import create_source
+
+        settings = self.source_settings(transport, channel, link, tunnel_link)
+        return {
+            name: create_source(kind, name, st, origin) for name, (kind, st) in settings.items()
+        }
+
     # -- transports --------------------------------------------------------------------------
     def start(
         self,

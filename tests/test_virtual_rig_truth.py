@@ -184,8 +184,7 @@ def test_demo_schedule_loads(rig: Rig) -> None:
 
 def _run_virtual(vr: VirtualRig, speed: float = 4.0):
     ch = f"vr-{uuid.uuid4().hex}"
-    kind, settings = vr.source_settings("virtual", channel=ch)["loadcell"]
-    src = create_source(kind, "lc", settings, "t")
+    src = vr.make_sources("virtual", channel=ch)["loadcell"]
     rd = []
     with src:
         run = vr.start("virtual", channel=ch, speed=speed)
