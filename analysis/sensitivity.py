@@ -196,6 +196,32 @@ def flat_geometry(
     return RigGeometry(anchors, np.broadcast_to(attach, shape + (8, 3)), position)
 
 
+def flat_yaw_singular_K22(
+    K21: ArrayLike, X_m: ArrayLike, *, L_m: float = 1.0, l_m: float = 0.03
+) -> FloatArray:
+    """The back-base ratio K22 (...,) at which the flat rig loses its yaw (Mz) direction.
+
+    Seen from above, each front cable runs from a front platform point (X - l/2, +-w1/2) to its
+    anchor (0, +-K21 w1/2) and each back cable from (X + l/2, +-w2/2) to (L, +-K22 w2/2); top and
+    bottom cables share these projections.  By symmetry each pair of projected lines meets on the x
+    axis, the front pair at ``x_f = (X - l/2) K21 / (K21 - 1)``, the back pair at
+    ``x_b = (X + l/2) - (L - X - l/2) / (K22 - 1)``.  When ``x_f = x_b`` every cable's line of action
+    passes through the vertical line through that point, so no combination of tensions produces a
+    yaw moment about it: A is singular.  Solving for K22 gives
+    ``K22* = 1 + (L - X - l/2) / (X + l/2 - x_f)`` (independent of H, w1 and w2); ``inf`` where no
+    K22 > 1 reaches it.
+    """
+    K = as_float_array(K21, "K21")
+    X = as_float_array(X_m, "X_m")
+    if np.any(K <= 1):
+        raise InputError("K21: expected > 1")
+    x_f = (X - l_m / 2) * K / (K - 1)
+    gap = X + l_m / 2 - x_f
+    with np.errstate(divide="ignore"):
+        k22 = 1 + (L_m - X - l_m / 2) / np.where(gap > 0, gap, np.nan)
+    return np.asarray(np.where(gap > 0, k22, np.inf), dtype=np.float64)
+
+
 def structure_matrices(geometry: RigGeometry) -> FloatArray:
     """Structure matrices A (..., 6, m) of a batch of rigs at their reference pose (R = I).
 

@@ -730,10 +730,16 @@ def plot_flat(flat: dict, out: Path, o: StudyOptions) -> list[str]:
                         color=f"C{si}",
                         label=f"{V:g} m/s, {method}",
                     )
+                    bad = e[e.feasible == 0]
+                    ax.plot(bad.value, bad.S_N, ls="none", marker=_MARKERS[si], ms=8,
+                            mfc="white", mec=f"C{si}")  # fmt: skip
             ax.set_xlabel(labels[p])
             ax.set_ylabel("S (N)")
             ax.set_yscale("log")
-            ax.set_title(f"Flat rig, others at {tuple(o.flat.baseline)}", fontsize=9)
+            ax.set_title(
+                f"Flat rig, others at {tuple(o.flat.baseline)}; hollow: tensions infeasible",
+                fontsize=9,
+            )
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=7)
         files.append(name)
@@ -804,6 +810,58 @@ def _why_k(d: str, best: pd.Series, g: pd.DataFrame, o: StudyOptions) -> str:
     )
 
 
+def _why_z_side(o: StudyOptions, z_lo: float, z_hi: float) -> str:
+    """Why S of a side force falls with Z, with the numbers of the baseline geometry."""
+    c = o.cubic
+    Z = np.array([z_lo, z_hi])
+    A = sens.structure_matrices(
+        sens.cubic_geometry(*c.baseline_k, Z_m=Z, L_m=c.L_m, W_m=c.W_m, H_m=c.H_m, layout=c.layout)
+    )
+    uy_top = np.abs(A[:, 1, :4]).mean(axis=1)
+    share = np.linalg.norm(np.linalg.pinv(A)[:, :4, 1], axis=1) / np.linalg.norm(
+        np.linalg.pinv(A)[:, :, 1], axis=1
+    )
+    return (
+        f"a side force at P is carried mostly by the four top cables ({100 * share[0]:.0f} % of "
+        f"|dT| at Z = {z_lo:g} m, {100 * share[1]:.0f} % at {z_hi:g} m; the bottom ones mainly "
+        f"cancel the roll moment); as P goes down the top cables get steeper (mean |u_y| "
+        f"{uy_top[1]:.2f} at Z = {z_hi:g} m, {uy_top[0]:.2f} at {z_lo:g} m), so their tensions "
+        "must change more per newton"
+    )
+
+
+def _flat_singular_text(o: StudyOptions, flat: dict) -> str:
+    """The flat rig's yaw singularity and how it shapes Figs. 12-13."""
+    f = o.flat
+    K21b, K22b, _, Xb = f.baseline
+    kw = {"L_m": f.L_m, "l_m": f.l_m}
+    k22s = float(sens.flat_yaw_singular_K22(K21b, Xb, **kw))
+    K21 = np.linspace(1.5, 300.0, 200_000)
+    d = sens.flat_yaw_singular_K22(K21, Xb, **kw) - K22b
+    cross = np.flatnonzero(np.diff(np.sign(d)) != 0)
+    k21s = float(K21[cross[0]]) if len(cross) else float("nan")
+    A_b = sens.structure_matrices(sens.flat_geometry(*f.baseline, w1_m=f.w1_m, w2_m=f.w2_m, **kw))
+    cond_b = float(sens.singular_value_metrics(A_b).condition)
+    text = (
+        "- Flat rig: A loses the yaw direction when, seen from above, the front and the back "
+        "cable pairs point at the same spot of the x axis: `(X - l/2) K21 / (K21 - 1) = (X + l/2) "
+        "- (L - X - l/2) / (K22 - 1)` (independent of H, w1, w2; `flat_yaw_singular_K22` in "
+        f"`cdpr.analysis.sensitivity`). With X = {Xb:g} m that is K22* = {k22s:.2f} for K21 = "
+        f"{K21b:g}, and K21* = {k21s:.2f} for K22 = {K22b:g}. Table 3 runs right up to this "
+        "surface: the steep rise of S towards small K21 and K22 in Figs. 12-13 (and the failed or "
+        "infeasible points there) is the approach to it, and the paper's optimum "
+        f"({K21b:g}, {K22b:g}) sits next to it (condition number {cond_b:.3g})."
+    )
+    if "grid" in flat:
+        fg = flat["grid"]
+        near = int((fg.condition > o.study.near_singular_condition).sum())
+        text += (
+            f" In the full Table 3 grid {near} of {len(fg)} configurations have a condition number "
+            f"above {o.study.near_singular_condition:g}."
+        )
+    return text
+
+
 def _at(e: pd.DataFrame, value: float) -> str:
     hit = e[np.isclose(e.value, value)]
     return f"{hit.S_N.iloc[0]:.3g} N" if len(hit) else "not in the sweep"
@@ -814,17 +872,31 @@ def _why_flat(p: str, e: pd.DataFrame, ok: bool) -> str:
         return (
             "same location; S follows the weakest direction of A along the wrench (the platform "
             "is 3 cm long, so the moment rows of A are small)"
+            + ("; the maximum is next to the yaw-singular surface" if p in ("K21", "K22") else "")
         )
     vals = e.value.to_numpy()
     best = float(e.loc[e.S_N.idxmax(), "value"])
     where = (
         "smallest" if best == vals.min() else ("largest" if best == vals.max() else "an interior")
     )
+    near = (
+        "; S rises towards the yaw-singular surface just below the range (see the singular "
+        "configurations section)"
+        if p in ("K21", "K22")
+        else ""
+    )
+    d = np.diff(e.sort_values("value").S_N.to_numpy())
+    d = d[np.isfinite(d)]
+    shape = (
+        "decreases monotonically"
+        if np.all(d < 0)
+        else ("increases monotonically" if np.all(d > 0) else "is not monotone")
+    )
     return (
-        f"S is highest at the {where} value of the range: with an 8-cable, 3 cm platform S "
-        "follows 1/sigma_min of A along the wrench, which changes monotonically with the base "
-        "width and height here; the paper's wrench values are not published (ours: the SDM-like "
-        "model of the assumptions), and an interior maximum depends on them and on the layout"
+        f"S {shape} over the range and is highest at its {where} value. With a 3 cm platform "
+        "the moment rows of A are small and S follows the weakest directions of A along the "
+        "wrench; the paper's wrench values are not published (ours: the SDM-like model of the "
+        "assumptions), and an interior maximum depends on them and on the layout" + near
     )
 
 
@@ -914,8 +986,7 @@ def build_report(
             f"S = {zy.S_N.iloc[0]:.3g} N at Z = {zy.Z_m.iloc[0]:g} m, {zy.S_N.iloc[-1]:.3g} N at "
             f"{zy.Z_m.iloc[-1]:g} m; correlation(Z, S) = {corr:.2f}",
             corr < -0.5,
-            "a side force is resisted by the crossed bottom cables, whose lateral component "
-            "shrinks as P approaches the floor, so the tensions must change more",
+            _why_z_side(o, float(zy.Z_m.iloc[0]), float(zy.Z_m.iloc[-1])),
         )
     dfl = cub["deflection"]
     for method in c.methods:
@@ -948,17 +1019,31 @@ def build_report(
         ("H_m", 0.67, "Fig. 14"),
     ):
         for method in f.methods:
-            e = sw[(sw.parameter == p) & (sw.method == method) & (sw.speed_mps == Vmax)]
-            e = e[e.singular == 0]
+            e_all = sw[(sw.parameter == p) & (sw.method == method) & (sw.speed_mps == Vmax)]
+            e = e_all[(e_all.singular == 0) & (e_all.feasible == 1) & np.isfinite(e_all.S_N)]
+            missing = sorted(set(e_all.value) - set(e.value))
+            if not len(e):
+                continue
             best = _argmax_row(e)
             ok = abs(best.value - target) < 1e-9
+            gaps = (
+                f"; no feasible tensions at {p} = {', '.join(f'{v:g}' for v in missing)}"
+                if missing
+                else ""
+            )
+            why = _why_flat(p, e, ok)
+            if ok and missing:
+                why += (
+                    f"; weak agreement: the method finds no feasible tensions at "
+                    f"{', '.join(f'{v:g}' for v in missing)}, next to the maximum"
+                )
             line(
                 f"{fig}: S highest at {p} = {target:g} ({method})",
                 f"S highest at {p} = {best.value:g} (S = {best.S_N:.3g} N at {Vmax:g} m/s; "
                 f"S at {target:g}: {_at(e, target)}; range "
-                f"{e.S_N.min():.3g}-{e.S_N.max():.3g} N)",
+                f"{e.S_N.min():.3g}-{e.S_N.max():.3g} N{gaps})",
                 ok,
-                _why_flat(p, e, ok),
+                why,
             )
     for method in f.methods:
         e = sw[(sw.parameter == "X_m") & (sw.method == method) & (sw.speed_mps == Vmax)]
@@ -1024,6 +1109,7 @@ def build_report(
             "the weak-direction loads leave their limits (the margin collapses, see below), and "
             "the wrench the rig recovers gains no accuracy from it (next section)."
         )
+    add(_flat_singular_text(o, flat))
     add("")
     add("## Metrics the paper lacks (per configuration, in the CSV files)\n")
     add(

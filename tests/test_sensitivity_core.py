@@ -164,6 +164,21 @@ def test_near_singular_drives_S_along_the_lost_direction_only() -> None:
     np.testing.assert_allclose(smin[:-1] / smin[1:], 10.0, rtol=0.05)
 
 
+def test_flat_rig_yaw_singularity_closed_form() -> None:
+    # The flat rig of Table 3 has a singular surface inside its range (K22* ~ 24.9 for K21 = 51,
+    # X = 0.5 m): check the formula with an SVD of the Rig builder's structure matrix.
+    for K21, H, X in ((51, 0.67, 0.5), (61, 0.72, 0.5), (46, 0.92, 0.6), (80, 0.52, 0.7)):
+        k22 = float(sens.flat_yaw_singular_K22(K21, X))
+        assert 5 < k22 < 100
+        s_at = np.linalg.svd(_A_of(rigs.flat_rig(K21, k22, H, X)), compute_uv=False)
+        s_off = np.linalg.svd(_A_of(rigs.flat_rig(K21, k22 + 2, H, X)), compute_uv=False)
+        assert s_at[-1] / s_at[0] < 1e-9
+        assert s_off[-1] / s_off[0] > 1e-4
+        # The lost direction is the yaw moment.
+        u = np.linalg.svd(_A_of(rigs.flat_rig(K21, k22, H, X)))[0][:, -1]
+        assert abs(u[5]) > 0.99
+
+
 def test_singular_value_metrics_and_dW_bound() -> None:
     A = sens.structure_matrices(sens.cubic_geometry(0.15, 0.075, 0.075))
     met = sens.singular_value_metrics(A)
