@@ -25,6 +25,7 @@ import json
 import math
 import os
 import struct
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -669,6 +670,13 @@ class McapRunWriter:
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self.counts: dict[str, int] = {}
         self.flushes = 0
+        self.fsyncs = 0
+        self._fsync_wanted = threading.Event()
+        self._fsync_stop = False
+        self._fsync_thread = threading.Thread(
+            target=self._fsync_loop, name="mcap-fsync", daemon=True
+        )
+        self._fsync_thread.start()
         self.finished = False
 
     # channels ------------------------------------------------------------------------------
@@ -731,12 +739,27 @@ class McapRunWriter:
         return False
 
     def flush(self) -> None:
-        """Close the open chunk (if any), write it out and fsync the file."""
+        """Close the open chunk (if any) and hand it to the OS (it now survives the process being
+        killed), then have it fsynced (durable across a power cut) by the fsync thread, so the
+        writer does not wait for the disk."""
         self._writer.close_chunk()
         self._fh.flush()
-        os.fsync(self._fh.fileno())
+        self._fsync_wanted.set()
         self._last_flush_ns = time.monotonic_ns()
         self.flushes += 1
+
+    def _fsync_loop(self) -> None:
+        fd = self._fh.fileno()
+        while True:
+            self._fsync_wanted.wait()
+            self._fsync_wanted.clear()
+            if self._fsync_stop:
+                return
+            try:
+                os.fsync(fd)
+                self.fsyncs += 1
+            except OSError:  # reported by the final, synchronous fsync in finish()
+                return
 
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         """A metadata record; values are converted to strings (non-strings as JSON)."""
@@ -759,6 +782,9 @@ class McapRunWriter:
             self._fh.flush()
             os.fsync(self._fh.fileno())
         finally:
+            self._fsync_stop = True
+            self._fsync_wanted.set()
+            self._fsync_thread.join(timeout=30.0)
             self._fh.close()
 
 
