@@ -595,6 +595,28 @@ class VirtualRig:
             return np.full_like(t_rel_ns, -1)
         return self.t0_ns + np.round(t_rel_ns / self.speed).astype(np.int64)
 
+    def segment_events(self) -> list[dict[str, Any]]:
+        """One event per segment start: ``t_rel_ns``, ``t_ns`` (host, -1 before the start),
+        ``label``, ``wind_mps``, ``tare``, ``position_O_m``, ``euler_rad`` (for an events stream)."""
+        out = []
+        t = 0.0
+        for i, s in enumerate(self.schedule.segments):
+            t_rel = int(round(t * 1e9))
+            out.append(
+                {
+                    "segment": i,
+                    "t_rel_ns": t_rel,
+                    "t_ns": int(self._host_ns(np.array([t_rel], dtype=np.int64))[0]),
+                    "label": s.label,
+                    "wind_mps": s.wind_mps,
+                    "tare": s.tare,
+                    "position_O_m": list(s.position_O_m),
+                    "euler_rad": list(s.euler_rad),
+                }
+            )
+            t += s.duration_s
+        return out
+
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
         """Write the truth atomically: ``.npz`` (all arrays plus ``cable_names``, ``segment_labels``)
         or ``.csv`` (one row per sample: times, pose, wind, wrench, true and sensor tensions)."""

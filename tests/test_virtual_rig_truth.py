@@ -179,7 +179,17 @@ euler_deg = [0.0, 10.0, 0.0]
 def test_demo_schedule_loads(rig: Rig) -> None:
     sch = load_schedule(ROOT / "data_samples" / "schedule_demo.toml", rig)
     assert [s.wind_mps for s in sch.segments] == [0.0, 17.27, 25.51, 41.42, 0.0]
-    assert VirtualRig(rig, sch).n_samples == 1600
+    vr = VirtualRig(rig, sch)
+    assert vr.n_samples == 1600
+    ev = vr.segment_events()
+    assert [e["t_rel_ns"] for e in ev] == [
+        0,
+        1_500_000_000,
+        3_000_000_000,
+        4_500_000_000,
+        6_500_000_000,
+    ]
+    assert [e["tare"] for e in ev] == [True, False, False, False, True] and ev[0]["t_ns"] == -1
 
 
 def _run_virtual(vr: VirtualRig, speed: float = 4.0):
