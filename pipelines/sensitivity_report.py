@@ -1173,7 +1173,9 @@ def build_report(
             add(
                 f"\nFull Table 3 grid ({len(fg)} configurations): the highest S with a positive "
                 f"margin over the whole load range is {b[col]:.3g} N at K21 = {b.K21:g}, K22 = "
-                f"{b.K22:g}, H = {b.H_m:g} m, X = {b.X_m:g} m (condition {b.condition:.3g}); "
+                f"{b.K22:g}, H = {b.H_m:g} m, X = {b.X_m:g} m (condition {b.condition:.3g}; "
+                f"the yaw-singular K22* there is "
+                f"{float(sens.flat_yaw_singular_K22(b.K21, b.X_m, L_m=f.L_m, l_m=f.l_m)):.3g}); "
                 f"{int((fg.margin_N > 0).sum())} of {len(fg)} configurations keep every cable "
                 "within its limits over the whole range."
             )
@@ -1196,6 +1198,10 @@ def build_report(
     for name in files:
         add(f"- [{name}]({name})")
     add("")
+    add("## Figures\n")
+    for name in files:
+        if name.endswith(".png"):
+            add(f"### {name}\n\n![{name}]({name})\n")
     return "\n".join(L)
 
 
