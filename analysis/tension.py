@@ -518,12 +518,13 @@ def _polygon_lines(
     a -= (t * n2i)[:, None] * n2s[None]
     e = n1i[:, None] * n2s[None]
     e -= n2i[:, None] * n1s[None]
-    e += np.copysign(_TINY, e)  # no zero divisor: parallel lines give +-huge bounds
     b = a + _take(width, sel)[None]
+    # A parallel constraint (e = 0, e.g. the line's own cable) gives -inf..inf if it holds
+    # (a < 0 < b), an empty interval if not, NaN (ignored by fmin/fmax) if it holds with equality.
     a /= e
     b /= e
-    slo = np.minimum(a, b).max(axis=1)  # (kb, Ks)
-    shi = np.maximum(a, b, out=b).min(axis=1)
+    slo = np.fmax.reduce(np.fmin(a, b), axis=1)  # (kb, Ks)
+    shi = np.fmin.reduce(np.fmax(a, b, out=b), axis=1)
     s = np.minimum(np.maximum(0.0, slo), shi)
     ok = valid & (slo <= shi) & (np.abs(s) < _BIG)
     norm2 = np.where(ok, (c * c + s * s * qi * qi) / qi, np.inf)  # |t n_i|^2 + s^2 |n_i|^2
