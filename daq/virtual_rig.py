@@ -1105,6 +1105,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--linger", type=float, default=0.5, help="seconds to keep the ports open after the run"
     )
     a = ap.parse_args(argv)
+    if a.transport != "virtual" and not a.pty_link:
+        ap.error(f"--transport {a.transport} needs --pty-link PATH")
     from cdpr.analysis.errors import CdprError
 
     try:
