@@ -38,7 +38,7 @@ PAPER_SPEEDS_MPS = (17.27, 25.51, 41.42)
 
 def _arange(a: float, b: float, step: float) -> tuple[float, ...]:
     n = int(round((b - a) / step))
-    return tuple(round(a + i * step, 6) for i in range(n + 1))
+    return tuple(float(round(a + i * step, 6)) for i in range(n + 1))
 
 
 @dataclass

@@ -183,3 +183,12 @@ def test_cube_layout_at_the_papers_optimum_is_reported_singular(
 def test_cli_needs_paper_or_config(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sensitivity", "--out", str(tmp_path / "o")]) == 2
     assert "--paper" in capsys.readouterr().err
+
+
+def test_print_config_round_trips(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sensitivity", "--print-config"]) == 0
+    text = capsys.readouterr().out
+    cfg = tmp_path / "defaults.toml"
+    cfg.write_text(text)
+    assert sr.options_from_toml(str(cfg)) == sr.StudyOptions()
+    assert "k1_values" in text and "coefficients" in text

@@ -23,7 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--config", help="TOML file overriding options ([cubic], [flat], [aero], [study])"
     )
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", help="output folder (required unless --print-config)")
+    p.add_argument(
+        "--print-config",
+        action="store_true",
+        help="print the options (defaults, or --config merged) as TOML and exit",
+    )
     p.add_argument("--layout", choices=("crossed", "cube"), help="cubic cable layout (override)")
     p.add_argument(
         "--no-flat-grid",
@@ -40,9 +45,18 @@ def run(args: argparse.Namespace) -> int:
     from .. import __version__
     from ..sensitivity_report import StudyOptions, options_from_toml, run_study, validate_options
 
+    opts = options_from_toml(args.config) if args.config else StudyOptions()
+    if args.print_config:
+        import dataclasses
+
+        import tomli_w
+
+        print(tomli_w.dumps(dataclasses.asdict(opts)), end="")
+        return 0
     if not args.paper and not args.config:
         raise InputError("give --paper (the paper's studies) and/or --config FILE.toml")
-    opts = options_from_toml(args.config) if args.config else StudyOptions()
+    if not args.out:
+        raise InputError("--out: required (the output folder)")
     source = args.config or "command line"
     if args.layout:
         opts.cubic.layout = args.layout
