@@ -1124,6 +1124,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CdprError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    import signal
+
+    def _terminate(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt  # stop early, but still close the ports and write the truth
+
+    signal.signal(signal.SIGTERM, _terminate)
     print(f"READY {a.pty_link or a.channel}", flush=True)
     try:
         run.wait()

@@ -349,3 +349,29 @@ def test_truth_files_atomic_and_readable(rig: Rig, tmp_path: Path) -> None:
     np.testing.assert_allclose(df["fz_N"], z["wrench_aero_O"][:, 2], rtol=1e-9, atol=1e-12)
     with pytest.raises(ValueError):
         vr.write_truth(tmp_path / "truth.txt")
+
+
+def test_cli_sigterm_still_writes_truth(tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+
+    truth = tmp_path / "truth.npz"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cdpr.daq.virtual_rig", "--rig", str(RIG_PATH),
+         "--schedule", str(ROOT / "data_samples" / "schedule_demo.toml"), "--transport", "serial",
+         "--pty-link", str(tmp_path / "tty"), "--truth", str(truth), "--wait-reader", "0"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline().strip() == f"READY {tmp_path / 'tty'}"
+        assert (tmp_path / "tty").is_symlink()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not (tmp_path / "tty").exists()  # the port is gone with the rig
+    z = np.load(truth)
+    assert z["tensions_true_N"].shape == (1600, 8) and z["t_ns"][0] > 0
