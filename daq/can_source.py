@@ -110,6 +110,15 @@ class LoadCellDecoder:
             raise ValueError(f"DBC has no Ch<k>_Counts for channels {[k + 1 for k in missing]}")
         self.frame_ids = sorted(self.channel_signals)
         self._msgs = {fid: db.get_message_by_frame_id(fid) for fid in self.frame_ids}
+        # fast path: Intel-order integer signals unpacked from one little-endian int, verified
+        # against cantools on the first frame of every id (any mismatch -> cantools for good)
+        self._fast: dict[int, list[tuple[str, int, int, bool]]] = {}
+        self._checked: set[int] = set()
+        for fid, m in self._msgs.items():
+            if all(sg.byte_order == "little_endian" and not sg.is_float for sg in m.signals):
+                self._fast[fid] = [
+                    (sg.name, sg.start, (1 << sg.length) - 1, sg.is_signed) for sg in m.signals
+                ]
         self.lost = 0
         self.partial = 0
         self.bad = 0
@@ -135,8 +144,22 @@ class LoadCellDecoder:
         fid = msg.arbitration_id
         if fid not in self._msgs or msg.is_error_frame or msg.is_remote_frame:
             return []
+        data = bytes(msg.data)
         try:
-            sig = self._msgs[fid].decode(bytes(msg.data), decode_choices=False, scaling=False)
+            fast = self._fast.get(fid)
+            if fast is not None and len(data) == self._msgs[fid].length:
+                sig = self._unpack(fast, data)
+                if fid not in self._checked:
+                    ref = self._msgs[fid].decode(data, decode_choices=False, scaling=False)
+                    if ref != sig:
+                        log.warning(
+                            "fast unpack of 0x%X disagrees with cantools: using cantools", fid
+                        )
+                        del self._fast[fid]
+                        sig = ref
+                    self._checked.add(fid)
+            else:
+                sig = self._msgs[fid].decode(data, decode_choices=False, scaling=False)
         except Exception:
             self.bad += 1
             return []
@@ -154,6 +177,17 @@ class LoadCellDecoder:
         self._pending[fid] = sig
         if len(self._pending) == len(self.frame_ids):
             out.append(self._flush())
+        return out
+
+    @staticmethod
+    def _unpack(fast: list[tuple[str, int, int, bool]], data: bytes) -> dict[str, int]:
+        word = int.from_bytes(data, "little")
+        out = {}
+        for name, start, mask, signed in fast:
+            v = (word >> start) & mask
+            if signed and v > mask >> 1:
+                v -= mask + 1
+            out[name] = v
         return out
 
     def flush(self) -> list[Reading]:
