@@ -418,3 +418,21 @@ def test_python_can_logger_reads_the_emulated_adapter(tmp_path: Path) -> None:
     )
     assert T.shape == (45, 8)
     assert np.abs(T - vr.tensions_sensor_N).max() <= 2.6e-5
+
+
+def test_fast_unpack_agrees_with_cantools() -> None:
+    """The driver's fast integer unpacking gives what cantools decodes, on random payloads."""
+    import random
+
+    from cdpr.daq.can_source import DEFAULT_DBC, LoadCellDecoder, load_dbc
+    from cdpr.daq.loadcell import Calibration
+
+    db = load_dbc(DEFAULT_DBC)
+    dec = LoadCellDecoder(db, CABLES, Calibration(np.zeros(8), np.ones(8)))
+    assert sorted(dec._fast) == [0x181, 0x281, 0x381, 0x481]
+    rnd = random.Random(5)
+    for fid, fast in dec._fast.items():
+        msg = db.get_message_by_frame_id(fid)
+        for _ in range(500):
+            data = bytes(rnd.randrange(256) for _ in range(8))
+            assert dec._unpack(fast, data) == msg.decode(data, decode_choices=False, scaling=False)
