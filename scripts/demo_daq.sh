@@ -28,11 +28,11 @@ echo "== cdpr export $RUN --hdf5 ..."
 "$CDPR" export "$RUN" --hdf5 "${RUN%.mcap}.h5"
 
 echo
-echo "== crash safety: kill -9 a recording after 3 s, then cdpr recover"
+echo "== crash safety: kill -9 a recording mid-run, then cdpr recover"
 "$CDPR" simulate --rig data_samples/flat_optimum.toml --schedule data_samples/schedule_demo.toml \
     --out "$RUNS" --transport slcan --label demo-kill9 --quiet > /dev/null &
 PID=$!
-sleep 4
+sleep 6
 CHILDREN=$(pgrep -P "$PID" || true)
 kill -9 "$PID"
 wait "$PID" 2> /dev/null || true
