@@ -392,7 +392,14 @@ class CanLoadCellSource(Source):
             origin, prefix, dbc, cables, offset_counts, gain_N_per_count, rate_hz
         )
         self.budget = check_frame_budget(
-            origin, prefix, bitrate, rate_hz, self.decoder.frames_per_sample, 8, False, max_bus_load
+            origin,
+            prefix,
+            bitrate,
+            rate_hz,
+            self.decoder.frames_per_sample,
+            max(m.length for m in self.decoder._msgs.values()),
+            any(m.is_extended_frame for m in self.decoder._msgs.values()),
+            max_bus_load,
         )
         self.max_bus_load = float(max_bus_load)
         self.bus_options = dict(bus_options or {})
