@@ -657,23 +657,25 @@ def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
     for method in o.cubic.methods:
         for fig_no, d in (("06", "x"), ("07", "y")):
             name = f"fig{fig_no}_cubic_S_vs_k_force_{d}_{method}.png"
-            g = grid[
-                (grid.method == method)
-                & (grid.direction == d)
-                & (grid.singular == 0)
-                & (grid.feasible == 1)
-            ]
+            g = grid[(grid.method == method) & (grid.direction == d) & (grid.singular == 0)]
+            # Same geometries on every line: those that hold every force of the study.
+            ok = g.groupby(["k1", "k2", "k3"]).feasible.transform("min") == 1
+            g = g[ok]
             with _figure(out / name, 1, 3, (13, 4.2)) as (fig, axes):
                 for j, key in enumerate(("k1", "k2", "k3")):
                     ax = axes[0, j]
                     piv = g.groupby([key, "force_N"]).S_N.max().unstack()
                     _plot_lines(ax, piv.index, {f"{F:g} N": piv[F].values for F in piv.columns})
                     ax.set_xlabel(key)
-                    ax.set_ylabel("S (N), max over the other ratios (feasible)")
+                    ax.set_ylabel("S (N), max over the other ratios")
                     ax.set_title(f"({j + 1}) S vs {key}, force along {d}")
                     ax.grid(alpha=0.3)
                 axes[0, 0].legend(fontsize=7, title="force")
-                fig.suptitle(f"Cubic rig, {o.cubic.layout} layout, method {method}", fontsize=10)
+                fig.suptitle(
+                    f"Cubic rig, {o.cubic.layout} layout, method {method}; geometries that hold "
+                    "every force of the study",
+                    fontsize=10,
+                )
             files.append(name)
         for fig_no, d in (("08", "x"), ("09", "y")):
             name = f"fig{fig_no}_cubic_S_vs_Z_force_{d}_{method}.png"
