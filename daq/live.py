@@ -81,14 +81,14 @@ class LiveView:
         self._live: Any = None
         self.frames = 0
 
-    def render(self, st: RecorderStatus) -> Any:
-        """The table for one status snapshot."""
+    def render(self, st: RecorderStatus, update_rates: bool = True) -> Any:
+        """The table for one status snapshot (rates over the time since the previous one)."""
         from rich.console import Group
         from rich.table import Table
         from rich.text import Text
 
         now = time.monotonic()
-        if self._prev is not None:
+        if self._prev is not None and update_rates:
             dt = now - self._prev[0]
             if dt > 0:
                 self._rates = {k: (v - self._prev[1].get(k, 0)) / dt for k, v in st.counts.items()}
@@ -170,6 +170,6 @@ class LiveView:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         try:
-            self._live.update(self.render(self.recorder.status()))
+            self._live.update(self.render(self.recorder.status(), update_rates=False))
         finally:
             self._live.__exit__(None, None, None)
