@@ -66,6 +66,8 @@ def test_pareto_front_brute_force() -> None:
     [
         (["--bound", "K21=90:50"], "--bound K21"),
         (["--bound", "Q=1:2"], "--bound Q"),
+        (["--bound", "X_m=0.5:1.5"], "--bound X_m"),
+        (["--bound", "K22=0.5:30"], "--bound K22"),
         (["--min-margin", "500"], "--min-margin"),
         (["--method", "magic"], "--method"),
         (["--max-condition", "0.5"], "--max-condition"),

@@ -41,6 +41,18 @@ FAMILIES = {
         "paper": (0.15, 0.075, 0.075, 0.7),
     },
 }
+VALID = {
+    "K21": (1.0, float("inf")),
+    "K22": (1.0, float("inf")),
+    "H_m": (0.0, float("inf")),
+    "X_m": (0.015, 0.985),
+    "k1": (0.0, 1.0),
+    "k2": (0.0, 1.0),
+    "k3": (0.0, 1.0),
+    "Z_m": (0.0, 1.4),
+}
+"""Open ranges of the design variables for the default rigs (X: inside the 1 m frame less half the
+platform length; Z: inside the 1.4 m frame; the study options may narrow them further)."""
 OBJECTIVES = ("sensitivity", "margin", "condition", "uncertainty")
 
 
@@ -85,6 +97,13 @@ def _parse_bounds(family: str, items: list[str]) -> dict[str, tuple[float, float
         if not lo < hi:
             raise InputError(f"--bound {name}: expected LO < HI, got {lo} and {hi}")
         bounds[name] = (lo, hi)
+    for name, (lo, hi) in bounds.items():
+        vmin, vmax = VALID[name]
+        if not (lo > vmin and hi < vmax):
+            raise InputError(
+                f"--bound {name}: expected {vmin:g} < LO < HI < {vmax:g} (valid geometry), "
+                f"got {lo:g}:{hi:g}"
+            )
     return bounds
 
 
