@@ -370,8 +370,8 @@ def topic_of(stream: str) -> str:
 
 # -------------------------------------------------------------------------------------------------
 # the low-level writer: MCAP records through the ``mcap`` package's record classes, except messages,
-# which are packed here straight into the open chunk (the python writer's per-message objects cost
-# about 3/4 of the recorder's time at 30 k frames/s)
+# which are packed here straight into the open chunk (the python writer's per-message objects took
+# about 3/4 of the writer's time)
 
 _MAGIC = b"\x89MCAP0\r\n"
 _MSG = struct.Struct("<BQHIQQ")  # opcode 0x05, record length, channel, sequence, log/publish time
