@@ -12,7 +12,7 @@ Cubic rig (paper Fig. 3)
     whenever two ratios are equal with P at mid-height: k2 = k3 removes Mx, k1 = k3 removes My and
     k1 = k2 removes Mz, because the cable lines' projections then pass through P; it would be singular
     at the paper's own optimum (k2 = k3 = 0.075), so it cannot be the paper's layout.  The crossed
-    layout is singular only for k1 = k2 (Mz).
+    layout is singular when k1 = k3 (My).
 Flat rig (paper Fig. 4, Table 3)
     Base length L along x, the front (upstream) frame plane at x = 0, the back one at x = L, floor at
     z = 0 and top at z = H.  The platform is an isosceles trapezoid in its own x-y plane: front points

@@ -298,9 +298,12 @@ class _Chunked:
             At = _soa(self.A, s, e)
             if At.shape[-1] == 1 and e - s > 1:
                 At = np.ascontiguousarray(np.broadcast_to(At, At.shape[:-1] + (e - s,)))
-            w = _soa(self.w, s, e)
-            lo, hi = _soa(self.lo, s, e), _soa(self.hi, s, e)
-            ex = tuple(_soa(x, s, e) for x in extra_f)
+            # kernels index every column: expand batch-constant inputs to the chunk's width
+            w, lo, hi, *ex_l = (
+                np.ascontiguousarray(np.broadcast_to(x, x.shape[:-1] + (e - s,)))
+                for x in (_soa(y, s, e) for y in (self.w, self.lo, self.hi, *extra_f))
+            )
+            ex = tuple(ex_l)
             T, status = kernel(At, w, lo, hi, *ex)
             res, viol, feas = _summary(At, w, T, lo, hi)
             feas &= status == STATUS_OK

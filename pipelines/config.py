@@ -95,6 +95,9 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual permissions
         os.replace(tmp, p)
     except BaseException:
         try:
