@@ -154,3 +154,37 @@ def test_bad_config_one_line_exit_2_nothing_written(tmp_path: Path, text: str, k
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "bad.toml" in lines[0] and key in lines[0], res.stderr
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_example_config_runs_anywhere_with_tunnel_point_from_the_command_line(
+    tmp_path: Path,
+) -> None:
+    cfg = ROOT / "data_samples" / "tunnel.toml"
+    out = tmp_path / "runs"
+    res = subprocess.run(
+        [*CDPR, "record", "--config", str(cfg), "--out", str(out), "--duration", "1.3",
+         "--label", "tp 07", "--airspeed", "41.42", "--notes", "pitch 5 deg"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    (path,) = sorted(out.glob("*_tp-07.mcap"))
+    node = node_read(path)
+    assert node["complete"] and node["topics"]["/tunnel"] >= 1
+    assert {a["name"] for a in node["attachments"]} == {
+        "config/tunnel.toml",
+        "rig/flat_optimum.toml",
+        "calibration/loadcell.dbc",
+    }
+    rc = read_run(path)
+    tun = rc.messages["/tunnel"][0][1]
+    assert tun["airspeed_mps"] == 41.42 and tun["label"] == "tp 07"
+    md = rc.metadata["run"]
+    assert md["label"] == "tp 07" and md["notes"].endswith("pitch 5 deg")
+    assert md["rig"] == "flat-optimum" and md["software_version"] and md["host"]
+    import json
+
+    snap = json.loads(md["config"])
+    assert snap["toml"]["sources"]["loadcells"]["interface"] == "virtual"
+    assert snap["sources"]["tunnel"]["kind"] == "manual_tunnel"
+    assert json.loads(md["calibration_ids"])["loadcell.dbc"].startswith("loadcell.dbc@")
+    assert rc.metadata["run_end"]["stop_reason"] == "duration reached"

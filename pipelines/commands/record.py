@@ -24,6 +24,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--label", help="test-point label (default: [run] label)")
     p.add_argument("--notes", help="operator notes (added to [run] notes)")
+    p.add_argument(
+        "--airspeed",
+        type=float,
+        help="tunnel airspeed of this test point, m/s (manual_tunnel sources)",
+    )
+    p.add_argument("--pressure", type=float, help="static pressure of this test point, Pa")
+    p.add_argument("--temperature", type=float, help="air temperature of this test point, K")
     p.add_argument("--quiet", action="store_true", help="no live view")
     p.set_defaults(func=run)
 
@@ -98,6 +105,27 @@ def run(args: argparse.Namespace) -> int:
 
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     rig = load_rig(cfg.rig) if cfg.rig is not None else None
+    point = {
+        "airspeed_mps": args.airspeed,
+        "static_pressure_Pa": args.pressure,
+        "temperature_K": args.temperature,
+    }
+    point = {k: v for k, v in point.items() if v is not None}
+    if point:
+        # tunnel conditions entered on the command line for this test point (no data link)
+        manual = [sc for sc in cfg.sources if sc.kind == "manual_tunnel"]
+        if not manual:
+            from cdpr.analysis.errors import ConfigError
+
+            raise ConfigError(
+                str(cfg.path),
+                "sources",
+                "--airspeed/--pressure/--temperature need a manual_tunnel source",
+            )
+        for sc in manual:
+            sc.settings.update(point)
+            if args.label:
+                sc.settings["label"] = args.label
     sources = build_sources(cfg)
     label = args.label or cfg.label
     out = Path(args.out) if args.out else (cfg.out or Path("runs"))
