@@ -29,8 +29,10 @@ def test_one_wrench_for_many_poses_equals_pose_by_pose(method: str) -> None:
     ]
     batch = distribute(method, A, w, rig.t_min_N, rig.t_max_N)
     assert batch.tensions_N.shape == (5, 8)
+    # the penalty method iterates to a chunk-wide tolerance (docs/tension.md: within 1e-3 N)
+    tol = 1e-3 if method == "penalty" else 1e-6
     for i in range(5):
         one = distribute(method, A[i], w, rig.t_min_N, rig.t_max_N)
-        np.testing.assert_allclose(batch.tensions_N[i], one.tensions_N, rtol=1e-9, atol=1e-6)
+        np.testing.assert_allclose(batch.tensions_N[i], one.tensions_N, rtol=0, atol=tol)
         # independent check of equilibrium: the cable forces balance the requested wrench
-        np.testing.assert_allclose(A[i] @ batch.tensions_N[i], w, atol=1e-6)
+        np.testing.assert_allclose(A[i] @ batch.tensions_N[i], w, atol=tol)
