@@ -289,11 +289,6 @@ def _log_codec(stream: str, description: StreamDescription | None) -> StreamCode
     return StreamCodec("foxglove.Log", schema, encode)
 
 
-_CAN_RAW_KEYS = frozenset(
-    ("arbitration_id", "data", "dlc", "is_extended", "is_error_frame", "t_bus_ns")
-)
-
-
 def _can_raw_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
     """Raw CAN frames (the CAN drivers' ``can_raw``), formatted directly (the hot path of a busy bus):
     ``arbitration_id``, ``data`` (array of byte values, so a plot panel can graph ``.data[2]``),
@@ -312,28 +307,24 @@ def _can_raw_codec(stream: str, description: StreamDescription | None) -> Stream
         **base.schema["properties"],
     }
     generic = base.encode
-    keys = _CAN_RAW_KEYS
-    fmt = (
-        '{"arbitration_id":%d,"data":[%s],"dlc":%d,"is_extended":%d,"is_error_frame":%d,'
-        '"t_bus_ns":%d,"status":%d}'
-    )
 
     def encode(r: Reading) -> Any:
         v = r.values
-        if v.keys() != keys:
+        if len(v) != 6:
             return generic(r)
-        return (
-            fmt
-            % (
-                v["arbitration_id"],
-                ",".join(map(str, v["data"])),
-                v["dlc"],
-                v["is_extended"],
-                v["is_error_frame"],
-                v["t_bus_ns"],
-                r.status,
-            )
-        ).encode()
+        try:
+            d = v["data"]
+            if len(d) == 8:
+                data = f"{d[0]},{d[1]},{d[2]},{d[3]},{d[4]},{d[5]},{d[6]},{d[7]}"
+            else:
+                data = ",".join(map(str, d))
+            return (
+                f'{{"arbitration_id":{v["arbitration_id"]:d},"data":[{data}],"dlc":{v["dlc"]:d},'
+                f'"is_extended":{v["is_extended"]:d},"is_error_frame":{v["is_error_frame"]:d},'
+                f'"t_bus_ns":{v["t_bus_ns"]:d},"status":{r.status:d}}}'
+            ).encode()
+        except (KeyError, TypeError, ValueError):
+            return generic(r)
 
     return StreamCodec(base.schema_name, schema, encode)
 

@@ -185,3 +185,37 @@ def test_not_an_mcap_file_is_a_clear_error(tmp_path: Path) -> None:
         read_run(p)
     with pytest.raises(CdprError, match="file not found"):
         read_run(tmp_path / "missing.mcap")
+
+
+def test_can_raw_frames_read_back_exactly(tmp_path: Path) -> None:
+    """The fast can_raw encoder gives the same JSON as the values (all frame shapes)."""
+    import can
+
+    from cdpr.daq.can_source import raw_reading
+
+    frames = [
+        can.Message(
+            arbitration_id=0x181, data=bytes(range(8)), is_extended_id=False, timestamp=1.0
+        ),
+        can.Message(arbitration_id=0x1FFFFFFF, data=b"\xff\x00\x7f", timestamp=2.25),
+        can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False, timestamp=3.5),
+        can.Message(is_error_frame=True, timestamp=4.0),
+    ]
+    readings = [raw_reading(m, T0 + i) for i, m in enumerate(frames)]
+    readings.append(Reading("can_raw", T0 + 9, {"arbitration_id": 5, "data": b"\x01", "note": "x"}))
+    p = tmp_path / "can.mcap"
+    w = McapRunWriter(p)
+    for r in readings:
+        w.write(r)
+    w.finish()
+    assert node_read(p)["topics"] == {"/can_raw": 5}
+    got = [b for _, b in read_run(p).messages["/can_raw"]]
+    want = [
+        {
+            **{k: list(v) if isinstance(v, bytes) else v for k, v in r.values.items()},
+            "status": r.status,
+        }
+        for r in readings
+    ]
+    assert got == want
+    assert got[1]["data"] == [255, 0, 127] and got[1]["is_extended"] == 1 and got[3]["status"] == 8
