@@ -1107,6 +1107,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.transport != "virtual" and not a.pty_link:
         ap.error(f"--transport {a.transport} needs --pty-link PATH")
+    import signal
+
+    stop = threading.Event()
+
+    def _terminate(signum: int, frame: Any) -> None:
+        stop.set()  # stop early, but still close the ports and write the truth
+
+    signal.signal(signal.SIGTERM, _terminate)
+    signal.signal(signal.SIGINT, _terminate)
     from cdpr.analysis.errors import CdprError
 
     try:
@@ -1124,22 +1133,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CdprError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    import signal
-
-    def _terminate(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt  # stop early, but still close the ports and write the truth
-
-    signal.signal(signal.SIGTERM, _terminate)
     print(f"READY {a.pty_link or a.channel}", flush=True)
     try:
-        run.wait()
-        time.sleep(max(0.0, a.linger))  # let the reader drain the pty before it closes
-    except KeyboardInterrupt:
-        pass
+        while not stop.is_set() and not run.done.wait(0.05):
+            pass
+        if not stop.is_set():
+            stop.wait(max(0.0, a.linger))  # let the reader drain the pty before it closes
     finally:
         run.stop()
         if a.truth:
             vr.write_truth(a.truth)
+    if run.error is not None:
+        print(f"error: {run.error}", file=sys.stderr)
+        return 1
     print(
         f"DONE samples={run.samples_sent} frames={run.frames_sent} tunnel={run.tunnel_sent}",
         flush=True,
