@@ -244,7 +244,15 @@ def _image_codec(stream: str, description: StreamDescription | None) -> StreamCo
     return StreamCodec("foxglove.CompressedImage", schema, encode)
 
 
-LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+LOG_LEVELS = {
+    "unknown": 0,
+    "debug": 1,
+    "info": 2,
+    "warning": 3,
+    "error": 4,
+    "fatal": 5,
+    "critical": 5,
+}
 
 
 def _log_codec(stream: str, description: StreamDescription | None) -> StreamCodec:

@@ -12,6 +12,7 @@ finishes the file (summary and footer) on every exit path.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
@@ -39,6 +40,9 @@ class RecorderOptions:
     compression: ``"zstd"``, ``"lz4"`` or ``"none"``.
     stats_interval_s: period of the ``/recorder`` counter messages.
     read_timeout_s: timeout of each :meth:`Source.read` call (bounds the stop latency).
+    capture_logs: while recording, log records (INFO and above) of this logger (the drivers': bus
+        errors, reopens, bad lines) become ``/event`` messages instead of console lines; ``None``: off.
+    max_log_events_per_s: at most this many captured log records per second (the rest are counted).
     """
 
     queue_readings: int = 200_000
@@ -47,6 +51,8 @@ class RecorderOptions:
     compression: str = "zstd"
     stats_interval_s: float = 1.0
     read_timeout_s: float = 0.05
+    capture_logs: str | None = "cdpr.daq"
+    max_log_events_per_s: int = 20
 
     def __post_init__(self) -> None:
         if self.queue_readings < 1:
@@ -74,6 +80,36 @@ class Attachment:
         if p.suffix.lower() in (".dbc", ".txt", ".log"):
             media = "text/plain"
         return cls(name or p.name, p.read_bytes(), media)
+
+
+class _EventLogHandler(logging.Handler):
+    """Turns log records into recorder events (rate-limited)."""
+
+    def __init__(self, recorder: Recorder, per_s: int) -> None:
+        super().__init__(logging.INFO)
+        self.recorder = recorder
+        self.per_s = per_s
+        self.window = 0.0
+        self.n = 0
+        self.suppressed = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        now = time.monotonic()
+        if now - self.window >= 1.0:
+            if self.suppressed:
+                self.recorder.event(
+                    f"{self.suppressed} log messages suppressed", level="warning", name="recorder"
+                )
+            self.window, self.n, self.suppressed = now, 0, 0
+        self.n += 1
+        if self.n > self.per_s:
+            self.suppressed += 1
+            return
+        try:
+            msg = record.getMessage()
+        except Exception:  # a bad format string must not break the recording
+            msg = str(record.msg)
+        self.recorder.event(msg, level=record.levelname.lower(), name=record.name)
 
 
 class _BoundedQueue:
@@ -195,6 +231,7 @@ class Recorder:
         self._stopped = False
         self._lock = threading.Lock()
         self._renames: dict[str, dict[str, str]] = {}
+        self._log_handler: _EventLogHandler | None = None
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -235,6 +272,9 @@ class Recorder:
         except BaseException:
             self._writer.finish()
             raise
+        if o.capture_logs:
+            self._log_handler = _EventLogHandler(self, o.max_log_events_per_s)
+            logging.getLogger(o.capture_logs).addHandler(self._log_handler)
         self._writer_thread = threading.Thread(
             target=self._write_loop, name="recorder-writer", daemon=True
         )
@@ -284,6 +324,8 @@ class Recorder:
         self.request_stop(reason or "stopped")
         for t in self._threads:
             t.join(timeout=10.0)
+        if self._log_handler is not None:
+            logging.getLogger(self.options.capture_logs).removeHandler(self._log_handler)
         self._acq_done.set()
         if self._writer_thread is not None:
             self._writer_thread.join(timeout=60.0)

@@ -206,3 +206,27 @@ def test_stop_is_prompt_and_idempotent(tmp_path: Path) -> None:
     assert rec.stop() == path
     assert node_read(path)["complete"]
     assert read_run(path).metadata["run_end"]["stop_reason"] == "test"
+
+
+def test_driver_log_records_become_events_rate_limited(tmp_path: Path, capfd) -> None:
+    import logging
+
+    log = logging.getLogger("cdpr.daq.test_driver")
+
+    class Chatty(CountingSource):
+        def _read(self, timeout_s: float) -> list[Reading]:
+            if self.produced == 0:
+                for i in range(30):
+                    log.warning("bus error %d", i)
+            return super()._read(timeout_s)
+
+    rec = Recorder([Chatty("chatty", 10, 10)], tmp_path / "log.mcap")
+    rec.start()
+    rec.wait(5.0)
+    rec.stop()
+    assert logging.getLogger("cdpr.daq").handlers == []  # removed again
+    events = [b for _, b in read_run(tmp_path / "log.mcap").messages["/event"]]
+    logged = [e for e in events if e["message"].startswith("bus error")]
+    assert [e["message"] for e in logged] == [f"bus error {i}" for i in range(20)]
+    assert all(e["level"] == 3 and e["name"] == "cdpr.daq.test_driver" for e in logged)
+    assert "bus error" not in capfd.readouterr().err  # recorded, not printed
