@@ -356,6 +356,7 @@ class PointMatcher:
         R_C_P, t = self.camera.pose_C_P(*self.reference)
         self._ref = (cv.rotation_vector(R_C_P), t)
         self._ref_px = cv.project_points(self.P, *self._ref, self.camera.K, self.camera.dist)
+        self._ref_h = np.column_stack([self._ref_px, np.ones(len(self._ref_px))])
 
     def reset(self) -> None:
         """Forget the last pose (next frame is acquired from scratch)."""
@@ -411,6 +412,7 @@ class PointMatcher:
     def _finalize(self, labels: I64, blobs: F64, margin: float, flags: int, nh: int) -> MatchResult:
         sel = labels >= 0
         if sel.sum() < 4:
+            labels = np.full_like(labels, -1)  # no pose, no labels: never a guess
             return MatchResult(
                 labels,
                 margin,
@@ -489,6 +491,57 @@ class PointMatcher:
         margin = (crowd / self.sigma_px) ** 2 / 2
         return self._finalize(labels, b, margin, 0, 1)
 
+    def _robust(self, lab: I64, b: F64) -> tuple[float, I64] | None:
+        """PnP on a candidate labelling, re-association, and - if some pairs do not fit - the same
+        with each pair left out in turn (one wrong pair among >= 5); best cost wins."""
+        best: tuple[float, I64] | None = None
+        trials = [lab]
+        for attempt in range(2):
+            for cand in trials:
+                fit = self._fit(cand, b, None)
+                if fit is None:
+                    continue
+                labels, cost, _ = self._associate(*fit, b)
+                if (labels >= 0).sum() >= 4:
+                    fit2 = self._fit(labels, b, fit)
+                    if fit2 is not None:
+                        labels, cost, _ = self._associate(*fit2, b)
+                if best is None or cost < best[0]:
+                    best = (cost, labels)
+            if attempt == 0:
+                if best is not None and (best[1] >= 0).sum() >= (lab >= 0).sum():
+                    break
+                idx = np.flatnonzero(lab >= 0)
+                if len(idx) < 5:
+                    break
+                trials = []
+                for j in idx:
+                    t = lab.copy()
+                    t[j] = -1
+                    trials.append(t)
+        return best
+
+    def _affine_relabel(self, lab: I64, b: F64, gate: float) -> I64:
+        """Re-associate with the affine map (least squares) of the reference projection that best
+        fits the current pairs (absorbs the out-of-plane tilt a similarity cannot), twice."""
+        for _ in range(2):
+            sel = lab >= 0
+            if sel.sum() < 3:
+                return lab
+            A = self._ref_h[sel]
+            X, *_ = np.linalg.lstsq(A, b[lab[sel], :2], rcond=None)
+            pred = self._ref_h @ X
+            d = np.linalg.norm(pred[:, None, :] - b[None, :, :2], axis=2)
+            nn = d.argmin(axis=1)
+            dn = d.min(axis=1)
+            lab = np.where(dn < gate, nn, -1)
+            counts = np.bincount(lab[lab >= 0], minlength=len(b))
+            if counts.size and counts.max() > 1:
+                for v in np.flatnonzero(counts > 1):
+                    claim = np.flatnonzero(lab == v)
+                    lab[claim[claim != claim[np.argmin(dn[claim])]]] = -1
+        return lab
+
     def _acquire(self, b: F64, flags: int) -> MatchResult:
         Q = self._ref_px[:, 0] + 1j * self._ref_px[:, 1]
         B = b[:, 0] + 1j * b[:, 1]
@@ -508,34 +561,54 @@ class PointMatcher:
         tt = B[ba[pj]] - ss * Q[ma[pi]]
         T = ss[:, None] * Q[None, :] + tt[:, None]  # (H, M)
         d = np.abs(T[:, :, None] - B[None, None, :])  # (H, M, N)
-        gate0 = 0.12 * np.abs(Q - Q.mean()).max() + 10
+        extent = np.abs(Q - Q.mean()).max()
+        gate0 = 0.15 * extent + 10
         nn = d.argmin(axis=2)
         dn = d.min(axis=2)
         lab = np.where(dn < gate0, nn, -1)
-        count = (lab >= 0).sum(axis=1)
+        srt = np.sort(lab, axis=1)
+        # distinct blobs claimed (a blob claimed twice counts once)
+        count = (srt[:, 0] >= 0).astype(np.int64) + (
+            (srt[:, 1:] != srt[:, :-1]) & (srt[:, 1:] >= 0)
+        ).sum(axis=1)
         score = count - 1e-3 * np.minimum(dn, gate0).sum(axis=1) / gate0
         cand = np.argsort(-score)
         seen: set[bytes] = set()
+        seen_pre: set[bytes] = set()
         results: list[tuple[float, I64]] = []
-        for h in cand[:400]:
-            if count[h] < 4:
+        for h in cand[:1500]:
+            if count[h] < 3:
                 break
-            key = lab[h].tobytes()
+            lab_h = lab[h].copy()
+            # a blob claimed by several markers goes to the nearest one
+            counts = np.bincount(lab_h[lab_h >= 0], minlength=N)
+            if counts.max() > 1:
+                for v in np.flatnonzero(counts > 1):
+                    claim = np.flatnonzero(lab_h == v)
+                    lab_h[claim[claim != claim[np.argmin(dn[h, claim])]]] = -1
+            if (lab_h >= 0).sum() < 3:
+                continue
+            pre = lab_h.tobytes()
+            if pre in seen_pre:
+                continue
+            seen_pre.add(pre)
+            lab_h = self._affine_relabel(lab_h, b, 0.06 * extent + 8)
+            if (lab_h >= 0).sum() < 4:
+                continue
+            key = lab_h.tobytes()
             if key in seen:
                 continue
             seen.add(key)
-            if len(np.unique(lab[h][lab[h] >= 0])) != (lab[h] >= 0).sum():
+            res = self._robust(lab_h, b)
+            if res is None:
                 continue
-            fit = self._fit(lab[h], b, None)
-            if fit is None:
-                continue
-            labels, cost, _ = self._associate(*fit, b)
-            if (labels >= 0).sum() >= 4:
-                fit2 = self._fit(labels, b, fit)
-                if fit2 is not None:
-                    labels, cost, _ = self._associate(*fit2, b)
+            cost, labels = res
             results.append((cost, labels))
-            if len(seen) >= 24:
+            if len(seen) >= 25:
+                break
+            # enough alternatives seen once a labelling explains its blobs at the noise level
+            good = [c for c, lab_ in results if c <= 9.0 * len(self.P)]
+            if good and len(results) >= 6:
                 break
         if not results:
             self._last = None

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from cdpr.analysis.rotations import rotation_from_euler
 from cdpr.calibration.camera_model import camera_from_mapping
 from cdpr.calibration.markers import flat_prototype_fiducial_layout, flat_prototype_points_layout
