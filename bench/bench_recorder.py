@@ -14,6 +14,9 @@ PDO identifiers, 8 data bytes), cycled at maximum speed.
 - peer: python-can's own pipeline, ``can.Notifier`` on a bus that yields the same frames at maximum
   speed, calling ``can.Logger("x.blf")`` (BLFWriter), for 10 s: frames written / elapsed.
 
+``writer_only_*``: the file writers alone, single thread, on ready-made input (MCAP JSON of
+``can_raw`` readings vs BLF of ``can.Message``), frames per CPU-second.
+
 Each contestant runs in its own child process pinned to the same single CPU
 (``os.sched_setaffinity``), which also gives a clean peak RSS (``ru_maxrss``) per contestant.
 The issue asks for 60 s; the whole module is kept to about 45-70 s (5 + 20 + 10 s of measurement).
@@ -112,6 +115,30 @@ def _child_recorder(
     }
 
 
+def _child_writers(d: str) -> dict:
+    """Only the file writers, single thread, 200,000 frames: ``McapRunWriter.write_many`` of
+    ready-made ``can_raw`` readings vs ``can.BLFWriter.on_message_received``; frames per CPU-s."""
+    import can
+
+    from cdpr.daq.can_source import raw_reading
+    from cdpr.daq.mcap_io import McapRunWriter
+
+    msgs = _messages() * 4
+    readings = [raw_reading(m, 1_700_000_000_000_000_000 + i) for i, m in enumerate(msgs)]
+    w = McapRunWriter(f"{d}/writer_only.mcap")
+    c0 = time.process_time()
+    w.write_many(readings)
+    w.finish()
+    ours = len(readings) / (time.process_time() - c0)
+    blf = can.BLFWriter(f"{d}/writer_only.blf")
+    c0 = time.process_time()
+    for m in msgs:
+        blf.on_message_received(m)
+    blf.stop()
+    peer = len(msgs) / (time.process_time() - c0)
+    return {"ours": ours, "peer": peer}
+
+
 def _child_peer(out: str, duration_s: float) -> dict:
     import can
 
@@ -192,6 +219,7 @@ def run() -> dict[str, dict]:
                 break
             rate *= 0.75
         peer = _in_child("peer", f"{d}/peer.blf", 10.0)
+        writers = _in_child("writers", d)
     ok = sustained is not None
     best = sustained or tries[-1]
     return {
@@ -209,6 +237,8 @@ def run() -> dict[str, dict]:
             "frames_per_cpu_s": round(probe["per_cpu_s"], 1),
             "peer_frames_per_cpu_s": round(peer["per_cpu_s"], 1),
             "ratio_per_cpu_s": round(probe["per_cpu_s"] / peer["per_cpu_s"], 3),
+            "writer_only_frames_per_cpu_s": round(writers["ours"], 1),
+            "peer_writer_only_frames_per_cpu_s": round(writers["peer"], 1),
             "bytes_per_frame": round(best["bytes"] / max(best["written"], 1), 2),
             "peer_bytes_per_frame": round(peer["bytes"] / max(peer["written"], 1), 2),
             "peak_rss_MiB": round(best["peak_rss_MiB"], 1),

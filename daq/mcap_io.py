@@ -375,6 +375,7 @@ def topic_of(stream: str) -> str:
 _MAGIC = b"\x89MCAP0\r\n"
 _MSG = struct.Struct("<BQHIQQ")  # opcode 0x05, record length, channel, sequence, log/publish time
 _OP_MESSAGE = 0x05
+_OP_MESSAGE_INDEX = 0x07
 
 
 class _ChunkedWriter:
@@ -459,24 +460,16 @@ class _ChunkedWriter:
         return cid
 
     def add_message(self, cid: int, t_ns: int, data: bytes, publish_ns: int, seq: int) -> None:
+        n = len(data)
         off = self._chunk_len
         parts = self._parts
-        parts.append(
-            _MSG.pack(_OP_MESSAGE, 22 + len(data), cid, seq & 0xFFFFFFFF, t_ns, publish_ns)
-        )
+        parts.append(_MSG.pack(_OP_MESSAGE, 22 + n, cid, seq & 0xFFFFFFFF, t_ns, publish_ns))
         parts.append(data)
-        self._chunk_len = off + 31 + len(data)
+        self._chunk_len = off + 31 + n
         idx = self._chunk_index.get(cid)
         if idx is None:
             idx = self._chunk_index[cid] = []
-        idx.append((t_ns, off))
-        if off == 0:
-            self._chunk_t0 = self._chunk_t1 = t_ns
-        elif t_ns < self._chunk_t0:
-            self._chunk_t0 = t_ns
-        elif t_ns > self._chunk_t1:
-            self._chunk_t1 = t_ns
-        self.channel_message_counts[cid] += 1
+        idx += (t_ns, off)  # flat (log_time, offset) pairs
         if self._chunk_len > self._chunk_size:
             self.close_chunk()
 
@@ -486,10 +479,20 @@ class _ChunkedWriter:
             return
         import zlib
 
-        from mcap.records import Chunk, ChunkIndex, MessageIndex
+        from mcap.records import Chunk, ChunkIndex
 
         raw = b"".join(self._parts)
-        n = sum(len(v) for v in self._chunk_index.values())
+        n = 0
+        t0 = t1 = None
+        for cid, flat in self._chunk_index.items():
+            k = len(flat) // 2
+            n += k
+            self.channel_message_counts[cid] += k
+            times = flat[0::2]
+            lo, hi = min(times), max(times)
+            t0 = lo if t0 is None or lo < t0 else t0
+            t1 = hi if t1 is None or hi > t1 else t1
+        self._chunk_t0, self._chunk_t1 = int(t0 or 0), int(t1 or 0)
         comp = self._compress(raw) if self._compress is not None else raw
         chunk = Chunk(
             compression=self._compression if self._compress is not None else "",
@@ -504,11 +507,18 @@ class _ChunkedWriter:
         length = self._emit()
         offsets: dict[int, int] = {}
         pos = start + length
-        for cid, recs in self._chunk_index.items():
+        index_parts = []
+        for cid, flat in self._chunk_index.items():
+            # MessageIndex record, packed here: opcode 0x04, length, channel id, byte length of the
+            # (log_time, offset) pairs, the pairs (the mcap class writes them one call at a time)
+            body = struct.pack(f"<{len(flat)}Q", *flat)
             offsets[cid] = pos
-            MessageIndex(channel_id=cid, records=recs).write(self._rb)
-            pos = start + length + self._rb.count
-        index_len = self._emit()
+            rec = struct.pack("<BQHI", _OP_MESSAGE_INDEX, 6 + len(body), cid, len(body)) + body
+            index_parts.append(rec)
+            pos += len(rec)
+        index = b"".join(index_parts)
+        self._fh.write(index)
+        index_len = len(index)
         self._chunk_indexes.append(
             ChunkIndex(
                 message_start_time=self._chunk_t0,
