@@ -270,7 +270,9 @@ class Recorder:
                 self._writer.add_stream(stream, desc)
             self._writer.flush()
         except BaseException:
+            # nothing recorded yet: leave no half-written run behind
             self._writer.finish()
+            self.path.unlink(missing_ok=True)
             raise
         if o.capture_logs:
             self._log_handler = _EventLogHandler(self, o.max_log_events_per_s)

@@ -102,3 +102,24 @@ def test_simulate_inspect_independent_reader_truth_and_hdf5(tmp_path: Path, tran
         assert f["metadata/run"].attrs["rig"] == "flat-optimum"
         tun = pd.DataFrame(f["streams/tunnel"][()])
         assert len(tun) == counts["/tunnel"]
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--fault", "melt:1:1"], "melt"),
+        (["--fault", "slack:x:1"], "--fault"),
+        (["--speed", "0"], "--speed"),
+    ],
+)
+def test_simulate_bad_input_one_line_exit_2_nothing_written(
+    tmp_path: Path, extra: list[str], needle: str
+) -> None:
+    sched = tmp_path / "schedule.toml"
+    sched.write_text(SCHEDULE)
+    out = tmp_path / "runs"
+    res = _cdpr("simulate", "--rig", str(RIG), "--schedule", str(sched), "--out", str(out), *extra)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0], res.stderr
+    assert not out.exists() or not any(out.iterdir())

@@ -230,3 +230,14 @@ def test_driver_log_records_become_events_rate_limited(tmp_path: Path, capfd) ->
     assert [e["message"] for e in logged] == [f"bus error {i}" for i in range(20)]
     assert all(e["level"] == 3 and e["name"] == "cdpr.daq.test_driver" for e in logged)
     assert "bus error" not in capfd.readouterr().err  # recorded, not printed
+
+
+def test_a_source_that_cannot_describe_itself_leaves_no_file(tmp_path: Path) -> None:
+    class Broken(CountingSource):
+        def describe(self) -> dict[str, StreamDescription]:
+            raise InputError("sources.broken: no DBC")
+
+    p = tmp_path / "none.mcap"
+    with pytest.raises(InputError, match="no DBC"):
+        Recorder([Broken("broken", 1)], p).start()
+    assert not p.exists()
