@@ -165,8 +165,9 @@ def flat_codec(stream: str, description: StreamDescription | None) -> StreamCode
 
 
 def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
-    """``foxglove.PoseInFrame``; values ``position_O_m`` (3,), ``quaternion_xyzw`` (4,), optional
-    ``frame_id`` (default ``"O"``); every other value is carried as an extra flat field."""
+    """``foxglove.PoseInFrame``; values ``position_O_m`` (3,), ``quaternion_xyzw`` (4,) or
+    ``quaternion_wxyz`` (4,, scalar first), optional ``frame_id`` (default ``"O"``); every other
+    value is carried as an extra flat field."""
     schema = {
         "type": "object",
         "title": "foxglove.PoseInFrame",
@@ -195,7 +196,11 @@ def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCod
     def encode(r: Reading) -> Mapping[str, Any]:
         v = dict(r.values)
         p = [float(x) for x in v.pop("position_O_m", (math.nan,) * 3)]
-        q = [float(x) for x in v.pop("quaternion_xyzw", (0.0, 0.0, 0.0, 1.0))]
+        if "quaternion_wxyz" in v:  # the project's convention elsewhere (scalar first)
+            w_, x_, y_, z_ = (float(x) for x in v.pop("quaternion_wxyz"))
+            q = [x_, y_, z_, w_]
+        else:
+            q = [float(x) for x in v.pop("quaternion_xyzw", (0.0, 0.0, 0.0, 1.0))]
         body: dict[str, Any] = {
             "timestamp": ns_to_time(r.t_ns),
             "frame_id": str(v.pop("frame_id", "O")),

@@ -52,13 +52,18 @@ def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path)
                 },
             )
         )
+    w.write(
+        Reading(
+            "pose", T0 + 7, {"position_O_m": [1, 2, 3], "quaternion_wxyz": [0.5, 0.1, 0.2, 0.3]}
+        )
+    )
     w.write(Reading("image_cam0", T0, {"data": b"\xff\xd8\xff\xe0jpeg", "format": "jpeg"}))
     w.write(Reading("event", T0, {"message": "wind on", "level": "warning"}))
     w.finish()
 
     node = node_read(p)
     assert node["complete"] and node["error"] is None and node["bad_json"] == 0
-    assert node["topics"] == {"/tensions": 501, "/pose": 7, "/image_cam0": 1, "/event": 1}
+    assert node["topics"] == {"/tensions": 501, "/pose": 8, "/image_cam0": 1, "/event": 1}
     assert node["statistics"]["per_topic"] == node["topics"]
     assert node["schemas"] == {
         "/tensions": "cdpr.tensions",
@@ -80,6 +85,8 @@ def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path)
     assert pose["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 2.3}
     assert pose["pose"]["orientation"]["w"] == 1.0 and pose["rms_px"] == 0.2
     assert pose["timestamp"] == {"sec": 1_700_000_000, "nsec": 2}
+    q = rc.messages["/pose"][7][1]["pose"]["orientation"]
+    assert q == {"x": 0.1, "y": 0.2, "z": 0.3, "w": 0.5}
     img = rc.messages["/image_cam0"][0][1]
     assert base64.b64decode(img["data"]) == b"\xff\xd8\xff\xe0jpeg" and img["format"] == "jpeg"
     assert rc.messages["/event"][0][1]["level"] == 3  # foxglove.Log WARNING
