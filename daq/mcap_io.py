@@ -6,9 +6,9 @@ Layout of a run file (see ``docs/recording.md``):
   ``jsonschema``; a message's ``log_time`` is the reading's ``t_ns`` (host time of reception, ns since
   the Unix epoch) and its JSON body holds the reading's values (flat numeric fields, so a plot panel
   graphs them) plus ``status``;
-- Foxglove's well-known schemas where one exists: streams named ``pose*`` use ``foxglove.PoseInFrame``,
-  ``image*`` / ``camera*`` use ``foxglove.CompressedImage`` and ``event*`` use ``foxglove.Log``
-  (:func:`register_stream_codec` adds more);
+- Foxglove's well-known schemas where one exists: streams whose name contains ``pose`` use
+  ``foxglove.PoseInFrame``, else ``image`` ``foxglove.CompressedImage``; ``event*`` use
+  ``foxglove.Log`` (:func:`register_stream_codec` adds more);
 - metadata records (``run`` at the start, ``run_end`` at the end) and attachments (rig file,
   calibration files, config file), so a run file is self-contained.
 
@@ -345,8 +345,9 @@ def _can_raw_codec(stream: str, description: StreamDescription | None) -> Stream
 CodecFactory = Callable[[str, "StreamDescription | None"], StreamCodec]
 _CODECS: list[tuple[str, CodecFactory]] = [
     ("pose*", _pose_codec),
+    ("*pose*", _pose_codec),  # camera_pose, platform_pose, ...
     ("image*", _image_codec),
-    ("camera*", _image_codec),
+    ("*image*", _image_codec),  # camera_image, ...
     ("event*", _log_codec),
     ("can_raw", _can_raw_codec),
 ]
