@@ -547,6 +547,7 @@ def calibrate_camera(
     K0: ArrayLike | None = None,
     fix_k3: bool = True,
     rational: bool = False,
+    zero_tangential: bool = False,
 ) -> dict[str, Any]:
     """``cv2.calibrateCameraExtended``: per-view lists of (N, 3) and (N, 2) points.
 
@@ -559,6 +560,8 @@ def calibrate_camera(
         flags |= cv2.CALIB_FIX_K3
     if rational:
         flags |= cv2.CALIB_RATIONAL_MODEL
+    if zero_tangential:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
     K = None
     if K0 is not None:
         K = np.asarray(K0, dtype=np.float64).copy()

@@ -66,6 +66,7 @@ class CalibrationSettings:
     reject_floor_px: float = 0.3
     max_reject_rounds: int = 3
     fix_k3: bool = True
+    zero_tangential: bool = False
 
 
 @dataclass
@@ -130,11 +131,19 @@ _STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 
 def _calibrate(
-    views: list[View], board: cv.CharucoBoard, size: tuple[int, int], fix_k3: bool
+    views: list[View],
+    board: cv.CharucoBoard,
+    size: tuple[int, int],
+    fix_k3: bool,
+    zero_tangential: bool = False,
 ) -> dict[str, Any]:
     obj_all = board.corners_board_m
     return cv.calibrate_camera(
-        [obj_all[v.ids] for v in views], [v.corners_px for v in views], size, fix_k3=fix_k3
+        [obj_all[v.ids] for v in views],
+        [v.corners_px for v in views],
+        size,
+        fix_k3=fix_k3,
+        zero_tangential=zero_tangential,
     )
 
 
@@ -166,7 +175,7 @@ def calibrate_intrinsics(
         raise InputError(f"too few usable views: {len(views)} (need {s.min_views})")
     rejected: dict[str, str] = {}
     current = list(views)
-    res = _calibrate(current, board, image_size_px, s.fix_k3)
+    res = _calibrate(current, board, image_size_px, s.fix_k3, s.zero_tangential)
     for _ in range(s.max_reject_rounds):
         pv = res["per_view_rms_px"]
         limit = max(s.reject_k * float(np.median(pv)), s.reject_floor_px)
@@ -176,14 +185,16 @@ def calibrate_intrinsics(
         for i in bad:
             rejected[current[i].name] = f"outlier view (RMS {pv[i]:.3f} px > {limit:.3f} px)"
         current = [v for i, v in enumerate(current) if i not in set(bad)]
-        res = _calibrate(current, board, image_size_px, s.fix_k3)
+        res = _calibrate(current, board, image_size_px, s.fix_k3, s.zero_tangential)
     std = {n: float(x) for n, x in zip(_STD_NAMES, res["std_intrinsics"], strict=False)}
     per_view = {v.name: float(e) for v, e in zip(current, res["per_view_rms_px"], strict=True)}
     cam = CameraModel(res["K"], res["dist"], image_size_px, name=name)
     out = IntrinsicsResult(cam, res["rms_px"], per_view, std, rejected, current)
-    out.split_half = split_half(current, board, image_size_px, s.fix_k3)
+    out.split_half = split_half(current, board, image_size_px, s.fix_k3, s.zero_tangential)
     cam.calibration = {
-        "method": "ChArUco, cv2.calibrateCameraExtended" + (", k3 fixed at 0" if s.fix_k3 else ""),
+        "method": "ChArUco, cv2.calibrateCameraExtended"
+        + (", k3 fixed at 0" if s.fix_k3 else "")
+        + (", p1 = p2 = 0" if s.zero_tangential else ""),
         "rms_px": out.rms_px,
         "n_views": len(current),
         "n_corners": int(sum(len(v.ids) for v in current)),
@@ -196,13 +207,17 @@ def calibrate_intrinsics(
 
 
 def split_half(
-    views: list[View], board: cv.CharucoBoard, size: tuple[int, int], fix_k3: bool
+    views: list[View],
+    board: cv.CharucoBoard,
+    size: tuple[int, int],
+    fix_k3: bool,
+    zero_tangential: bool = False,
 ) -> dict[str, Any]:
     """Calibrate on even and on odd views; held-out RMS of each half with the other's intrinsics."""
     if len(views) < 8:
         return {}
     halves = [views[0::2], views[1::2]]
-    fits = [_calibrate(h, board, size, fix_k3) for h in halves]
+    fits = [_calibrate(h, board, size, fix_k3, zero_tangential) for h in halves]
     out: dict[str, Any] = {}
     for a, b in ((0, 1), (1, 0)):
         K, dist = fits[a]["K"], fits[a]["dist"]

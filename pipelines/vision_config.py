@@ -82,12 +82,13 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
     ):
         if key in c:
             setattr(s, key, _number(src, c, key, "calibration.", kind))
-    if "fix_k3" in c:
-        if not isinstance(c["fix_k3"], bool):
-            raise ConfigError(
-                src, "calibration.fix_k3", f"expected true or false, got {c['fix_k3']!r}"
-            )
-        s.fix_k3 = c["fix_k3"]
+    for key in ("fix_k3", "zero_tangential"):
+        if key in c:
+            if not isinstance(c[key], bool):
+                raise ConfigError(
+                    src, f"calibration.{key}", f"expected true or false, got {c[key]!r}"
+                )
+            setattr(s, key, c[key])
     pose = data.get("pose_O")
     if pose is not None:
         from cdpr.analysis.rotations import rotation_from_euler

@@ -349,6 +349,7 @@ def run_verify_pose(args: argparse.Namespace) -> int:
     E = np.array(errs)
     print(
         f"RMS position error {1e3 * np.sqrt(np.mean(np.sum(E[:, :3] ** 2, 1))):.4f} mm, "
-        f"RMS rotation error {np.rad2deg(np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, 1)))):.5f} deg over {args.n} poses"
+        f"RMS rotation error {np.rad2deg(np.sqrt(np.mean(np.sum(E[:, 3:] ** 2, 1)))):.5f} deg "
+        f"over {args.n} poses"
     )
     return 0
