@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
 .PHONY: demo test lint bench analyze install clean
-RUNS   ?= runs
+RUNS   ?= $(OUT)/runs
 
 install: $(STAMP)
 

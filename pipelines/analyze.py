@@ -338,7 +338,9 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         lines.append(
             f"| {int(r.segment)} | {r.airspeed_mps:.2f} | {tare} | "
             + " | ".join(w)
-            + f" | {r.CL:.3f} | {r.CD:.3f} | {r.check_max_abs_dT_N:.3f} |"
+            + " | "
+            + " | ".join("-" if np.isnan(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD"))
+            + f" | {r.check_max_abs_dT_N:.3f} |"
         )
     if "true_fx_N" in df:
         on = df[df.wind_off == 0]

@@ -1,13 +1,41 @@
 #!/usr/bin/env bash
-# The demo behind `make demo`: the main job on the built-in virtual rig and the paper's rigs.
+# `make demo`: the main job on the built-in virtual rig, then the rest of the tool in short.
+#   1. the paper's flat prototype rig;
+#   2. acquisition: the virtual rig emulates an slcan CAN adapter in a second process, cdpr records
+#      the run to MCAP, inspects it, exports HDF5, and survives a kill -9 (scripts/demo_daq.sh);
+#   3. the main job: cdpr analyze on the recorded runs (wrench, coefficients, uncertainty, the
+#      paper's 1 N check, report with plots);
+#   4. wrench recovery from CSV files and a CASPR robot (scripts/demo_wrench.sh);
+#   5. vision: poses from rendered camera frames against the truth (scripts/demo_vision.sh);
+#   6. the force-sensitivity study of the paper and a rig design (scripts/demo_sensitivity.sh).
 set -euo pipefail
-VENV=${VENV:-.venv}
-OUT=${OUT:-out}
+export VENV=${VENV:-.venv}
+export OUT=${OUT:-out}
 CDPR="$VENV/bin/cdpr"
 mkdir -p "$OUT"
-echo "== the paper's flat prototype rig (K21 = 51, K22 = 28, H = 0.67 m)"
+banner() { printf '\n#### %s\n\n' "$*"; }
+
+banner "1. The paper's flat prototype rig (K21 = 51, K22 = 28, H = 0.67 m)"
 "$CDPR" rig show data_samples/flat_optimum.toml
-echo
-echo "== wind-off tensions on the flat prototype rig, exact tension distribution"
-"$CDPR" solve --rig data_samples/flat_optimum.toml --method exact --out "$OUT/tensions_wind_off.csv"
-column -s, -t < <(grep -v '^#' "$OUT/tensions_wind_off.csv") | cut -c1-200
+
+banner "2. Acquisition on the virtual rig"
+bash scripts/demo_daq.sh
+
+banner "3. The main job: cdpr analyze $OUT/runs"
+"$CDPR" analyze "$OUT/runs" --out "$OUT/analysis"
+for r in "$OUT"/analysis/*/report.md; do
+    sed -n '1,/^$/d;1,/^!\[/p' "$r" | grep -v '^!\[' || true
+done
+
+banner "4. Wrench recovery from files"
+bash scripts/demo_wrench.sh
+
+if [ -f scripts/demo_vision.sh ]; then
+    banner "5. Vision"
+    bash scripts/demo_vision.sh
+fi
+
+banner "6. Force-sensitivity study and rig design"
+bash scripts/demo_sensitivity.sh
+
+banner "Done. Outputs in $OUT/: runs/ (MCAP, HDF5, truth), analysis/index.md, wrench_demo/, sensitivity/report.md, design/"

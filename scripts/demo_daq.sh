@@ -29,14 +29,16 @@ echo "== cdpr export $RUN --hdf5 ..."
 
 echo
 echo "== crash safety: kill -9 a recording mid-run, then cdpr recover"
+CRASH="$OUT/crash"
+mkdir -p "$CRASH"
 "$CDPR" simulate --rig data_samples/flat_optimum.toml --schedule data_samples/schedule_demo.toml \
-    --out "$RUNS" --transport slcan --label demo-kill9 --quiet > /dev/null &
+    --out "$CRASH" --transport slcan --label demo-kill9 --quiet > /dev/null &
 PID=$!
 sleep 6
 CHILDREN=$(pgrep -P "$PID" || true)
 kill -9 "$PID"
 wait "$PID" 2> /dev/null || true
 for c in $CHILDREN; do kill "$c" 2> /dev/null || true; done
-KILLED=$(ls -t "$RUNS"/*_demo-kill9.mcap | head -n 1)
+KILLED=$(ls -t "$CRASH"/*_demo-kill9.mcap | head -n 1)
 "$CDPR" recover "$KILLED"
 "$CDPR" inspect "${KILLED%.mcap}.recovered.mcap" | sed -n '1p;/topic/,$p'
