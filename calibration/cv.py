@@ -93,6 +93,21 @@ def project_points(
     return img.reshape(-1, 2).astype(np.float64)
 
 
+def project_points_jacobian(
+    object_points: ArrayLike, rvec: ArrayLike, tvec: ArrayLike, K: ArrayLike, dist: ArrayLike
+) -> tuple[F64, F64]:
+    """Projections (N, 2) and ``cv2.projectPoints``' Jacobian (2N, 6) w.r.t. ``[rvec, tvec]``."""
+    obj = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    img, jac = cv2.projectPoints(
+        obj,
+        np.asarray(rvec, dtype=np.float64).reshape(3, 1),
+        np.asarray(tvec, dtype=np.float64).reshape(3, 1),
+        np.asarray(K, dtype=np.float64),
+        _dist(dist),
+    )
+    return img.reshape(-1, 2).astype(np.float64), np.asarray(jac, np.float64)[:, :6]
+
+
 def undistort_to_normalized(pixels: ArrayLike, K: ArrayLike, dist: ArrayLike) -> F64:
     """Normalised undistorted coordinates (N, 2) (``x/z, y/z`` in the camera frame) of pixels (N, 2).
 
@@ -125,7 +140,7 @@ def undistort_to_normalized(pixels: ArrayLike, K: ArrayLike, dist: ArrayLike) ->
         yn = (yd - dy) * icdist
         step = max(np.abs(xn - x).max(), np.abs(yn - y).max())
         x, y = xn, yn
-        if step < 1e-13:
+        if step < 1e-11:
             break
     return np.stack([x, y], axis=1)
 
@@ -486,6 +501,15 @@ class ArucoDetector:
             return np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64)
         c = np.stack([np.asarray(x, dtype=np.float64).reshape(4, 2) for x in corners])
         return c, np.asarray(ids, dtype=np.int64).reshape(-1)
+
+
+def simple_blob_detect(gray: NDArray[np.uint8], bright: bool = True) -> F64:
+    """``cv2.SimpleBlobDetector`` with default parameters (bright blobs if ``bright``): (N, 2) px."""
+    params = cv2.SimpleBlobDetector_Params()
+    if bright:
+        params.blobColor = 255
+    kps = cv2.SimpleBlobDetector_create(params).detect(gray)
+    return np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
 
 
 # ------------------------------------------------------------------------------------ ChArUco

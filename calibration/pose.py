@@ -111,24 +111,16 @@ def _exp_so3(w: F64) -> F64:
     return cv.rodrigues(w)
 
 
-def projection_jacobian(
-    object_points: F64, rvec: F64, tvec: F64, K: F64, dist: F64, step: float = 1e-6
-) -> F64:
-    """J (2N, 6): d(pixels)/d[dt_C (m), dtheta_C (rad, left)], central differences."""
+def projection_jacobian(object_points: F64, rvec: F64, tvec: F64, K: F64, dist: F64) -> F64:
+    """J (2N, 6): d(pixels)/d[dt_C (m), dtheta_C (rad, left: R' = exp(dtheta) R)].
+
+    The points are moved into the camera frame (minus t) first, so the pose becomes (rvec = 0, t):
+    at rvec = 0 OpenCV's d/drvec is exactly the left small-rotation derivative.
+    """
     R = cv.rodrigues(rvec)
-    cols = []
-    for k in range(6):
-        d = np.zeros(6)
-        d[k] = step
-        out = []
-        for sgn in (1.0, -1.0):
-            t = tvec + sgn * d[:3]
-            Rk = _exp_so3(sgn * d[3:]) @ R
-            out.append(
-                cv.project_points(object_points, cv.rotation_vector(Rk), t, K, dist).reshape(-1)
-            )
-        cols.append((out[0] - out[1]) / (2 * step))
-    return np.stack(cols, axis=1)
+    Y = np.asarray(object_points, np.float64) @ R.T
+    _, jac = cv.project_points_jacobian(Y, np.zeros(3), tvec, K, dist)
+    return np.concatenate([jac[:, 3:6], jac[:, 0:3]], axis=1)
 
 
 def estimate_pose(

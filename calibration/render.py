@@ -52,6 +52,11 @@ class RenderSettings:
     jitter: bool = True
 
 
+_MAP_CACHE: dict[
+    tuple[str, int], tuple[NDArray[np.float32], NDArray[np.float32], F64, tuple[int, int]]
+] = {}
+"""Per-camera resampling maps of :meth:`VirtualCamera.render_board` (a cache, not state)."""
+
 # Shader: (x_m, y_m) in the patch plane -> (value_DN, inside 0/1)
 Shader = Callable[[F64, F64], tuple[F64, F64]]
 
@@ -162,9 +167,8 @@ class VirtualCamera:
         self, k: int
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], F64, tuple[int, int]]:
         key = (self.camera.id, k)
-        cache = getattr(self, "_map_cache", None)
-        if cache is not None and cache[0] == key:
-            return cache[1]
+        if key in _MAP_CACHE:
+            return _MAP_CACHE[key]
         cam = self.camera
         W, H = cam.image_size_px
         xs = (np.arange(W * k) + 0.5) / k - 0.5
@@ -179,7 +183,8 @@ class VirtualCamera:
         u = (fx * xn[:, 0] + Ki[0, 1] * xn[:, 1] + cx).reshape(H * k, W * k).astype(np.float32)
         v = (fy * xn[:, 1] + cy).reshape(H * k, W * k).astype(np.float32)
         out = (u, v, Ki, (W * k + 2 * pad, H * k + 2 * pad))
-        self._map_cache = (key, out)
+        _MAP_CACHE.clear()  # one camera at a time (the maps are large)
+        _MAP_CACHE[key] = out
         return out
 
     # -- truth ---------------------------------------------------------------------------------

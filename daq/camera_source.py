@@ -90,6 +90,7 @@ class FramePoseEstimator:
             self.sigma_px = FIDUCIAL_SIGMA_PX if sigma_px is None else float(sigma_px)
             self._fid = FiducialDetector(layout, camera)
             self._pos = {int(m): k for k, m in enumerate(layout.ids)}
+            self._corners = layout.fiducial_corners_m  # (M, 4, 3), cached
             self._last: PoseEstimate | None = None
         else:
             self.sigma_px = POINT_SIGMA_PX if sigma_px is None else float(sigma_px)
@@ -102,7 +103,7 @@ class FramePoseEstimator:
             pred = None
             if self._last is not None:
                 pred = cv.project_points(
-                    self.layout.fiducial_corners_m.reshape(-1, 3),
+                    self._corners.reshape(-1, 3),
                     self._last.rvec_C,
                     self._last.tvec_C_m,
                     self.camera.K,
@@ -112,7 +113,7 @@ class FramePoseEstimator:
             if len(ids) == 0:
                 self._last = None
                 return failed_pose()
-            obj = self.layout.fiducial_corners_m[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
+            obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
             guess = (self._last.rvec_C, self._last.tvec_C_m) if self._last is not None else None
             est = estimate_pose(
                 obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
@@ -131,7 +132,7 @@ class FramePoseEstimator:
         return self._pm.match(blobs).pose
 
 
-FIDUCIAL_SIGMA_PX = 0.019
+FIDUCIAL_SIGMA_PX = 0.020
 """Effective corner noise (px) of the edge-refined fiducial corners on our rendered frames, the value
 whose covariance matches the observed pose errors (NEES ~ 6; docs/vision.md)."""
 

@@ -299,9 +299,9 @@ def run_verify_pose(args: argparse.Namespace) -> int:
 
     from cdpr.analysis.rotations import rotation_from_euler
     from cdpr.calibration import cv
-    from cdpr.calibration.detect import FiducialDetector, PointMatcher, detect_blobs
-    from cdpr.calibration.pose import estimate_pose, flag_names, nees, pose_error
+    from cdpr.calibration.pose import flag_names, nees, pose_error
     from cdpr.calibration.render import VirtualCamera
+    from cdpr.daq.camera_source import FramePoseEstimator
 
     from ..config import load_rig
     from ..vision_config import load_camera, load_marker_layout
@@ -318,8 +318,6 @@ def run_verify_pose(args: argparse.Namespace) -> int:
     vc = VirtualCamera(cam)
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
-    fid = FiducialDetector(layout, cam) if layout.kind == "fiducial" else None
-    pm = PointMatcher(layout, cam, (p0, R0)) if layout.kind == "points" else None
     print(
         f"{'pose':>4s} {'dx_mm':>8s} {'dy_mm':>8s} {'dz_mm':>8s} {'rot_deg':>8s} "
         f"{'reproj_px':>9s} {'NEES':>6s}  flags"
@@ -328,15 +326,12 @@ def run_verify_pose(args: argparse.Namespace) -> int:
     for i in range(args.n):
         p = p0 + rng.uniform(-0.02, 0.02, 3)
         R = rotation_from_euler(np.deg2rad(rng.uniform(-5, 5, 3))) @ R0
-        if fid is not None:
-            img = vc.render_fiducials(layout, p, R, rng)
-            ids, corners = fid.detect(img)
-            pos = {int(m): k for k, m in enumerate(layout.ids)}
-            obj = layout.fiducial_corners_m[[pos[int(m)] for m in ids]].reshape(-1, 3)
-            est = estimate_pose(obj, corners.reshape(-1, 2), cam, 0.03)
-        else:
-            img = vc.render_points(layout, p, R, rng)
-            est = pm.match(detect_blobs(img)).pose  # type: ignore[union-attr]
+        img = (
+            vc.render_fiducials(layout, p, R, rng)
+            if layout.kind == "fiducial"
+            else vc.render_points(layout, p, R, rng)
+        )
+        est = FramePoseEstimator(cam, layout, reference=(p0, R0)).estimate(img)
         if args.out:
             cv.write_image(Path(args.out) / f"frame_{i:03d}.png", img)
         e = pose_error(est.position_O_m, est.R_O_P, p, R)
