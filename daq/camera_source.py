@@ -4,7 +4,8 @@
 :mod:`cdpr.calibration.cv`) or a folder of images; :class:`VirtualCameraSource` renders frames at the
 virtual rig's true pose (a ``pose_at(t_ns) -> (position_O_m, R_O_P)`` callable).  Both produce:
 
-- ``"pose"`` readings (every frame): ``position_O_m`` (3,), ``q_wxyz`` (4,), ``euler_rad`` (3,) Z-Y-X,
+- ``"pose"`` readings (every frame): ``position_O_m`` (3,), ``quaternion_wxyz`` (4,) scalar first
+  (the name the MCAP pose codec maps to Foxglove's orientation), ``euler_rad`` (3,) Z-Y-X,
   ``reprojection_px`` (RMS, px), ``covariance`` (36,) = the 6x6 ``[position_O_m, rotation_O_rad]``
   covariance row-major, ``flags`` (bits of :mod:`cdpr.calibration.pose` ``FLAG_*``), ``n_points``,
   ``frame_index``; status ``STATUS_BAD_FRAME`` when the pose is unusable (NaN or flagged).
@@ -145,7 +146,9 @@ def pose_reading(t_ns: int, est: PoseEstimate, frame_index: int, stream: str = "
     bad = bool(est.flags & BAD_FLAGS) or not np.all(np.isfinite(est.position_O_m))
     values = {
         "position_O_m": est.position_O_m.tolist(),
-        "q_wxyz": est.q_wxyz.tolist() if np.all(np.isfinite(est.R_O_P)) else [float("nan")] * 4,
+        "quaternion_wxyz": est.q_wxyz.tolist()
+        if np.all(np.isfinite(est.R_O_P))
+        else [float("nan")] * 4,
         "euler_rad": est.euler_rad.tolist()
         if np.all(np.isfinite(est.R_O_P))
         else [float("nan")] * 3,
@@ -163,7 +166,7 @@ def _describe(rate_hz: float, image_every: int) -> dict[str, StreamDescription]:
         "pose": StreamDescription(
             {
                 "position_O_m": FieldDescription("m", shape=(3,)),
-                "q_wxyz": FieldDescription("", shape=(4,)),
+                "quaternion_wxyz": FieldDescription("", shape=(4,)),
                 "euler_rad": FieldDescription("rad", shape=(3,)),
                 "reprojection_px": FieldDescription("px"),
                 "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
@@ -361,7 +364,7 @@ class VirtualCameraSource(_PoseSourceBase):
     ``lambda t: rig.true_pose_at(t)``).  rate_hz: frame rate.  realtime: if True, ``read`` waits for
     the next frame time of the host clock; if False, every ``read`` returns the next frame at
     ``t_start_ns + k / rate_hz`` immediately (fast simulation).  truth_stream: also emit
-    ``"pose_truth"`` readings (position_O_m, q_wxyz, euler_rad at the frame time) for checks.
+    ``"pose_truth"`` readings (position_O_m, quaternion_wxyz, euler_rad at the frame time) for checks.
     """
 
     kind = "virtual_camera"
@@ -411,7 +414,7 @@ class VirtualCameraSource(_PoseSourceBase):
             d["pose_truth"] = StreamDescription(
                 {
                     "position_O_m": FieldDescription("m", shape=(3,)),
-                    "q_wxyz": FieldDescription("", shape=(4,)),
+                    "quaternion_wxyz": FieldDescription("", shape=(4,)),
                     "euler_rad": FieldDescription("rad", shape=(3,)),
                 },
                 self.rate_hz,
@@ -462,7 +465,7 @@ class VirtualCameraSource(_PoseSourceBase):
                     t,
                     {
                         "position_O_m": p.tolist(),
-                        "q_wxyz": quaternion_from_rotation(R).tolist(),
+                        "quaternion_wxyz": quaternion_from_rotation(R).tolist(),
                         "euler_rad": euler_from_rotation(R).tolist(),
                     },
                 )
