@@ -3,7 +3,9 @@
 Each sub-command lives in its own module in :mod:`cdpr.pipelines.commands` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func`` to a callable taking the parsed
 arguments and returning an exit code.  Errors derived from
-:class:`~cdpr.analysis.errors.CdprError` become one line on stderr and exit code 2.
+:class:`~cdpr.analysis.errors.CdprError` become one line on stderr and exit code 2; so does an
+:class:`OSError` that no command turned into a clearer error (an output folder that cannot be
+created, a full disk), rather than a traceback.
 """
 
 from __future__ import annotations
@@ -44,6 +46,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except CdprError as exc:
         print(f"cdpr {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an unwritable output folder, a full disk, ...: one line, no traceback
+        where = f"{exc.filename}: " if exc.filename is not None else ""
+        print(f"cdpr {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"cdpr {args.command}: interrupted", file=sys.stderr)

@@ -88,8 +88,11 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any
     A failure (or an exception from the caller) leaves no partial file behind.
     """
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent)
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
     try:
         with os.fdopen(fd, mode) as fh:
             yield fh
@@ -98,7 +101,10 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual permissions
-        os.replace(tmp, p)
+        try:
+            os.replace(tmp, p)
+        except OSError as exc:
+            raise ConfigError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
     except BaseException:
         try:
             os.unlink(tmp)
@@ -124,6 +130,8 @@ def read_table(
         raise ConfigError(str(p), "", f"empty file, expected a {what} with a header row") from None
     except (pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise ConfigError(str(p), "", f"cannot parse CSV: {exc}") from None
+    except OSError as exc:  # a folder, no permission, ...
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
     df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in required if c not in df.columns]
     if missing:
@@ -138,10 +146,19 @@ def read_table(
             raise ConfigError(
                 str(p),
                 f"row {i + 2}, column {c}",
-                f"expected a finite number, got {df[c].iloc[i]!r}",
+                f"expected a finite number, got {_cell_text(df[c].iloc[i])}",
             )
         df[c] = col
     return df
+
+
+def _cell_text(value: Any) -> str:
+    """A CSV cell as the user typed it: ``'abc'`` for text, ``nan`` or ``inf`` for numbers."""
+    if isinstance(value, str):
+        return repr(value)
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return "an empty cell or nan"
+    return str(value)
 
 
 def write_table(path: str | os.PathLike[str], df: pd.DataFrame, header: Mapping[str, Any]) -> None:

@@ -26,12 +26,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
     from pathlib import Path
 
-    from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.errors import ConfigError, InputError
 
     from ..analyze import AnalyzeOptions, analyze_runs
 
+    if args.workers < 1:
+        raise InputError(f"--workers: expected >= 1, got {args.workers}")
+    if not (math.isfinite(args.check_limit_N) and args.check_limit_N > 0):
+        raise InputError(
+            f"--check-limit-N: expected a finite number > 0 N, got {args.check_limit_N}"
+        )
     paths: list[str] = []
     for r in args.runs:
         p = Path(r)

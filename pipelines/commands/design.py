@@ -241,8 +241,12 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{name}: expected >= {lo}, got {v}")
     if not args.max_condition > 1:
         raise InputError(f"--max-condition: expected > 1, got {args.max_condition}")
-    if args.speed is not None and not args.speed > 0:
-        raise InputError(f"--speed: expected > 0 m/s, got {args.speed}")
+    if args.speed is not None and not (np.isfinite(args.speed) and args.speed > 0):
+        raise InputError(f"--speed: expected a finite airspeed > 0 m/s, got {args.speed}")
+    if args.speed is not None and args.family != "flat":
+        raise InputError("--speed: applies to --family flat only (the cubic rig's load is a force)")
+    if not np.isfinite(args.min_margin):
+        raise InputError(f"--min-margin: expected a finite number of N, got {args.min_margin}")
     opts = options_from_toml(args.config) if args.config else StudyOptions()
     bounds = _parse_bounds(args.family, args.bound)
     names = FAMILIES[args.family]["names"]

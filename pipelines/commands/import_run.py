@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import Any
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -58,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
     for opt, val in (("--can-log", args.can_log), ("--dbc", args.dbc)):
         if not Path(val).is_file():
             raise ConfigError(val, "", f"file not found ({opt})")
+    if not (np.isfinite(args.rate) and args.rate >= 0):
+        raise InputError(f"--rate: expected a finite sample rate >= 0 Hz, got {args.rate}")
+    _check_can_log(args.can_log)
     rig = load_rig(args.rig)
     cal: dict[str, object] = {}
     if args.calibration:
@@ -79,22 +83,28 @@ def run(args: argparse.Namespace) -> int:
             tcol = "t_s"
         else:
             raise ConfigError(args.poses, "column t_ns", "missing: need a t_ns or t_s column")
-        tv = df[tcol].to_numpy()
-        if not np.all(np.isfinite(tv.astype(np.float64))):
-            raise ConfigError(args.poses, f"column {tcol}", "expected finite numbers")
+        tv = _pose_times(args.poses, df, tcol)
         poses = (tcol, tv, df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64))
 
-    src = CanReplaySource(
-        "can",
-        path=str(args.can_log),
-        speed="max",
-        dbc=str(args.dbc),
-        cables=list(rig.cable_names),
-        rate_hz=args.rate,
-        timestamps="log",
-        origin=str(args.can_log),
-        **cal,  # type: ignore[arg-type]
-    )
+    try:
+        src = CanReplaySource(
+            "can",
+            path=str(args.can_log),
+            speed="max",
+            dbc=str(args.dbc),
+            cables=list(rig.cable_names),
+            rate_hz=args.rate,
+            timestamps="log",
+            origin=str(args.can_log),
+            **cal,  # type: ignore[arg-type]
+        )
+    except ConfigError as exc:  # name the file that holds the bad value, not the CAN log
+        key = exc.key.rsplit(".", 1)[-1]
+        if args.calibration and key in ("offset_counts", "gain_N_per_count"):
+            raise ConfigError(args.calibration, key, exc.problem) from None
+        if key == "dbc":
+            raise ConfigError(args.dbc, "", exc.problem) from None
+        raise
     tmp = out.with_name(f".{out.name}.part")
     tmp.unlink(missing_ok=True)
     start_ns = time.time_ns()
@@ -212,3 +222,66 @@ def run(args: argparse.Namespace) -> int:
         raise
     print(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
     return 0
+
+
+def _check_can_log(path: str) -> None:
+    """Bad input unless python-can reads at least one frame from the log (before any output)."""
+    import can
+
+    from cdpr.analysis.errors import ConfigError
+
+    try:
+        reader = can.LogReader(path)
+    except (ValueError, OSError) as exc:
+        raise ConfigError(path, "", f"cannot read the CAN log: {exc}") from None
+    try:
+        next(iter(reader))
+    except StopIteration:
+        raise ConfigError(path, "", "no CAN frames in the log") from None
+    except Exception as exc:  # python-can raises what its parsers raise
+        raise ConfigError(path, "first frame", f"not a CAN log python-can reads: {exc}") from None
+    finally:
+        if hasattr(reader, "stop"):
+            reader.stop()
+
+
+def _pose_times(path: str, df: Any, tcol: str) -> Any:
+    """The pose time column: finite numbers that never decrease; ``t_ns`` must be integers."""
+    import numpy as np
+    import pandas as pd
+
+    from cdpr.analysis.errors import ConfigError
+
+    raw = df[tcol]
+    num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(num))
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, column {tcol}",
+            f"expected a finite number, got {_text(raw.iloc[i])}",
+        )
+    if tcol == "t_ns":
+        if not pd.api.types.is_integer_dtype(raw):
+            i = int(np.flatnonzero(num != np.round(num))[0]) if np.any(num != np.round(num)) else 0
+            raise ConfigError(
+                path,
+                f"row {i + 2}, column t_ns",
+                f"expected integer ns since the Unix epoch, got {_text(raw.iloc[i])}",
+            )
+        tv = raw.to_numpy(dtype=np.int64)
+    else:
+        tv = num
+    back = np.flatnonzero(np.diff(tv) < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise ConfigError(
+            path, f"row {i + 2}, column {tcol}", f"time goes backwards ({tv[i]} after {tv[i - 1]})"
+        )
+    return tv
+
+
+def _text(value: Any) -> str:
+    """A CSV cell for a message: quoted text, plain numbers."""
+    return repr(value) if isinstance(value, str) else str(value)

@@ -127,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
             if args.label:
                 sc.settings["label"] = args.label
     sources = build_sources(cfg)
+    if rig is not None:
+        _check_cables(str(cfg.path), sources, rig)
     label = args.label or cfg.label
     out = Path(args.out) if args.out else (cfg.out or Path("runs"))
     attachments = [Attachment.from_file(cfg.path, "config/" + cfg.path.name)]
@@ -173,3 +175,37 @@ def run(args: argparse.Namespace) -> int:
         t_max_N=list(rig.t_max_N) if rig else None,
     )
     return 0
+
+
+def _check_cables(origin: str, sources: Any, rig: Any) -> None:
+    """Every load-cell source names cables of the rig, and together they cover all of them.
+
+    A tension column the rig does not know, or a cable nobody measures, would only surface when the
+    run is analysed; it is bad input now.
+    """
+    from cdpr.analysis.errors import ConfigError
+
+    rig_cables = list(rig.cable_names)
+    seen: list[str] = []
+    for s in sources:
+        cables = s.settings().get("cables")
+        if cables is None:
+            continue
+        unknown = [c for c in cables if c not in rig_cables]
+        if unknown:
+            raise ConfigError(
+                origin,
+                f"sources.{s.name}.cables",
+                f"{unknown[0]!r} is not a cable of rig {rig.name!r} (cables: {rig_cables})",
+            )
+        seen += list(cables)
+    if not seen:
+        return  # no load-cell source (a tunnel-only recording)
+    missing = [c for c in rig_cables if c not in seen]
+    if missing:
+        raise ConfigError(
+            origin,
+            "sources",
+            f"no load-cell source measures cable {missing[0]!r} of rig {rig.name!r} "
+            f"({len(set(seen))} of {len(rig_cables)} cables listed)",
+        )

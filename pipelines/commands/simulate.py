@@ -109,6 +109,12 @@ def run(args: argparse.Namespace) -> int:
     label = args.label or schedule.name
     path = new_run_path(args.out, label)
     truth_path = path.with_name(path.stem + ".truth.npz")
+    try:  # before any source opens: a bad --out must not leave a bus or a child process behind
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from cdpr.analysis.errors import ConfigError
+
+        raise ConfigError(str(path.parent), "", f"cannot create: {exc.strerror or exc}") from None
 
     work = Path(tempfile.mkdtemp(prefix="cdpr-sim-"))
     child: subprocess.Popen[str] | None = None
