@@ -278,10 +278,11 @@ def crossval_figure(result: IntrinsicsResult, path: str) -> None:
         axes[0].legend(fontsize=8)
         names = ["fx", "fy", "cx", "cy"]
         diff = [sh[f"{n}_A"] - sh[f"{n}_B"] for n in names]
-        sd = [result.std.get(n, np.nan) * np.sqrt(2) * np.sqrt(2) for n in names]
+        # each half has sqrt(2) x the all-view std; their difference sqrt(2) x that again
+        sd = [2.0 * result.std.get(n, np.nan) for n in names]
         axes[1].bar(names, diff, yerr=sd, capsize=4, color="C2")
         axes[1].axhline(0, color="k", lw=0.8)
-        axes[1].set_ylabel("half A - half B (px)  [bars: +-2 sigma expected]")
+        axes[1].set_ylabel("half A - half B (px)  [bars: +-1 sigma of the difference]")
     axes[0].set_title("split-half cross-validation")
     fig.tight_layout()
     fig.savefig(path)
