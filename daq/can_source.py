@@ -22,11 +22,12 @@ backoff (``stats.reopened``).
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import re
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -300,6 +301,135 @@ def raw_reading(msg: can.Message, t_ns: int) -> Reading:
     )
 
 
+class CanFrameBatch(Sequence[Reading]):
+    """The readings of one :meth:`CanLoadCellSource.read`: raw frames kept as ``can.Message`` plus
+    host reception times (``t_ns``), and the other readings (decoded ``tensions``) in between.
+
+    It is a sequence of :class:`Reading` like any source's batch: indexing or iterating turns a
+    frame into its ``can_raw`` reading (:func:`raw_reading`) only when it is looked at.  The
+    recorder's writer does not look: it formats the frames of a batch directly into MCAP records
+    (:meth:`cdpr.daq.mcap_io.McapRunWriter.write_many`), which saves building a ``Reading`` and a
+    dict per frame on a busy bus.
+
+    stream: stream name of the frames (``can_raw``, or ``<source>/can_raw`` once renamed).
+    messages, t_ns: the frames and their host reception times (integer ns since the Unix epoch).
+    others: ``(k, reading)``: ``reading`` came after the first ``k`` frames.
+    """
+
+    __slots__ = ("stream", "messages", "t_ns", "others", "_pos")
+
+    #: marker for the MCAP writer's fast path (duck-typed: mcap_io does not import python-can)
+    can_frames = True
+
+    def __init__(
+        self,
+        stream: str = "can_raw",
+        messages: list[can.Message] | None = None,
+        t_ns: list[int] | None = None,
+        others: list[tuple[int, Reading]] | None = None,
+    ) -> None:
+        self.stream = stream
+        self.messages: list[can.Message] = [] if messages is None else messages
+        self.t_ns: list[int] = [] if t_ns is None else t_ns
+        self.others: list[tuple[int, Reading]] = [] if others is None else others
+        self._pos: list[int] | None = None
+
+    def add_frame(self, msg: can.Message, t_ns: int) -> None:
+        self.messages.append(msg)
+        self.t_ns.append(t_ns)
+
+    def add_reading(self, reading: Reading) -> None:
+        self.others.append((len(self.messages), reading))
+        self._pos = None
+
+    def frame_reading(self, i: int) -> Reading:
+        """The ``can_raw`` reading of frame ``i``."""
+        r = raw_reading(self.messages[i], self.t_ns[i])
+        if self.stream != "can_raw":
+            r = Reading(self.stream, r.t_ns, r.values, r.status)
+        return r
+
+    def renamed(self, renames: Mapping[str, str]) -> CanFrameBatch:
+        """The same batch with streams renamed (``{"can_raw": "bus_a/can_raw", ...}``)."""
+        others = [
+            (
+                k,
+                Reading(renames[r.stream], r.t_ns, r.values, r.status)
+                if r.stream in renames
+                else r,
+            )
+            for k, r in self.others
+        ]
+        return CanFrameBatch(
+            renames.get(self.stream, self.stream), self.messages, self.t_ns, others
+        )
+
+    @classmethod
+    def join(cls, batches: Sequence[CanFrameBatch]) -> CanFrameBatch:
+        """One batch of consecutive batches of the same stream (in order)."""
+        out = cls(batches[0].stream)
+        for b in batches:
+            k = len(out.messages)
+            out.others.extend((k + i, r) for i, r in b.others)
+            out.messages.extend(b.messages)
+            out.t_ns.extend(b.t_ns)
+        return out
+
+    def latest(self) -> dict[str, Reading]:
+        """The last reading of every stream in the batch."""
+        out: dict[str, Reading] = {}
+        if self.messages:
+            out[self.stream] = self.frame_reading(len(self.messages) - 1)
+        for _, r in self.others:
+            out[r.stream] = r
+        return out
+
+    def __len__(self) -> int:
+        return len(self.messages) + len(self.others)
+
+    def _positions(self) -> list[int]:
+        # position of every other reading in the combined order
+        if self._pos is None:
+            self._pos = [k + j for j, (k, _) in enumerate(self.others)]
+        return self._pos
+
+    def _one(self, i: int) -> Reading:
+        n = len(self)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("batch index out of range")
+        if not self.others:
+            return self.frame_reading(i)
+        pos = self._positions()
+        j = bisect.bisect_left(pos, i)
+        if j < len(pos) and pos[j] == i:
+            return self.others[j][1]
+        return self.frame_reading(i - j)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self._one(k) for k in range(*i.indices(len(self)))]
+        return self._one(i)
+
+    def __iter__(self) -> Iterator[Reading]:
+        others = self.others
+        j = 0
+        for i in range(len(self.messages)):
+            while j < len(others) and others[j][0] <= i:
+                yield others[j][1]
+                j += 1
+            yield self.frame_reading(i)
+        for _, r in others[j:]:
+            yield r
+
+    def __repr__(self) -> str:
+        return (
+            f"CanFrameBatch({self.stream!r}, {len(self.messages)} frames, "
+            f"{len(self.others)} other readings)"
+        )
+
+
 def build_decoder(
     origin: str,
     prefix: str,
@@ -495,24 +625,38 @@ class CanLoadCellSource(Source):
         return True
 
     # data ---------------------------------------------------------------------------------
-    def _read(self, timeout_s: float) -> list[Reading]:
+    def _read(self, timeout_s: float) -> CanFrameBatch:  # type: ignore[override]
         if self.bus is None and not self._try_reopen(timeout_s):
-            return []
+            return CanFrameBatch()
         bus = self.bus
         assert bus is not None
-        out: list[Reading] = []
+        out = CanFrameBatch()
+        # the hot path of a busy bus: a good frame is only kept (with its reception time) when it
+        # needs no decoding; the batch turns frames into readings when someone looks at them
+        add_frame = out.messages.append
+        add_time = out.t_ns.append
+        time_ns = time.time_ns
+        recv = bus.recv
+        fast = self.emit_raw and not self.emit_decoded
+        handle = self._handle
+        n = 0
         deadline = time.monotonic() + timeout_s
         wait = timeout_s
         try:
-            while len(out) < 4096:
-                msg = bus.recv(timeout=wait)
+            while n < 4096:
+                msg = recv(timeout=wait)
                 if msg is None:
-                    if out or time.monotonic() >= deadline:
+                    if n or time.monotonic() >= deadline:
                         break
                     wait = max(0.0, deadline - time.monotonic())
                     continue
                 wait = 0.0
-                self._handle(msg, out)
+                n += 1
+                if fast and not msg.is_error_frame:
+                    add_frame(msg)
+                    add_time(time_ns())
+                else:
+                    handle(msg, out)
         except (can.CanError, OSError, ValueError) as exc:
             self._fail(f"receive failed ({type(exc).__name__}: {exc})")
             return out
@@ -528,7 +672,7 @@ class CanLoadCellSource(Source):
                 self._fail("bus-off")
         return out
 
-    def _handle(self, msg: can.Message, out: list[Reading]) -> None:
+    def _handle(self, msg: can.Message, out: CanFrameBatch) -> None:
         t_ns = time.time_ns()
         if msg.is_error_frame:
             self.stats.errors += 1
@@ -549,13 +693,14 @@ class CanLoadCellSource(Source):
             if k > self.error_frame_limit:
                 self._err_window = (now, 0)
                 if self.emit_raw:
-                    out.append(raw_reading(msg, t_ns))
+                    out.add_frame(msg, t_ns)
                 raise can.CanOperationError(f"more than {self.error_frame_limit} error frames/s")
         if self.emit_raw:
-            out.append(raw_reading(msg, t_ns))
+            out.add_frame(msg, t_ns)
         if self.emit_decoded:
             lost0, bad0 = self.decoder.lost, self.decoder.bad
-            out.extend(self.decoder.decode(msg, t_ns))
+            for r in self.decoder.decode(msg, t_ns):
+                out.add_reading(r)
             self.stats.lost += self.decoder.lost - lost0
             self.stats.bad += self.decoder.bad - bad0
             self.stats.extra["partial_samples"] = self.decoder.partial

@@ -116,11 +116,14 @@ class StreamCodec:
     schema_name: MCAP schema name (``foxglove.PoseInFrame``, ``cdpr.tensions``, ...).
     schema: JSON schema (dict).
     encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes).
+    encode_frames: optional batch encoder of raw CAN frames (``can.Message`` objects, see
+        :class:`cdpr.daq.can_source.CanFrameBatch`) -> :class:`FrameRecords`.
     """
 
     schema_name: str
     schema: dict[str, Any]
     encode: Callable[[Reading], Any]
+    encode_frames: Callable[[Any], FrameRecords] | None = None
 
 
 def _field_schema(desc: Any) -> dict[str, Any]:
@@ -339,7 +342,114 @@ def _can_raw_codec(stream: str, description: StreamDescription | None) -> Stream
         except (KeyError, TypeError, ValueError):
             return generic(r)
 
-    return StreamCodec(base.schema_name, schema, encode)
+    return StreamCodec(base.schema_name, schema, encode, encode_can_frames)
+
+
+# the raw-CAN hot path: a batch of frames formatted at once with numpy into fixed-width JSON bodies
+# (numbers right-aligned in space-padded fields: still plain JSON, the same values as the per-frame
+# encoder above), for the common frame: 8 data bytes, dlc 8, not an error frame
+
+_FRAME_TEMPLATE = (
+    '{"arbitration_id":#########,"data":[###,###,###,###,###,###,###,###],"dlc":8,'
+    '"is_extended":#,"is_error_frame":0,"t_bus_ns":###################,"status":0}'
+)
+_FRAME_ID = _FRAME_TEMPLATE.index("#")
+_FRAME_DATA = _FRAME_TEMPLATE.index("[") + 1
+_FRAME_EXT = _FRAME_TEMPLATE.index('"is_extended":') + len('"is_extended":')
+_FRAME_T = _FRAME_TEMPLATE.index('"t_bus_ns":') + len('"t_bus_ns":')
+_FRAME_LEN = len(_FRAME_TEMPLATE)
+
+
+@dataclass
+class FrameRecords:
+    """Message bodies of a batch of frames: ``ok[i]`` says frame ``i`` has its body in
+    ``bodies[j]`` (``j`` counts the ok frames, fixed length rows of uint8); the others (error frames,
+    other lengths) are encoded one by one from their readings."""
+
+    ok: Any
+    bodies: Any
+
+
+_np_tables: dict[str, Any] = {}
+
+
+def _tables() -> dict[str, Any]:
+    if not _np_tables:
+        import numpy as np
+
+        tpl = np.frombuffer(_FRAME_TEMPLATE.replace("#", " ").encode(), np.uint8)
+        _np_tables["template"] = tpl
+        _np_tables["byte3"] = np.array(
+            [list(f"{b:>3d}".encode()) for b in range(256)], dtype=np.uint8
+        )
+        _np_tables["pow10"] = 10 ** np.arange(18, -1, -1, dtype=np.int64)
+    return _np_tables
+
+
+def _decimal(v: Any, width: int) -> Any:
+    """Right-aligned decimal digits of non-negative integers ``v`` (n,) below 10**width, as ASCII
+    (n, width) uint8, leading zeros as spaces."""
+    import numpy as np
+
+    x = v.astype(np.int64)
+    digits = np.empty((width, len(x)), np.uint8)
+    for c in range(width - 1, -1, -1):  # integer division by a scalar: vectorised by numpy
+        q = x // 10
+        digits[c] = x - q * 10
+        x = q
+    digits += 48
+    chars = digits.T
+    lead = v[:, None] < _tables()["pow10"][-width:]
+    lead[:, -1] = False
+    chars[lead] = 32
+    return chars
+
+
+def encode_can_frames(messages: Any) -> FrameRecords:
+    """JSON bodies (``/can_raw`` layout) of ``can.Message`` frames, formatted with numpy.
+
+    A frame qualifies when it has exactly 8 data bytes and dlc 8, is not an error frame, its
+    identifier is below 10**9 and its timestamp in [0, 9e9) s; the body is the template above with
+    the numbers filled in right-aligned (``json.loads`` of it equals the per-frame encoder's)."""
+    import numpy as np
+
+    n = len(messages)
+    ids = np.array([m.arbitration_id for m in messages], dtype=np.int64)
+    ts = np.array([m.timestamp for m in messages], dtype=np.float64)
+    flags = np.array(
+        [(m.dlc << 2) | (m.is_error_frame << 1) | m.is_extended_id for m in messages],
+        dtype=np.int64,
+    )
+    datas = [m.data for m in messages]
+    lens = np.fromiter(map(len, datas), np.int64, n)
+    t_bus = np.rint(ts * 1e9)
+    ok = (
+        (lens == 8)
+        & ((flags >> 1) == 16)  # dlc 8, not an error frame
+        & (ids >= 0)
+        & (ids < 1_000_000_000)
+        & (t_bus >= 0)
+        & (t_bus < 9e18)
+    )
+    k = int(ok.sum())
+    t = _tables()
+    bodies = np.empty((k, _FRAME_LEN), np.uint8)
+    bodies[:] = t["template"]
+    if k:
+        if k == n:
+            data = np.frombuffer(b"".join(datas), np.uint8).reshape(k, 8)
+        else:
+            data = np.frombuffer(
+                b"".join([d for d, good in zip(datas, ok.tolist(), strict=True) if good]),
+                np.uint8,
+            ).reshape(k, 8)
+            ids, flags, t_bus = ids[ok], flags[ok], t_bus[ok]
+        bodies[:, _FRAME_ID : _FRAME_ID + 9] = _decimal(ids, 9)
+        d = bodies[:, _FRAME_DATA : _FRAME_DATA + 32].reshape(k, 8, 4)
+        d[:, :, :3] = t["byte3"][data]
+        bodies[:, _FRAME_EXT] = 48 + (flags & 1)
+        bodies[:, _FRAME_T : _FRAME_T + 19] = _decimal(t_bus.astype(np.int64), 19)
+    return FrameRecords(ok, bodies)
 
 
 CodecFactory = Callable[[str, "StreamDescription | None"], StreamCodec]
@@ -379,6 +489,9 @@ def topic_of(stream: str) -> str:
 # about 3/4 of the writer's time)
 
 _MAGIC = b"\x89MCAP0\r\n"
+#: zstd level of the chunks: 1 (fastest) compressed the benchmark's CAN frames both faster (1.5x) and
+#: smaller than the library default 3
+ZSTD_LEVEL = 1
 _MSG = struct.Struct("<BQHIQQ")  # opcode 0x05, record length, channel, sequence, log/publish time
 _OP_MESSAGE = 0x05
 _OP_MESSAGE_INDEX = 0x07
@@ -400,7 +513,9 @@ class _ChunkedWriter:
         if compression == "zstd":
             import zstandard
 
-            self._compress: Callable[[bytes], bytes] | None = zstandard.ZstdCompressor().compress
+            self._compress: Callable[[bytes], bytes] | None = zstandard.ZstdCompressor(
+                level=ZSTD_LEVEL
+            ).compress
         elif compression == "lz4":
             import lz4.frame
 
@@ -411,7 +526,8 @@ class _ChunkedWriter:
         self._channels: dict[int, Any] = {}
         self._parts: list[bytes] = []
         self._chunk_len = 0
-        self._chunk_index: dict[int, list[tuple[int, int]]] = {}
+        # channel id -> segments of (log_time, offset) pairs: flat int lists or (k, 2) arrays
+        self._chunk_index: dict[int, list[Any]] = {}
         self._chunk_t0 = 0
         self._chunk_t1 = 0
         self._chunk_indexes: list[Any] = []
@@ -474,10 +590,50 @@ class _ChunkedWriter:
         self._chunk_len = off + 31 + n
         idx = self._chunk_index.get(cid)
         if idx is None:
-            idx = self._chunk_index[cid] = []
-        idx += (t_ns, off)  # flat (log_time, offset) pairs
+            idx = self._chunk_index[cid] = [[]]
+        last = idx[-1]
+        if type(last) is not list:
+            last = []
+            idx.append(last)
+        last += (t_ns, off)  # flat (log_time, offset) pairs
         if self._chunk_len > self._chunk_size:
             self.close_chunk()
+
+    def add_messages(self, cid: int, t_ns: Any, bodies: Any, seq0: int) -> None:
+        """Messages of one channel with bodies of equal length, at once: ``t_ns`` (n,) int64 log
+        (and publish) times, ``bodies`` (n, L) uint8, sequence numbers ``seq0, seq0 + 1, ...``.
+        The chunk is closed as soon as it outgrows ``chunk_size``, as with :meth:`add_message`."""
+        import numpy as np
+
+        n, body_len = bodies.shape
+        rec_len = 31 + body_len
+        recs = np.empty((n, rec_len), np.uint8)
+        head = np.frombuffer(_MSG.pack(_OP_MESSAGE, 22 + body_len, cid, 0, 0, 0), np.uint8)
+        recs[:, :31] = head
+        seq = (np.arange(seq0, seq0 + n, dtype=np.int64) & 0xFFFFFFFF).astype("<u4")
+        recs[:, 11:15] = seq.view(np.uint8).reshape(n, 4)
+        t8 = np.ascontiguousarray(t_ns, dtype="<i8").view(np.uint8).reshape(n, 8)
+        recs[:, 15:23] = t8
+        recs[:, 23:31] = t8
+        recs[:, 31:] = bodies
+        t64 = np.asarray(t_ns, dtype=np.int64)
+        a = 0
+        while a < n:
+            room = self._chunk_size - self._chunk_len
+            b = min(n, a + max(1, room // rec_len + 1))  # just past chunk_size, like add_message
+            off = self._chunk_len
+            self._parts.append(recs[a:b].tobytes())
+            pairs = np.empty((b - a, 2), np.int64)
+            pairs[:, 0] = t64[a:b]
+            pairs[:, 1] = off + rec_len * np.arange(b - a, dtype=np.int64)
+            idx = self._chunk_index.get(cid)
+            if idx is None:
+                idx = self._chunk_index[cid] = []
+            idx.append(pairs)
+            self._chunk_len = off + rec_len * (b - a)
+            a = b
+            if self._chunk_len > self._chunk_size:
+                self.close_chunk()
 
     def close_chunk(self) -> None:
         """Compress and write the open chunk and its message indexes (no-op when empty)."""
@@ -485,17 +641,28 @@ class _ChunkedWriter:
             return
         import zlib
 
+        import numpy as np
         from mcap.records import Chunk, ChunkIndex
 
         raw = b"".join(self._parts)
         n = 0
         t0 = t1 = None
-        for cid, flat in self._chunk_index.items():
-            k = len(flat) // 2
+        pairs_of: dict[int, Any] = {}
+        for cid, segments in self._chunk_index.items():
+            # (log_time, offset) pairs in the order written: flat lists (one message at a time)
+            # and (k, 2) arrays (batches)
+            pairs = np.concatenate(
+                [
+                    np.asarray(sg, dtype=np.int64).reshape(-1, 2)
+                    for sg in segments
+                    if len(sg)  # type: ignore[arg-type]
+                ]
+            )
+            pairs_of[cid] = pairs
+            k = len(pairs)
             n += k
             self.channel_message_counts[cid] += k
-            times = flat[0::2]
-            lo, hi = min(times), max(times)
+            lo, hi = int(pairs[:, 0].min()), int(pairs[:, 0].max())
             t0 = lo if t0 is None or lo < t0 else t0
             t1 = hi if t1 is None or hi > t1 else t1
         self._chunk_t0, self._chunk_t1 = int(t0 or 0), int(t1 or 0)
@@ -514,10 +681,10 @@ class _ChunkedWriter:
         offsets: dict[int, int] = {}
         pos = start + length
         index_parts = []
-        for cid, flat in self._chunk_index.items():
+        for cid, pairs in pairs_of.items():
             # MessageIndex record, packed here: opcode 0x04, length, channel id, byte length of the
             # (log_time, offset) pairs, the pairs (the mcap class writes them one call at a time)
-            body = struct.pack(f"<{len(flat)}Q", *flat)
+            body = pairs.astype("<u8").tobytes()
             offsets[cid] = pos
             rec = struct.pack("<BQHI", _OP_MESSAGE_INDEX, 6 + len(body), cid, len(body)) + body
             index_parts.append(rec)
@@ -683,6 +850,7 @@ class McapRunWriter:
         self._last_flush_ns = time.monotonic_ns()
         self._channels: dict[str, int] = {}
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
+        self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
         self.counts: dict[str, int] = {}
         self.flushes = 0
         self.fsyncs = 0
@@ -714,6 +882,8 @@ class McapRunWriter:
         cid = self._writer.register_channel(topic_of(stream), "json", schema_id, meta)
         self._channels[stream] = cid
         self._codecs[stream] = codec.encode
+        if codec.encode_frames is not None:
+            self._frame_encoders[stream] = codec.encode_frames
         self.counts[stream] = 0
         return cid
 
@@ -727,7 +897,13 @@ class McapRunWriter:
         self.write_many((reading,))
 
     def write_many(self, readings: Iterable[Reading]) -> int:
-        """Write readings in order (the recorder's hot loop); returns how many."""
+        """Write readings in order (the recorder's hot loop); returns how many.
+
+        A :class:`~cdpr.daq.can_source.CanFrameBatch` (the CAN driver's batches) has its frames
+        formatted at once (:func:`encode_can_frames`) when its stream uses the ``can_raw`` codec;
+        its other readings (decoded tensions) follow."""
+        if getattr(readings, "can_frames", False) is True:
+            return self._write_frame_batch(readings)
         channels = self._channels
         codecs = self._codecs
         counts = self.counts
@@ -745,6 +921,46 @@ class McapRunWriter:
             counts[stream] = k + 1
             n += 1
         return n
+
+    def _write_frame_batch(self, batch: Any) -> int:
+        import numpy as np
+
+        stream = batch.stream
+        msgs = batch.messages
+        n = len(msgs)
+        if n:
+            cid = self._channels.get(stream)
+            if cid is None:
+                cid = self.add_stream(stream, None)
+            encode_frames = self._frame_encoders.get(stream)
+            if encode_frames is None:  # another codec for this stream: one reading at a time
+                return self.write_many(list(batch))
+            rec = encode_frames(msgs)
+            t_ns = np.array(batch.t_ns, dtype=np.int64)
+            k0 = self.counts[stream]
+            w = self._writer
+            if len(rec.bodies) == n:
+                w.add_messages(cid, t_ns, rec.bodies, k0)
+            else:
+                # runs of formatted frames, the others (error frames, other lengths) one by one
+                encode = self._codecs[stream]
+                bad = np.flatnonzero(~rec.ok).tolist()
+                a = j = 0
+                for i in [*bad, n]:
+                    if i > a:
+                        w.add_messages(cid, t_ns[a:i], rec.bodies[j : j + i - a], k0 + a)
+                        j += i - a
+                    if i < n:
+                        r = batch.frame_reading(i)
+                        body = encode(r)
+                        data = body if type(body) is bytes else encode_json(body)
+                        w.add_message(cid, r.t_ns, data, r.t_ns, k0 + i)
+                    a = i + 1
+            self.counts[stream] = k0 + n
+        others = batch.others
+        if others:
+            self.write_many([r for _, r in others])
+        return n + len(others)
 
     def maybe_flush(self) -> bool:
         """Close the open chunk and fsync if it is older than the flush interval."""

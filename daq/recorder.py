@@ -414,7 +414,9 @@ class Recorder:
                     backoff = min(2 * backoff, 5.0)
                     continue
                 if batch:
-                    if ren:
+                    if ren and hasattr(batch, "renamed"):
+                        batch = batch.renamed(ren)  # a CAN frame batch (can_source.CanFrameBatch)
+                    elif ren:
                         batch = [
                             Reading(ren[r.stream], r.t_ns, r.values, r.status)
                             if r.stream in ren
@@ -441,8 +443,17 @@ class Recorder:
             n += 1
         write_many = w.write_many
         for q in self._queues.values():
-            for batch in q.take_all():
+            batches = q.take_all()
+            if len(batches) > 1 and all(hasattr(b, "join") for b in batches):
+                # CAN frame batches (can_source.CanFrameBatch, one stream per source): formatted
+                # faster in one go
+                batches = [batches[0].join(batches)]
+            for batch in batches:
                 n += write_many(batch)
+                latest_of = getattr(batch, "latest", None)
+                if latest_of is not None:  # a CAN frame batch knows its latest readings
+                    latest.update(latest_of())
+                    continue
                 # the latest reading of every stream in the batch (walk back a little)
                 seen: set[str] = set()
                 for r in reversed(batch[-64:]):
