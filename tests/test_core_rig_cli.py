@@ -152,6 +152,11 @@ def test_cli_solve_closed_form_is_in_equilibrium(tmp_path: Path) -> None:
     u = l / np.linalg.norm(l, axis=-1, keepdims=True)
     F = np.einsum("nm,nmi->ni", T, u)
     np.testing.assert_allclose(F, np.tile([0, 0, 0.64 * 9.80665], (2, 1)), atol=1e-8)
+    # and their moments about P cancel (the centre of mass is at P: gravity has no moment there)
+    r = np.einsum("nij,mj->nmi", R, rig.attach_P_m)
+    M = np.einsum("nm,nmi->ni", T, np.cross(r, u))
+    np.testing.assert_allclose(M, 0.0, atol=1e-9)
+    assert np.allclose(rig.com_P_m, 0.0)
     assert df["feasible"].iloc[0] == 1  # the reference pose is feasible wind-off
 
 

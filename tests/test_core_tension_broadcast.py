@@ -36,3 +36,8 @@ def test_one_wrench_for_many_poses_equals_pose_by_pose(method: str) -> None:
         np.testing.assert_allclose(batch.tensions_N[i], one.tensions_N, rtol=0, atol=tol)
         # independent check of equilibrium: the cable forces balance the requested wrench
         np.testing.assert_allclose(A[i] @ batch.tensions_N[i], w, atol=tol)
+    # a 3 N load on a 5 kg platform is well inside this rig's limits: every pose is feasible and
+    # the reported feasibility agrees with the tensions themselves
+    assert batch.feasible.all()
+    assert np.all(batch.tensions_N >= rig.t_min_N - tol)
+    assert np.all(batch.tensions_N <= rig.t_max_N + tol)

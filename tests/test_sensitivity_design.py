@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import quadprog
 
 from cdpr.analysis import sensitivity as sens
+from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.kinematics import structure_matrix
 from cdpr.pipelines.cli import main
 from cdpr.pipelines.commands.design import pareto_front
@@ -49,6 +51,20 @@ def test_cubic_design_runs(tmp_path: Path) -> None:
     rig = load_rig(tmp_path / "design_rig.toml")
     x = np.abs(rig.attach_P_m).max(axis=0) * 2 / np.array([2.0, 1.2, 1.4])  # k1, k2, k3
     assert x[2] <= x[1] + 1e-12 <= x[0] + 2e-12
+    # the constraints, re-checked with quadprog as the oracle: with --min-margin 0 every load of the
+    # study (each force along +-x and +-y) plus gravity is held within the written rig's limits
+    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, rig.reference_position_O_m, np.eye(3))
+    assert np.linalg.cond(A) <= 1000.0 * (1 + 1e-9)
+    G = gravity_wrench(rig.mass_kg, rig.com_P_m, np.eye(3), rig.gravity_O_mps2)
+    C = np.vstack([A, np.eye(8), -np.eye(8)]).T
+    mid = 0.5 * (rig.t_min_N + rig.t_max_N)
+    for F in StudyOptions().cubic.forces_N:
+        for axis in (0, 1):
+            for sign in (1.0, -1.0):
+                W = np.zeros(6)
+                W[axis] = sign * F
+                b = np.concatenate([-(G + W), rig.t_min_N - 1e-6, -rig.t_max_N - 1e-6])
+                quadprog.solve_qp(np.eye(8), mid, C, b, meq=6)  # raises ValueError if infeasible
 
 
 def test_pareto_front_brute_force() -> None:
