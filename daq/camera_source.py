@@ -9,7 +9,8 @@ virtual rig's true pose (a ``pose_at(t_ns) -> (position_O_m, R_O_P)`` callable).
   ``reprojection_px`` (RMS, px), ``covariance`` (36,) = the 6x6 ``[position_O_m, rotation_O_rad]``
   covariance row-major, ``flags`` (bits of :mod:`cdpr.calibration.pose` ``FLAG_*``), ``n_points``,
   ``frame_index``; status ``STATUS_BAD_FRAME`` when the pose is unusable (NaN or flagged).
-- ``"image"`` readings (every ``image_every``-th frame, 0 = never): ``data`` (JPEG/PNG bytes),
+- ``"image"`` readings (every ``image_every``-th frame, or at most ``image_rate_hz`` per second of
+  frame time; 0 = never): ``data`` (JPEG/PNG bytes),
   ``format`` (``"jpeg"``/``"png"``), ``width``, ``height``, ``frame_index``, ``frame_id``.
 
 Timestamps: device frames get the host time at grab; video files the open time plus the frame's
@@ -161,7 +162,9 @@ def pose_reading(t_ns: int, est: PoseEstimate, frame_index: int, stream: str = "
     return Reading(stream, int(t_ns), values, STATUS_BAD_FRAME if bad else 0)
 
 
-def _describe(rate_hz: float, image_every: int) -> dict[str, StreamDescription]:
+def _describe(
+    rate_hz: float, image_every: int, image_rate_hz: float = 0.0
+) -> dict[str, StreamDescription]:
     d = {
         "pose": StreamDescription(
             {
@@ -178,7 +181,7 @@ def _describe(rate_hz: float, image_every: int) -> dict[str, StreamDescription]:
             "platform pose of {P} in {O} from the camera; covariance order [position_O_m, rotation_O_rad]",
         )
     }
-    if image_every:
+    if image_every or image_rate_hz:
         d["image"] = StreamDescription(
             {
                 "data": FieldDescription("", "bytes"),
@@ -188,8 +191,8 @@ def _describe(rate_hz: float, image_every: int) -> dict[str, StreamDescription]:
                 "frame_index": FieldDescription("", "int64"),
                 "frame_id": FieldDescription("", "str"),
             },
-            rate_hz / image_every,
-            "compressed camera frames (JPEG/PNG), every image_every-th frame",
+            image_rate_hz if image_rate_hz else rate_hz / image_every,
+            "compressed camera frames (JPEG/PNG) at a reduced rate",
         )
     return d
 
@@ -201,6 +204,7 @@ class _PoseSourceBase(Source):
         camera: CameraModel | str,
         layout: MarkerLayout | str,
         image_every: int = 0,
+        image_rate_hz: float = 0.0,
         image_format: str = "jpeg",
         jpeg_quality: int = 85,
         sigma_px: float | None = None,
@@ -216,6 +220,8 @@ class _PoseSourceBase(Source):
                 f"expected 'jpeg' or 'png', got {image_format!r}",
             )
         self.image_every = int(image_every)
+        self.image_rate_hz = float(image_rate_hz)
+        self._last_image_t: int | None = None
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
         self.estimator = FramePoseEstimator(self.camera, self.layout, sigma_px, reference)
@@ -224,7 +230,14 @@ class _PoseSourceBase(Source):
     def _readings(self, t_ns: int, gray: NDArray[np.uint8]) -> list[Reading]:
         est = self.estimator.estimate(gray)
         out = [pose_reading(t_ns, est, self.frame_index)]
-        if self.image_every and self.frame_index % self.image_every == 0:
+        if self.image_rate_hz > 0:
+            due = (
+                self._last_image_t is None or t_ns - self._last_image_t >= 1e9 / self.image_rate_hz
+            )
+        else:
+            due = bool(self.image_every) and self.frame_index % self.image_every == 0
+        if due:
+            self._last_image_t = t_ns
             data = cv.encode_image(gray, self.image_format, self.jpeg_quality)
             out.append(
                 Reading(
@@ -287,12 +300,13 @@ class CameraSource(_PoseSourceBase):
             "folder": self.folder,
             "fps": self.fps,
             "image_every": self.image_every,
+            "image_rate_hz": self.image_rate_hz,
             "image_format": self.image_format,
             "sigma_px": self.estimator.sigma_px,
         }
 
     def describe(self) -> dict[str, StreamDescription]:
-        return _describe(self.fps, self.image_every)
+        return _describe(self.fps, self.image_every, self.image_rate_hz)
 
     def _open(self) -> None:
         self._t0 = now_ns()
@@ -403,13 +417,14 @@ class VirtualCameraSource(_PoseSourceBase):
             "rate_hz": self.rate_hz,
             "realtime": self.realtime,
             "image_every": self.image_every,
+            "image_rate_hz": self.image_rate_hz,
             "image_format": self.image_format,
             "sigma_px": self.estimator.sigma_px,
             "seed": self.seed,
         }
 
     def describe(self) -> dict[str, StreamDescription]:
-        d = _describe(self.rate_hz, self.image_every)
+        d = _describe(self.rate_hz, self.image_every, self.image_rate_hz)
         if self.truth_stream:
             d["pose_truth"] = StreamDescription(
                 {
