@@ -296,3 +296,29 @@ def test_design_bad_options(tmp_path: Path, capsys, argv: list[str], needle: str
     assert main(["design", *argv, "--out", str(out)]) == 2
     _one_error_line(capsys, needle)
     assert not out.exists()
+
+
+# --- cdpr solve: a rig whose cable count the method cannot handle names the rig file --------------
+
+
+@pytest.mark.parametrize(("n_cables", "needle"), [(5, "m >= n"), (10, "m - n <= 2")])
+def test_solve_cable_count_names_the_rig(
+    tmp_path: Path, capsys, n_cables: int, needle: str
+) -> None:
+    import tomllib
+
+    data = tomllib.loads(RIG.read_text())
+    cables = data["cables"]
+    if n_cables < len(cables):
+        cables = cables[:n_cables]
+    else:  # two more cables, copies of the first two under new names
+        cables = cables + [
+            {**c, "name": c["name"] + "_2"} for c in cables[: n_cables - len(cables)]
+        ]
+    data["cables"] = cables
+    rig = tmp_path / "rig.toml"
+    rig.write_bytes(tomli_w.dumps(data).encode())
+    out = tmp_path / "t.csv"
+    assert main(["solve", "--rig", str(rig), "--method", "exact", "--out", str(out)]) == 2
+    _one_error_line(capsys, f"rig.toml: cables: {n_cables} cables, --method exact", needle)
+    assert not out.exists()

@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
     from cdpr.analysis.conventions import POSE_COLUMNS
     from cdpr.analysis.dynamics import gravity_wrench
-    from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.kinematics import cable_vectors, structure_matrix
     from cdpr.analysis.rotations import rotation_from_euler
     from cdpr.analysis.tension import distribute
@@ -76,7 +76,12 @@ def run(args: argparse.Namespace) -> int:
         )
     G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
     W = read_wrenches(args.wrench, len(poses)) if args.wrench else np.zeros_like(G)
-    res = distribute(args.method, A, -(G + W), rig.t_min_N, rig.t_max_N)
+    try:
+        res = distribute(args.method, A, -(G + W), rig.t_min_N, rig.t_max_N)
+    except InputError as exc:  # the inputs are checked above: what is left is the rig's cable count
+        raise ConfigError(
+            args.rig, "cables", f"{rig.n_cables} cables, --method {args.method}: {exc}"
+        ) from None
 
     out = table.copy()
     for k, col in enumerate(tension_columns(rig)):
