@@ -322,3 +322,18 @@ def test_solve_cable_count_names_the_rig(
     assert main(["solve", "--rig", str(rig), "--method", "exact", "--out", str(out)]) == 2
     _one_error_line(capsys, f"rig.toml: cables: {n_cables} cables, --method exact", needle)
     assert not out.exists()
+
+
+# --- inspect / recover / export: a folder given as the run file -----------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv", [["inspect"], ["recover"], ["export", "--hdf5", "x.h5"]], ids=lambda a: a[0]
+)
+def test_run_file_that_is_a_folder(tmp_path: Path, capsys, argv: list[str]) -> None:
+    run = tmp_path / "run.mcap"
+    run.mkdir()
+    argv = [a if a != "x.h5" else str(tmp_path / "x.h5") for a in argv]
+    assert main([*argv, str(run)]) == 2
+    _one_error_line(capsys, "run.mcap: a folder, not a run file")  # it used to say "file not found"
+    assert _files(tmp_path) == ["run.mcap"]

@@ -13,6 +13,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from cdpr.analysis.errors import ConfigError
+
+    if Path(args.run).is_dir():
+        raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
     from cdpr.daq.hdf5_io import export_hdf5
 
     counts = export_hdf5(args.run, args.hdf5)

@@ -70,6 +70,12 @@ def inspect_run(path: str) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from cdpr.analysis.errors import ConfigError
+
+    if Path(args.run).is_dir():
+        raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
     info = inspect_run(args.run)
     if args.json:
         print(json.dumps(info, indent=2))

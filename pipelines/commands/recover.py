@@ -16,6 +16,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from cdpr.analysis.errors import ConfigError
+
+    if Path(args.run).is_dir():
+        raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
     from cdpr.daq.mcap_io import recover_run
 
     out, contents = recover_run(args.run, args.out)
