@@ -554,17 +554,23 @@ class PointMatcher:
             if sel.sum() < 3:
                 return lab
             A = self._ref_h[sel]
-            X, *_ = np.linalg.lstsq(A, b[lab[sel], :2], rcond=None)
+            try:
+                X = np.linalg.solve(A.T @ A, A.T @ b[lab[sel], :2])
+            except np.linalg.LinAlgError:
+                return lab
             pred = self._ref_h @ X
             d = np.linalg.norm(pred[:, None, :] - b[None, :, :2], axis=2)
             nn = d.argmin(axis=1)
             dn = d.min(axis=1)
-            lab = np.where(dn < gate, nn, -1)
-            counts = np.bincount(lab[lab >= 0], minlength=len(b))
+            new = np.where(dn < gate, nn, -1)
+            counts = np.bincount(new[new >= 0], minlength=len(b))
             if counts.size and counts.max() > 1:
                 for v in np.flatnonzero(counts > 1):
-                    claim = np.flatnonzero(lab == v)
-                    lab[claim[claim != claim[np.argmin(dn[claim])]]] = -1
+                    claim = np.flatnonzero(new == v)
+                    new[claim[claim != claim[np.argmin(dn[claim])]]] = -1
+            if np.array_equal(new, lab):
+                return new
+            lab = new
         return lab
 
     def _acquire(self, b: F64, flags: int) -> MatchResult:
