@@ -136,3 +136,19 @@ def test_fiducial_corners_follow_opencv_order() -> None:
     c = lay.fiducials[0].corners_m
     # TL, TR, BR, BL seen from the marker's face (normal +z): x right, y up
     assert c[1, 0] > c[0, 0] and c[0, 1] > c[3, 1] and np.isclose(np.linalg.norm(c[0] - c[1]), 0.03)
+
+
+def test_renderer_half_pixel_convention() -> None:
+    """A disk rendered without noise lands where cv2.projectPoints puts its centre (pixel centres at
+    integer coordinates): a half-pixel slip would show up as 0.5 px."""
+    from cdpr.calibration.detect import detect_blobs
+    from cdpr.calibration.render import RenderSettings, VirtualCamera
+
+    cam = camera_from_mapping(json.loads((ROOT / "data_samples/camera_virtual.json").read_text()))
+    layout = flat_prototype_points_layout()
+    vc = VirtualCamera(cam, RenderSettings(noise_sigma_dn=0.0, supersample=6))
+    p, R = np.array([0.5, 0.0, 0.36]), np.eye(3)
+    blobs = detect_blobs(vc.render_points(layout, p, R, np.random.default_rng(0)))
+    truth = vc.project_layout(layout, p, R)
+    d = np.linalg.norm(blobs[:, None, :2] - truth[None], axis=2).min(axis=0)
+    assert len(blobs) == 6 and d.max() < 0.03
