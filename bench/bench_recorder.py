@@ -69,16 +69,21 @@ def _cycled_bus_class():  # noqa: ANN202 - child-process helper
             self.rate = rate_hz
             self.hold = hold  # callable: True -> hold back (probe: never outrun the writer)
             self.t0 = time.perf_counter()
+            self.quantum = max(1, int(rate_hz * 0.001))
 
         def _refill(self, timeout: float | None) -> bool:
             if self.hold is not None and self.hold():
                 time.sleep(0.002 if timeout is None else min(timeout, 0.002))
                 return False
             if self.rate > 0:
-                self.allowed = int(self.rate * (time.perf_counter() - self.t0))
-                if self.i >= self.allowed:
-                    time.sleep(0.002 if timeout is None else min(timeout, 0.002))
+                # paced: the frames of each millisecond are released together (as a USB adapter
+                # hands them over in 1 ms packets)
+                due = int(self.rate * (time.perf_counter() - self.t0))
+                if due - self.i < self.quantum:
+                    wait = (self.i + self.quantum - due) / self.rate
+                    time.sleep(wait if timeout is None else min(timeout, wait))
                     return False
+                self.allowed = due
             else:
                 self.allowed = self.i + 512
             return True

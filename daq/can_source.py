@@ -463,6 +463,10 @@ def build_decoder(
     return dec, str(dbc_path)
 
 
+GATHER_S = 0.005
+"""After the first frame of a read, :meth:`CanLoadCellSource.read` keeps receiving for this long (s)."""
+
+
 class CanLoadCellSource(Source):
     """Load cells on a CAN bus (python-can), decoded with a DBC.
 
@@ -641,15 +645,21 @@ class CanLoadCellSource(Source):
         handle = self._handle
         n = 0
         deadline = time.monotonic() + timeout_s
+        gather_until = deadline
         wait = timeout_s
         try:
             while n < 4096:
                 msg = recv(timeout=wait)
                 if msg is None:
-                    if n or time.monotonic() >= deadline:
+                    now = time.monotonic()
+                    if now >= gather_until:
                         break
-                    wait = max(0.0, deadline - time.monotonic())
+                    wait = gather_until - now
                     continue
+                if n == 0:
+                    # after the first frame, gather what follows for a few ms: a busy bus then
+                    # gives batches of hundreds of frames instead of one or two per read
+                    gather_until = min(deadline, time.monotonic() + GATHER_S)
                 wait = 0.0
                 n += 1
                 if fast and not msg.is_error_frame:

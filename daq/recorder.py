@@ -150,6 +150,7 @@ class _BoundedQueue:
 
 
 _JOIN_FRAMES = 8192
+_SMALL_DRAIN = 2048
 
 
 def _joined(batches: list[Any]) -> list[Any]:
@@ -499,6 +500,10 @@ class Recorder:
                     if self._acq_done.is_set():
                         break
                     time.sleep(0.005)
+                elif n < _SMALL_DRAIN:
+                    # let a busy source's readings gather a little (10 ms, well inside the flush
+                    # interval): batches of a few thousand frames cost less per frame to write
+                    time.sleep(0.01)
             self._drain(w)
             self._write_stats(w)
             w.add_metadata("run_end", self._end_metadata(now_ns()))
