@@ -156,6 +156,30 @@ def test_dynamic_option_on_a_static_series_changes_nothing(tmp_path: Path) -> No
     np.testing.assert_allclose(_read(tmp_path / "d.csv")[WCOLS].to_numpy(), expect, atol=1e-9)
 
 
+def test_dynamic_option_subtracts_m_a_of_an_accelerating_platform(tmp_path: Path) -> None:
+    """Pure translation with constant acceleration a (no rotation, centre of mass at P): the inertia
+    wrench is (m a, 0) by hand, so --dynamic gives the absolute result minus m a at every row."""
+    a = np.array([0.8, -0.3, 0.5])  # m/s^2
+    n, dt = 7, 0.01
+    t = np.arange(n) * dt
+    q = np.zeros((n, 6))
+    q[:, :3] = [0.5, 0.0, 0.335] + 0.5 * a * t[:, None] ** 2  # x = x0 + a t^2 / 2
+    poses = pd.DataFrame(q, columns=["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"])
+    poses.insert(0, "t_ns", np.arange(n, dtype=np.int64) * 10_000_000)
+    poses.to_csv(tmp_path / "p.csv", index=False)
+    T = np.full((n, 8), 150.0)
+    pd.DataFrame(T, columns=[f"T_{c}_N" for c in NAMES]).to_csv(tmp_path / "T.csv", index=False)
+    args = ["wrench", "--rig", str(RIG), "--poses", str(tmp_path / "p.csv")]
+    args += ["--tensions", str(tmp_path / "T.csv")]
+    assert main([*args, "--dynamic", "--out", str(tmp_path / "d.csv")]) == 0
+    G = np.array([0, 0, -MASS * G0, 0, 0, 0])
+    absolute = np.array([-(_A(q[i]) @ T[i]) - G for i in range(n)])  # independent A
+    expect = absolute - np.concatenate([MASS * a, np.zeros(3)])
+    got = _read(tmp_path / "d.csv")[WCOLS].to_numpy()
+    np.testing.assert_allclose(got, expect, rtol=0, atol=1e-6)
+    assert np.abs(absolute - expect).max() > 0.5  # the correction is really there (m a ~ 0.5 N)
+
+
 def _run_bad(tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str]) -> str:
     out = tmp_path / "out.csv"
     args = ["wrench", "--rig", str(RIG), "--poses", str(tmp_path / "poses.csv")]
