@@ -91,6 +91,10 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent)
+    except (FileExistsError, NotADirectoryError) as exc:
+        raise ConfigError(
+            str(p), "", f"cannot write: {exc.filename} is not a folder (a file is in the way)"
+        ) from None
     except OSError as exc:
         raise ConfigError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
     try:

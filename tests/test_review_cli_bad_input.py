@@ -47,7 +47,7 @@ def _blocked(tmp_path: Path) -> Path:
 def test_solve_output_folder_cannot_be_created(tmp_path: Path, capsys) -> None:
     out = _blocked(tmp_path) / "t.csv"
     assert main(["solve", "--rig", str(RIG), "--out", str(out)]) == 2
-    _one_error_line(capsys, "cdpr solve: error:", str(out), "cannot write")
+    _one_error_line(capsys, "cdpr solve: error:", str(out), "cannot write", "is not a folder")
     assert _files(tmp_path) == ["blocker"]
 
 
