@@ -301,27 +301,59 @@ def test_design_bad_options(tmp_path: Path, capsys, argv: list[str], needle: str
 # --- cdpr solve: a rig whose cable count the method cannot handle names the rig file --------------
 
 
-@pytest.mark.parametrize(("n_cables", "needle"), [(5, "m >= n"), (10, "m - n <= 2")])
-def test_solve_cable_count_names_the_rig(
-    tmp_path: Path, capsys, n_cables: int, needle: str
-) -> None:
+def _rig_with(tmp_path: Path, n_cables: int) -> Path:
+    """flat_optimum.toml cut to ``n_cables`` cables, or grown by copies under new names."""
     import tomllib
 
     data = tomllib.loads(RIG.read_text())
     cables = data["cables"]
     if n_cables < len(cables):
         cables = cables[:n_cables]
-    else:  # two more cables, copies of the first two under new names
+    else:
         cables = cables + [
             {**c, "name": c["name"] + "_2"} for c in cables[: n_cables - len(cables)]
         ]
     data["cables"] = cables
     rig = tmp_path / "rig.toml"
     rig.write_bytes(tomli_w.dumps(data).encode())
+    return rig
+
+
+@pytest.mark.parametrize(("n_cables", "needle"), [(5, "m >= n"), (10, "m - n <= 2")])
+def test_solve_cable_count_names_the_rig(
+    tmp_path: Path, capsys, n_cables: int, needle: str
+) -> None:
+    rig = _rig_with(tmp_path, n_cables)
     out = tmp_path / "t.csv"
     assert main(["solve", "--rig", str(rig), "--method", "exact", "--out", str(out)]) == 2
     _one_error_line(capsys, f"rig.toml: cables: {n_cables} cables, --method exact", needle)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("n_cables", "needle"), [(5, "m >= n"), (10, "m - n <= 2")])
+def test_simulate_cable_count_names_the_rig(
+    tmp_path: Path, capsys, n_cables: int, needle: str
+) -> None:
+    rig = _rig_with(tmp_path, n_cables)
+    sched = tmp_path / "s.toml"
+    sched.write_text(
+        '[schedule]\nname = "x"\nrate_hz = 100.0\nmethod = "exact"\n'
+        '[[segments]]\nlabel = "a"\nduration_s = 0.5\nwind_mps = 0.0\n'
+    )
+    out = tmp_path / "runs"
+    argv = ["simulate", "--rig", str(rig), "--schedule", str(sched), "--out", str(out), "--quiet"]
+    assert main(argv) == 2
+    _one_error_line(capsys, f"rig.toml: cables: {n_cables} cables", needle)
+    assert not out.exists()
+
+
+def test_import_rig_with_more_cables_than_the_dbc(tmp_path: Path, can_log, capsys) -> None:
+    rig = _rig_with(tmp_path, 10)
+    argv = ["import", "--can-log", str(can_log), "--dbc", str(DBC), "--rig", str(rig)]
+    assert main([*argv, "--out", str(tmp_path / "o.mcap")]) == 2
+    line = _one_error_line(capsys, "rig.toml: cables: DBC has no Ch<k>_Counts for channels [9, 10]")
+    assert "run.log" not in line
+    assert _files(tmp_path) == ["rig.toml"]
 
 
 # --- inspect / recover / export: a folder given as the run file -----------------------------------

@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(args.calibration, key, exc.problem) from None
         if key == "dbc":
             raise ConfigError(args.dbc, "", exc.problem) from None
+        if key == "cables":  # the rig's cables against the DBC's channels
+            raise ConfigError(args.rig, "cables", exc.problem) from None
         raise
     tmp = out.with_name(f".{out.name}.part")
     tmp.unlink(missing_ok=True)

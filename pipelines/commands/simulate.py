@@ -104,8 +104,15 @@ def run(args: argparse.Namespace) -> int:
         sched_data["faults"] = list(sched_data["faults"]) + faults
     if args.seed is not None:
         sched_data.setdefault("schedule", {})["seed"] = args.seed
-    schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
-    vr = VirtualRig(rig, schedule)
+    try:
+        schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
+        vr = VirtualRig(rig, schedule)
+    except (
+        InputError
+    ) as exc:  # the schedule is checked (ConfigError): this is the rig's cable count
+        from cdpr.analysis.errors import ConfigError
+
+        raise ConfigError(args.rig, "cables", f"{rig.n_cables} cables: {exc}") from None
     label = args.label or schedule.name
     path = new_run_path(args.out, label)
     truth_path = path.with_name(path.stem + ".truth.npz")
