@@ -140,7 +140,7 @@ class FiducialDetector:
     roi_margin: float = 0.25
     edge_refine: bool = True
     redecode_every: int = 10
-    track_max_move_cells: float = 0.3
+    track_max_move_cells: float = 0.35
     _det: cv.ArucoDetector = field(init=False)
 
     def __post_init__(self) -> None:

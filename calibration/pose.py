@@ -8,7 +8,7 @@ translation ``dt_C`` and a small rotation ``dtheta_C`` applied on the left (``R'
 and everything expressed in the tunnel frame {O} through the camera extrinsics.
 
 Covariance layout (6 x 6): ``[position_O_m (3), rotation_O_rad (3)]``, the rotation part being a
-small rotation vector in {O} axes applied on the left: ``R_true = exp([dtheta]x) R_est``.
+small rotation vector in {O} axes applied on the left: ``R_est = exp([dtheta]x) R_true``.
 The extrinsics are treated as exact (their error is a constant bias over a run, not noise).
 """
 
@@ -187,12 +187,10 @@ def estimate_pose(
 def pose_error(
     position_O_m: ArrayLike, R_O_P: ArrayLike, true_position_O_m: ArrayLike, true_R_O_P: ArrayLike
 ) -> F64:
-    """Error vector (6,) ``[dp_O (m), dtheta_O (rad)]`` with ``R_true = exp(dtheta) R_est``
-    (the covariance's parametrisation), for NEES tests."""
+    """Estimate minus truth (6,): ``[p_est - p_true (m), dtheta_O (rad)]`` with
+    ``R_est = exp([dtheta]x) R_true`` (the covariance's left-rotation parametrisation in {O})."""
     dp = np.asarray(position_O_m, np.float64) - np.asarray(true_position_O_m, np.float64)
-    dR = np.asarray(true_R_O_P, np.float64) @ np.asarray(R_O_P, np.float64).T
-    # estimate minus truth, consistently: R_est = exp(-dtheta) R_true  ->  use log(R_est R_true^T)
-    dth = cv.rotation_vector(dR.T)
+    dth = cv.rotation_vector(np.asarray(R_O_P, np.float64) @ np.asarray(true_R_O_P, np.float64).T)
     return np.concatenate([dp, dth])
 
 

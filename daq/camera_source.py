@@ -94,6 +94,7 @@ class FramePoseEstimator:
             self._pos = {int(m): k for k, m in enumerate(layout.ids)}
             self._corners = layout.fiducial_corners_m  # (M, 4, 3), cached
             self._last: PoseEstimate | None = None
+            self._prev: PoseEstimate | None = None
         else:
             self.sigma_px = POINT_SIGMA_PX if sigma_px is None else float(sigma_px)
             self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
@@ -103,23 +104,26 @@ class FramePoseEstimator:
         """The pose in this frame (flags say when it is not usable)."""
         if self.layout.kind == "fiducial":
             pred = None
+            guess = None
             if self._last is not None:
+                r, t = self._last.rvec_C, self._last.tvec_C_m
+                if self._prev is not None:  # constant-velocity prediction from the last two poses
+                    R1, R0 = cv.rodrigues(r), cv.rodrigues(self._prev.rvec_C)
+                    r = cv.rotation_vector(R1 @ R0.T @ R1)
+                    t = 2 * t - self._prev.tvec_C_m
+                guess = (r, t)
                 pred = cv.project_points(
-                    self._corners.reshape(-1, 3),
-                    self._last.rvec_C,
-                    self._last.tvec_C_m,
-                    self.camera.K,
-                    self.camera.dist,
+                    self._corners.reshape(-1, 3), r, t, self.camera.K, self.camera.dist
                 ).reshape(-1, 4, 2)
             ids, corners = self._fid.detect(gray, pred)
             if len(ids) == 0:
-                self._last = None
+                self._last = self._prev = None
                 return failed_pose()
             obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
-            guess = (self._last.rvec_C, self._last.tvec_C_m) if self._last is not None else None
             est = estimate_pose(
                 obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
             )
+            self._prev = self._last
             self._last = est if not (est.flags & BAD_FLAGS) else None
             return est
         pred = None
