@@ -369,3 +369,19 @@ def test_run_file_that_is_a_folder(tmp_path: Path, capsys, argv: list[str]) -> N
     assert main([*argv, str(run)]) == 2
     _one_error_line(capsys, "run.mcap: a folder, not a run file")  # it used to say "file not found"
     assert _files(tmp_path) == ["run.mcap"]
+
+
+def test_wrench_bad_moment_reference_point_names_its_option(tmp_path: Path, capsys) -> None:
+    poses = tmp_path / "p.csv"
+    poses.write_text(f"{POSE_HEADER}\n0.5,0,0.335,0,0,0\n")
+    names = load_rig(RIG).cable_names
+    tensions = tmp_path / "T.csv"
+    tensions.write_text(",".join(f"T_{c}_N" for c in names) + "\n" + ",".join(["150"] * 8) + "\n")
+    out = tmp_path / "w.csv"
+    argv = ["wrench", "--rig", str(RIG), "--poses", str(poses), "--tensions", str(tensions)]
+    argv += ["--airspeed-mps", "10", "--density-kgpm3", "1.2", "--area-m2", "0.1"]
+    argv += ["--span-m", "1", "--chord-m", "0.1", "--mrp-P-m", "nan", "0", "0"]
+    assert main([*argv, "--out", str(out)]) == 2
+    line = _one_error_line(capsys, "command line: --mrp-P-m: mrp_P_m")
+    assert "--nose-P" not in line  # it used to blame --nose-P/--up-P
+    assert not out.exists()

@@ -250,7 +250,8 @@ def run(args: argparse.Namespace) -> int:
             res = aero_coefficients(W, R, *ref)
             K = coefficient_matrix(R, *ref)
         except InputError as exc:
-            raise ConfigError("command line", "--nose-P/--up-P", str(exc)) from None
+            flag = "--mrp-P-m" if "mrp_P_m" in str(exc) else "--nose-P/--up-P"
+            raise ConfigError("command line", flag, str(exc)) from None
         out["alpha_rad"] = res.alpha_rad
         out["beta_rad"] = res.beta_rad
         for name in COEFFICIENT_NAMES:
