@@ -119,6 +119,10 @@ def test_batched_shapes_and_broadcast() -> None:
     T = np.full((4, 3, 8), 100.0)
     W = recover_wrench(rig, q, T)
     assert W.shape == (4, 3, 6)
+    # every entry is the same pose and tensions: W_ext = -(cable wrench) - G, G = (0, 0, -m g, 0...)
+    G = np.array([0, 0, -rig.mass_kg * G0, 0, 0, 0])
+    expect = -_independent_cable_wrench(rig, q[0, 0], T[0, 0]) - G
+    np.testing.assert_allclose(W, np.broadcast_to(expect, (4, 3, 6)), atol=1e-9)
     assert recover_wrench(rig, q, T, tare_tensions_N=T).shape == (4, 3, 6)
     np.testing.assert_allclose(recover_wrench(rig, q, T, tare_tensions_N=T), 0.0, atol=1e-12)
 
