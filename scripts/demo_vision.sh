@@ -25,5 +25,6 @@ echo
 echo "== a bad image set is refused (exit 2, nothing written)"
 mkdir -p "$D/bad_views"
 cp "$D/views/view_000.png" "$D/views/view_001.png" "$D/bad_views/"
+cp "$D/frames_ir6/frame_000.png" "$D/bad_views/ir_frame_without_board.png"
 "$CDPR" calibrate camera "$D/bad_views" --board data_samples/board_charuco.toml \
     --out "$D/bad/camera.json" || echo "(exit $? as expected; $D/bad/camera.json not written)"
