@@ -49,8 +49,14 @@ def test_flat_geometry_matches_rig_builder() -> None:
 
 
 def test_broadcasting_grid_shape() -> None:
-    g = sens.cubic_geometry(np.array([0.2, 0.3])[:, None], 0.1, np.array([0.05, 0.075, 0.1]))
-    assert sens.structure_matrices(g).shape == (2, 3, 6, 8)
+    k1, k3 = np.array([0.2, 0.3]), np.array([0.05, 0.075, 0.1])
+    A = sens.structure_matrices(sens.cubic_geometry(k1[:, None], 0.1, k3))
+    assert A.shape == (2, 3, 6, 8)
+    for i in range(2):  # each grid entry is the rig builder's matrix for its own (k1, k2, k3)
+        for j in range(3):
+            np.testing.assert_allclose(
+                A[i, j], _A_of(rigs.cubic_rig(k1[i], 0.1, k3[j])), atol=1e-14
+            )
 
 
 def test_S_closed_form_equals_pinv_by_hand() -> None:
