@@ -36,22 +36,29 @@ import tempfile
 import time
 from pathlib import Path
 
-N_FRAMES = 50_000
+N_FRAMES = 4 * 256 * 49  # 50,176 frames: the rolling counter wraps cleanly
 TARGET = 30_000.0
 
 
 def _messages():  # noqa: ANN202 - child-process helper
+    """The load-cell amplifier's frames (``data_samples/loadcell.dbc`` layout): per sample four
+    TPDOs 0x181/0x281/0x381/0x481, each two int24 little-endian counts, a status byte and the
+    rolling counter; epoch timestamps 33 us apart (a saturated 1 Mbit/s bus)."""
     import can
 
-    return [
-        can.Message(
-            arbitration_id=0x181 + (i % 8),
-            data=bytes(((i * 7 + j) & 0xFF) for j in range(8)),
-            is_extended_id=False,
-            timestamp=1_700_000_000.0 + i * 3.3e-5,
+    out = []
+    for i in range(N_FRAMES):
+        s, j = divmod(i, 4)
+        a, b = (s * 37 + 2000 * j) & 0x7FFFFF, (s * 53 + 2000 * j + 1000) & 0x7FFFFF
+        out.append(
+            can.Message(
+                arbitration_id=(0x181, 0x281, 0x381, 0x481)[j],
+                data=a.to_bytes(3, "little") + b.to_bytes(3, "little") + bytes([0, s & 0xFF]),
+                is_extended_id=False,
+                timestamp=1_700_000_000.0 + i * 3.3e-5,
+            )
         )
-        for i in range(N_FRAMES)
-    ]
+    return out
 
 
 def _cycled_bus_class():  # noqa: ANN202 - child-process helper
@@ -102,7 +109,7 @@ def _cycled_bus_class():  # noqa: ANN202 - child-process helper
 
 
 def _child_recorder(
-    out: str, duration_s: float, rate_hz: float, backpressure: bool = False
+    out: str, duration_s: float, rate_hz: float, backpressure: bool = False, decode: bool = False
 ) -> dict:
     from cdpr.daq.can_source import CanLoadCellSource
     from cdpr.daq.recorder import Recorder, RecorderOptions
@@ -117,7 +124,7 @@ def _child_recorder(
             return CycledBus(rate_hz, hold)
 
     src = BenchCanSource(
-        "can0", interface="bench", channel="bench", bitrate=1_000_000, raw=True, decode=False
+        "can0", interface="bench", channel="bench", bitrate=1_000_000, raw=True, decode=decode
     )
     rec = Recorder([src], out, options=RecorderOptions())
     t0 = time.perf_counter()
@@ -131,6 +138,8 @@ def _child_recorder(
     st = rec.status()
     n = st.counts.get("can_raw", 0)
     return {
+        "samples": st.counts.get("tensions", 0),
+        "lost": st.sources["can0"].lost,
         "written": n,
         "elapsed_s": dt,
         "cpu_s": cpu,

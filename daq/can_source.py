@@ -110,6 +110,22 @@ class LoadCellDecoder:
             missing = sorted(set(range(n)) - set(found))
             raise ValueError(f"DBC has no Ch<k>_Counts for channels {[k + 1 for k in missing]}")
         self.frame_ids = sorted(self.channel_signals)
+        bits = {
+            "Counts": 0,
+            "Saturated": CHANNEL_STATUS_SATURATED,
+            "Slack": CHANNEL_STATUS_SLACK,
+            "Fault": CHANNEL_STATUS_FAULT,
+        }
+        # per frame id: (channel, status bit or 0 for the counts, signal name)
+        self._entries = {
+            fid: [(ch, bits[what], sname) for ch, what, sname in v]
+            for fid, v in self.channel_signals.items()
+        }
+        self._keys_T = [f"T_{c}_N" for c in self.cables]
+        self._keys_raw = [f"raw_{c}_counts" for c in self.cables]
+        self._keys_status = [f"status_{c}" for c in self.cables]
+        self._cal: Calibration | None = None
+        self._off_gain: list[tuple[float, float]] = []
         self._msgs = {fid: db.get_message_by_frame_id(fid) for fid in self.frame_ids}
         # fast path: Intel-order integer signals unpacked from one little-endian int, verified
         # against cantools on the first frame of every id (any mismatch -> cantools for good)
@@ -216,34 +232,44 @@ class LoadCellDecoder:
         self._last_counter = counter
         self._last_t_ns = t_ns
         n = self.n
-        counts = [math.nan] * n
+        counts: list[Any] = [math.nan] * n
         ch_status = [0] * n
+        entries = self._entries
         for fid, sig in self._pending.items():
-            for ch, what, sname in self.channel_signals[fid]:
+            for ch, bit, sname in entries[fid]:
                 v = sig[sname]
-                if what == "Counts":
+                if not bit:
                     counts[ch] = v
                 elif v:
-                    ch_status[ch] |= {
-                        "Saturated": CHANNEL_STATUS_SATURATED,
-                        "Slack": CHANNEL_STATUS_SLACK,
-                        "Fault": CHANNEL_STATUS_FAULT,
-                    }[what]
+                    ch_status[ch] |= bit
         status = 0
         if len(self._pending) < len(self.frame_ids):
             status |= STATUS_GAP
             self.partial += 1
-        tensions = self.calibration.to_newtons(counts)
-        values: dict[str, Any] = {}
-        for i, cable in enumerate(self.cables):
-            values[f"T_{cable}_N"] = float(tensions[i])
-        for i, cable in enumerate(self.cables):
-            c = counts[i]
-            values[f"raw_{cable}_counts"] = int(c) if c == c else -(1 << 31)
-        for i, cable in enumerate(self.cables):
-            values[f"status_{cable}"] = ch_status[i]
+        cal = self.calibration
+        if type(cal) is Calibration:
+            # T = (counts - offset) * gain in plain floats: the same IEEE operations as
+            # Calibration.to_newtons, without a numpy round trip per sample
+            if cal is not self._cal:
+                self._cal = cal
+                self._off_gain = list(
+                    zip(cal.offset_counts.tolist(), cal.gain_N_per_count.tolist(), strict=True)
+                )
+            tensions = [
+                (float(c) - o) * g for c, (o, g) in zip(counts, self._off_gain, strict=True)
+            ]
+        else:
+            tensions = [float(t) for t in cal.to_newtons(counts)]
+        values: dict[str, Any] = dict(zip(self._keys_T, tensions, strict=True))
+        for key, c in zip(self._keys_raw, counts, strict=True):
+            values[key] = int(c) if c == c else -(1 << 31)
+        any_status = 0
+        for key, st in zip(self._keys_status, ch_status, strict=True):
+            values[key] = st
+            any_status |= st
+        if any_status:
             for bit, sbit in _STATUS_TO_SOURCE:
-                if ch_status[i] & bit:
+                if any_status & bit:
                     status |= sbit
         values["counter"] = counter
         values["seq"] = self._seq
