@@ -33,6 +33,7 @@ the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import combinations
 from typing import Any, Protocol
 
 import numpy as np
@@ -284,8 +285,15 @@ class _Chunked:
         self.N = self.A.shape[0]
 
     def run(
-        self, kernel: Any, extra: tuple[FloatArray, ...], objective: str, method: str
+        self,
+        kernel: Any,
+        extra: tuple[FloatArray, ...],
+        objective: str,
+        method: str,
+        expand: bool = True,
     ) -> TensionResult:
+        """``kernel(At, w, lo, hi, *extra) -> (T, status)`` per chunk; with ``expand=False`` the
+        batch-constant inputs other than A stay (..., 1) (the kernel broadcasts them)."""
         N, m = self.N, self.m
         T_out = np.empty((N, m))
         res_out = np.empty(N)
@@ -300,7 +308,7 @@ class _Chunked:
                 At = np.ascontiguousarray(np.broadcast_to(At, At.shape[:-1] + (e - s,)))
             # kernels index every column: expand batch-constant inputs to the chunk's width
             w, lo, hi, *ex_l = (
-                np.ascontiguousarray(np.broadcast_to(x, x.shape[:-1] + (e - s,)))
+                np.ascontiguousarray(np.broadcast_to(x, x.shape[:-1] + (e - s,))) if expand else x
                 for x in (_soa(y, s, e) for y in (self.w, self.lo, self.hi, *extra_f))
             )
             ex = tuple(ex_l)
@@ -594,9 +602,348 @@ def _exact_kernel(
         T[:, idx] += N[0] * lam
     else:
         lam1, lam2, found = _polygon(N[0], N[1], lo_k, hi_k, tol_k)
+        lam1[~found] = 0.0  # infeasible: T_p (balances w, violates a limit)
+        lam2[~found] = 0.0
         T[:, idx] += N[0] * lam1 + N[1] * lam2
     status[idx[~found]] = STATUS_INFEASIBLE
     return T, status
+
+
+# Fast path for m = n + 2 (the paper's rigs), used by :func:`exact`.  Per chunk: Gaussian
+# elimination of [A' | w'] (A': A with unit-norm rows) in one pivot order for the whole batch, a
+# per-pose check that this order is stable for the pose, the null-space basis and T_p from the
+# reduced form; for the poses whose T_p violates a limit, the polygon on ONE line (the farthest
+# violated one) with a certificate: the KKT conditions at the point found there (optimum) or three
+# half-planes without a common point (infeasible).  Poses that fail a check or a certificate go
+# through the general kernel above (same answers, slower).  Everything in the chunk is in the
+# pivot order (rows p, cables q) until the tensions are written out.
+
+_LU_RATIO = 0.25
+"""Fast path: each elimination pivot must be >= this times every entry below it (bounded growth, as
+with partial pivoting) and >= :data:`_LU_PIVOT`, else the pose takes the general kernel."""
+_LU_PIVOT = 1e-3
+_DET_FACTOR = 10.0
+"""Fast path: ``|det [A'; N^T]| >= _DET_FACTOR sqrt(PIVOT_TOL) n^((n-1)/2)`` guarantees
+``sigma_min(A') > _DET_FACTOR sqrt(PIVOT_TOL)``, so a pose the fast path accepts is not rank
+deficient for the general kernel either."""
+_ORDER_SAMPLES = 32  # poses sampled to choose the pivot order
+_MASK63 = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
+def _row_of_max(x: FloatArray, low_bits: int) -> NDArray[np.int64]:
+    """Row index (K,) of a largest entry of each column of x (R, K), no NaN.
+
+    The float64 bits are mapped to order-preserving integers whose ``low_bits`` lowest bits are
+    replaced by the row index, so that one integer max gives the row (a reduction along axis 0 is
+    several times faster than ``argmax`` there).  Ties and values within ``2**low_bits`` ulps
+    resolve to any of the rows concerned.
+    """
+    b = x.view(np.int64)
+    key = b >> 63
+    key &= _MASK63
+    key ^= b  # order-preserving: a < b (floats) <=> key(a) < key(b) (signed integers)
+    low = np.int64((1 << low_bits) - 1)
+    key &= ~low
+    key |= np.arange(x.shape[0], dtype=np.int64)[:, None]
+    out: NDArray[np.int64] = np.bitwise_and(key.max(axis=0), low)
+    return out
+
+
+def _pivot_order(a: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Row and column order for the elimination of the sample of poses a (S, n, m), m = n + 2.
+
+    Columns: the n basic columns are those whose n x n block of ``A'`` has the largest smallest
+    ``|det|`` over the sample (the best block for one pose can be singular a few mm away), then
+    the two free ones.  Rows: partial pivoting on the sample's first pose.
+    """
+    S, n, m = a.shape
+    with np.errstate(all="ignore"):
+        a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+        best, basic = -1.0, list(range(n))
+        for free in combinations(range(m), m - n):
+            cols = [j for j in range(m) if j not in free]
+            d = np.nan_to_num(np.abs(np.linalg.det(a[:, :, cols]))).min()
+            if d > best:
+                best, basic = d, cols
+        q = np.array(basic + [j for j in range(m) if j not in basic])
+        M = np.nan_to_num(a[0][:, q])
+    p = np.arange(n)
+    for k in range(n):
+        i = k + int(np.argmax(np.abs(M[k:, k])))
+        M[[k, i]], p[[k, i]] = M[[i, k]], p[[i, k]]
+        if M[k, k] != 0.0:
+            M[k + 1 :] -= np.outer(M[k + 1 :, k] / M[k, k], M[k])
+    return p, q
+
+
+def _cols(x: FloatArray, s: int, e: int, order: NDArray[np.intp]) -> FloatArray:
+    """Rows s:e of x (N, k), columns in ``order``, as a (k, e - s) array (or (k, 1) if constant)."""
+    if x.strides[0] == 0:
+        return np.ascontiguousarray(x[0, order][:, None])
+    return np.ascontiguousarray(x[s:e][:, order].T)
+
+
+def _exact2(
+    A: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray, ref: FloatArray, objective: str
+) -> TensionResult:
+    """:func:`exact` for m = n + 2: the fast path chunk by chunk, the general kernel where needed."""
+    lead = A.shape[:-2]
+    n, m = A.shape[-2:]
+    A, w, lo, hi, ref = _flat(A, 2), _flat(w, 1), _flat(lo, 1), _flat(hi, 1), _flat(ref, 1)
+    N = A.shape[0]
+    out = TensionResult(
+        np.empty((N, m)),
+        np.empty(N, dtype=bool),
+        np.empty(N),
+        np.empty(N),
+        objective,
+        "exact",
+        np.empty(N, dtype=np.int8),
+    )
+    sample = np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)
+    order = _pivot_order(A[sample])
+    for s in range(0, N, CHUNK):
+        e = min(N, s + CHUNK)
+        bad = _exact2_chunk(A, w, lo, hi, ref, s, e, order, out)
+        if 8 * bad.size > e - s:  # the order does not suit this part of the batch: re-choose
+            order = _pivot_order(
+                A[s + bad[np.linspace(0, bad.size - 1, _ORDER_SAMPLES).astype(int)]]
+            )
+    return TensionResult(
+        out.tensions_N.reshape(lead + (m,)),
+        out.feasible.reshape(lead),
+        out.residual_N.reshape(lead),
+        out.max_violation_N.reshape(lead),
+        objective,
+        "exact",
+        out.status.reshape(lead) if out.status is not None else None,
+    )
+
+
+def _exact2_chunk(
+    A: FloatArray,
+    w: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    ref: FloatArray,
+    s: int,
+    e: int,
+    order: tuple[NDArray[np.intp], NDArray[np.intp]],
+    out: TensionResult,
+) -> NDArray[np.intp]:
+    """Solve the poses s:e (flat inputs) into ``out``; returns the chunk positions that did not
+    suit the pivot order (solved by the general kernel)."""
+    n, m = A.shape[-2:]
+    C = e - s
+    p, q = order
+    J = (p[:, None] * m + q).ravel()
+    Ap = np.ascontiguousarray(A[s:e].reshape(C, n * m)[:, J].T).reshape(n, m, C)
+    wp, lo_q, hi_q, ref_q = (
+        _cols(w, s, e, p),
+        _cols(lo, s, e, q),
+        _cols(hi, s, e, q),
+        _cols(ref, s, e, q),
+    )
+    tol = np.broadcast_to(_REL_TOL * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
+    S = np.empty((4, m, C))  # n1, n2, lo - T_p, hi - T_p
+    with np.errstate(all="ignore"):
+        Tp, ok = _reduce(Ap, wp, ref_q, S[0], S[1])
+        lo_, hi_ = S[2], S[3]
+        np.subtract(lo_q, Tp, out=lo_)
+        np.subtract(hi_q, Tp, out=hi_)
+        need = (lo_ > tol).any(axis=0)
+        need |= (hi_ < -tol).any(axis=0)
+        need &= ok
+        status = np.zeros(C, dtype=np.int8)
+        idx = np.flatnonzero(need)
+        if idx.size:
+            Sk = np.take(S, idx, axis=-1)
+            tol_k = tol[idx]
+            lam1, lam2, state = _polygon_one_line(Sk[0], Sk[1], Sk[2], Sk[3], tol_k)
+            u = np.flatnonzero(state == 2)
+            if u.size:  # not certified on the one line: all violated lines
+                U = np.take(Sk, u, axis=-1)
+                l1, l2, found = _polygon(U[0], U[1], U[2], U[3], tol_k[u])
+                lam1[u] = np.where(found, l1, 0.0)
+                lam2[u] = np.where(found, l2, 0.0)
+                state[u] = np.where(found, 0, 1)
+            status[idx[state == 1]] = STATUS_INFEASIBLE
+            L = np.zeros((2, C))
+            L[0, idx] = lam1
+            L[1, idx] = lam2
+            S[0] *= L[0]
+            S[1] *= L[1]
+            Tp += S[0]
+            Tp += S[1]
+    bad = np.flatnonzero(~ok)
+    if bad.size:  # the pivot order does not suit these poses: general kernel (natural order)
+        At = np.ascontiguousarray(np.moveaxis(A[s:e][bad], 0, -1))
+        sub = [x if x.shape[-1] == 1 else np.take(x, bad, axis=-1) for x in (wp, lo_q, hi_q, ref_q)]
+        inv_p, inv_q = np.argsort(p), np.argsort(q)
+        Tb, status[bad] = _exact_kernel(
+            At, sub[0][inv_p], sub[1][inv_q], sub[2][inv_q], sub[3][inv_q]
+        )
+        Tp[:, bad] = Tb[q]
+    # the contract's summary, in the pivot order (row order does not change |A T - w|)
+    r = np.einsum("imc,mc->ic", Ap, Tp)
+    r -= wp
+    res = np.sqrt(np.einsum("ic,ic->c", r, r))
+    viol = np.subtract(lo_q, Tp, out=S[2])
+    np.maximum(viol, np.subtract(Tp, hi_q, out=S[3]), out=viol)
+    vmax = viol.max(axis=0)
+    np.maximum(vmax, 0.0, out=vmax)
+    ftol = np.broadcast_to(FEASIBILITY_TOL_N * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
+    feas = (res <= ftol) & (vmax <= ftol) & (status == STATUS_OK)
+    status[~feas & (status == STATUS_OK)] = STATUS_INFEASIBLE
+    out.tensions_N[s:e] = Tp[np.argsort(q)].T
+    out.residual_N[s:e], out.max_violation_N[s:e], out.feasible[s:e] = res, vmax, feas
+    assert out.status is not None
+    out.status[s:e] = status
+    return bad
+
+
+def _reduce(
+    Ap: FloatArray, wp: FloatArray, ref_q: FloatArray, n1: FloatArray, n2: FloatArray
+) -> tuple[FloatArray, BoolArray]:
+    """T_p (m, C), written n1, n2 (m, C; orthonormal null-space basis) and ok (C,), in pivot order.
+
+    Gaussian elimination of ``[A' | w']`` without further pivoting, then ``[x0 x1 xw] =
+    A1'^-1 [free columns | w']`` by back substitution: the null space is spanned by ``[-x0; 1; 0]``
+    and ``[-x1; 0; 1]``, ``T0 = [xw; 0; 0]`` is a particular solution and
+    ``T_p = T0 - N N^T (T0 - T_ref)``.  ``ok`` is False where a pivot check fails.
+    """
+    n, m, C = Ap.shape
+    rs = np.einsum("imc,imc->ic", Ap, Ap)
+    np.sqrt(rs, out=rs)
+    np.divide(1.0, rs, out=rs)
+    M = np.empty((n, m + 1, C))
+    np.multiply(Ap, rs[:, None, :], out=M[:, :m])
+    np.multiply(wp, rs, out=M[:, m])
+    ok = np.ones(C, dtype=bool)
+    E = np.empty((n - 1, m, C))
+    for k in range(n - 1):
+        mult = M[k + 1 :, k] / M[k, k]  # |multipliers| <= 1 / _LU_RATIO
+        ok &= np.abs(mult).max(axis=0) <= 1.0 / _LU_RATIO
+        t = E[: n - 1 - k, : m - k]
+        np.multiply(mult[:, None, :], M[k, None, k + 1 :], out=t)
+        M[k + 1 :, k + 1 :] -= t
+    diag = M[np.arange(n), np.arange(n)]
+    piv = np.abs(diag)
+    ok &= piv.min(axis=0) >= _LU_PIVOT
+    det = np.prod(piv, axis=0)
+    inv = np.divide(1.0, diag, out=diag)
+    X = np.empty((3, n, C))  # back substitution: the two free columns and w'
+    np.multiply(M[n - 1, n:], inv[n - 1], out=X[:, n - 1])
+    for k in range(n - 2, -1, -1):
+        acc = np.einsum("jc,rjc->rc", M[k, k + 1 : n], X[:, k + 1 :])
+        np.subtract(M[k, n:], acc, out=acc)
+        np.multiply(acc, inv[k], out=X[:, k])
+    x0, x1, xw = X
+    g11 = np.einsum("kc,kc->c", x0, x0)
+    g11 += 1.0
+    g12 = np.einsum("kc,kc->c", x0, x1)
+    g22 = np.einsum("kc,kc->c", x1, x1)
+    g22 += 1.0
+    beta = g12 / g11
+    gram = g22 - g12 * beta
+    det *= np.sqrt(g11 * gram)  # |det [A'; N^T]| = |det A1'| sqrt(det(I + F^T F))
+    ok &= det >= _DET_FACTOR * np.sqrt(PIVOT_TOL) * n ** ((n - 1) / 2)
+    a1 = 1.0 / np.sqrt(g11)
+    a2 = 1.0 / np.sqrt(gram)
+    np.multiply(x0, -a1, out=n1[:n])  # [-x0; 1; 0] / sqrt(g11)
+    n1[n] = a1
+    n1[n + 1] = 0.0
+    np.multiply(x0, beta, out=n2[:n])  # ([-x1; 0; 1] - beta [-x0; 1; 0]) / sqrt(gram)
+    n2[:n] -= x1
+    n2[:n] *= a2
+    np.multiply(beta, -a2, out=n2[n])
+    n2[n + 1] = a2
+    Tp = np.empty((m, C))  # T0 - T_ref, then T_p
+    np.subtract(xw, ref_q[:n], out=Tp[:n])
+    np.negative(ref_q[n:], out=Tp[n:])
+    c1 = np.einsum("mc,mc->c", n1, Tp)
+    c2 = np.einsum("mc,mc->c", n2, Tp)
+    tmp = n1 * c1
+    Tp -= tmp
+    np.multiply(n2, c2, out=tmp)
+    Tp -= tmp
+    Tp += ref_q
+    return Tp, ok
+
+
+def _polygon_one_line(
+    n1: FloatArray, n2: FloatArray, lo_: FloatArray, hi_: FloatArray, tol: FloatArray
+) -> tuple[FloatArray, FloatArray, IntArray]:
+    """:func:`_polygon` on one violated line per pose (the farthest from the origin), certified.
+
+    Line i (``n_i . lam = c_i``, violated at 0) is ``x(s) = t n_i + s d_i`` with ``t = c_i/|n_i|^2``,
+    ``d_i = (-n_i2, n_i1)``; the other constraints (relaxed by tol) allow ``[slo, shi]`` there, as
+    in :func:`_polygon_lines`.  Shifting the line by ``dc`` into the half-plane ``H_i`` moves the
+    bounds of cable l by ``-rho_l dc / |n_i|^2``, ``rho_l = (n_l . n_i) / (n_l . d_i)``.
+
+    - Interval not empty, ``s`` its point closest to 0: optimal if ``s = 0`` (the foot of 0: no
+      feasible point is closer than the farthest violated line), or if the KKT conditions hold at
+      the vertex with the bounding cable b: along b's line into ``H_i`` the objective
+      ``c^2/|n_i|^2 + s(c)^2 |n_i|^2`` must not decrease, i.e. ``sigma_i (t - s rho_b) >= 0``
+      (``sigma_i`` = +1 for a lower limit, -1 for an upper one).
+    - Interval empty (``slo`` from cable l1 > ``shi`` from cable l2): if the gap does not shrink
+      into ``H_i`` (``sigma_i (rho_l2 - rho_l1) >= 0``) and survives the relaxation of line i by
+      tol, the half-planes of l1, l2 and i have no common point: the polygon is empty.
+
+    A bound attained by two cables at once is left uncertified.  Returns lam1, lam2 (K,) and
+    state (K,): 0 optimum found, 1 polygon empty, 2 not certified.
+    """
+    m, K = n1.shape
+    ar = np.arange(K)
+    q = n1 * n1
+    q += n2 * n2
+    c = np.where(lo_ > tol, lo_, 0.0)
+    np.copyto(c, hi_, where=hi_ < -tol)
+    d2 = c * c
+    d2 /= np.maximum(q, _TINY)  # squared distance of the violated lines from 0, else 0
+    fi = _row_of_max(d2, max(1, (m - 1).bit_length())) * K + ar
+    n1i, n2i = n1.ravel().take(fi), n2.ravel().take(fi)
+    ci, qi = c.ravel().take(fi), q.ravel().take(fi)
+    t = ci / qi
+    dot = n1 * n1i
+    dot += n2 * n2i
+    e = np.multiply(n2, n1i, out=d2)
+    e -= n1 * n2i
+    base = np.multiply(dot, t, out=q)
+    a = lo_ - tol
+    a -= base
+    a /= e
+    b = hi_ + tol
+    b -= base
+    b /= e
+    lo_s = np.fmin(a, b, out=c)
+    hi_s = np.fmax(a, b, out=b)
+    slo = np.fmax.reduce(lo_s, axis=0)
+    shi = np.fmin.reduce(hi_s, axis=0)
+    rho = np.divide(dot, e, out=dot)
+    sel = lo_s == slo
+    one1 = sel.sum(axis=0) == 1
+    rho1 = np.where(sel, rho, -np.inf).max(axis=0)
+    np.equal(hi_s, shi, out=sel)
+    one2 = sel.sum(axis=0) == 1
+    rho2 = np.where(sel, rho, -np.inf).max(axis=0)
+    sig = np.sign(ci)
+    fin = np.isfinite(slo) & np.isfinite(shi) & (qi > _NULL_TOL)
+    s = np.minimum(np.maximum(0.0, slo), shi)
+    at_hi = s < 0.0
+    kkt = sig * (t - s * np.where(at_hi, rho2, rho1)) >= 0.0
+    kkt &= np.where(at_hi, one2, one1)
+    opt = fin & (slo <= shi) & ((s == 0.0) | kkt)
+    gap = slo - shi
+    drho = rho2 - rho1
+    empty = fin & one1 & one2 & (sig * drho >= 0.0)
+    empty &= gap > tol * np.abs(drho) / qi + 1e-12 * (np.abs(slo) + np.abs(shi))
+    state = np.full(K, 2, dtype=np.int8)
+    state[empty] = 1
+    state[opt] = 0
+    x1 = t * n1i - s * n2i
+    x2 = t * n2i + s * n1i
+    return np.where(opt, x1, 0.0), np.where(opt, x2, 0.0), state
 
 
 def exact(
@@ -628,6 +975,8 @@ def exact(
         lo, hi = np.broadcast_to(lo, lead + (m,)), np.broadcast_to(hi, lead + (m,))
         ref = np.broadcast_to(ref, lead + (m,))
     objective = "min |T - T_mid|_2" if t_ref_N is None else "min |T - T_ref|_2"
+    if m - n == 2:
+        return _exact2(A_, w_, lo, hi, ref, objective)
     return _Chunked(A_, w_, lo, hi).run(_exact_kernel, (ref,), objective, "exact")
 
 
