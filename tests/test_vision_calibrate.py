@@ -170,3 +170,46 @@ def test_extrinsics_from_board_at_known_pose(tmp_path: Path) -> None:
     assert np.linalg.norm(got.position_O_m - cam.position_O_m) < 2e-3
     dR = got.R_O_C @ cam.R_O_C.T
     assert np.rad2deg(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 0.05
+
+
+def test_extrinsics_from_fiducials_fixed_in_the_tunnel(tmp_path: Path) -> None:
+    """Four ArUco markers at known positions on the tunnel floor (layout frame "O")."""
+    import tomli_w
+
+    from cdpr.pipelines.vision_config import load_marker_layout
+
+    cam = camera_from_mapping(json.loads((ROOT / "data_samples/camera_virtual.json").read_text()))
+    layout_toml = {
+        "kind": "fiducial",
+        "frame": "O",
+        "dictionary": "DICT_4X4_50",
+        "marker": [
+            {
+                "id": 10 + i,
+                "center_m": [x, y, 0.30],
+                "normal": [0.0, 0.0, 1.0],
+                "x_axis": [1.0, 0.0, 0.0],
+                "size_m": 0.05,
+            }
+            for i, (x, y) in enumerate([(0.40, -0.10), (0.62, -0.08), (0.58, 0.12), (0.38, 0.10)])
+        ],
+    }
+    lay_path = tmp_path / "floor_markers.toml"
+    lay_path.write_text(tomli_w.dumps(layout_toml))
+    layout = load_marker_layout(lay_path)
+    img = VirtualCamera(cam).render_fiducials(
+        layout, np.zeros(3), np.eye(3), np.random.default_rng(3)
+    )
+    cv.write_image(tmp_path / "floor.png", img)
+    intr = tmp_path / "intr.json"
+    mapping = json.loads(cam.to_json())
+    mapping["extrinsics"] = {}
+    intr.write_text(json.dumps(mapping))
+    out = tmp_path / "cam_O.json"
+    args = ["calibrate", "extrinsics", str(tmp_path / "floor.png"), "--camera", str(intr)]
+    assert main([*args, "--markers", str(lay_path), "--sigma-px", "0.02", "--out", str(out)]) == 0
+    got = camera_from_mapping(json.loads(out.read_text()))
+    assert np.linalg.norm(got.position_O_m - cam.position_O_m) < 1e-3
+    dR = got.R_O_C @ cam.R_O_C.T
+    assert np.rad2deg(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 0.02
+    assert got.extrinsics_info["n_points"] == 16

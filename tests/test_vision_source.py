@@ -228,3 +228,23 @@ def test_simulated_run_recorded_poses_match_the_virtual_rig(tmp_path: Path) -> N
         assert b["status"] == 0
         assert np.linalg.norm(np.array([pos["x"], pos["y"], pos["z"]]) - p) < 0.15e-3
         assert _rot_err_deg(q, R) < 0.03
+
+
+def test_apriltag_layout() -> None:
+    """The same six markers as AprilTag 36h11 tags (8 cells across): detected, edge-fitted, posed."""
+    from dataclasses import replace
+
+    from cdpr.daq.camera_source import FramePoseEstimator
+
+    cam = _cam()
+    lay = flat_prototype_fiducial_layout()
+    lay = replace(
+        lay,
+        dictionary="DICT_APRILTAG_36h11",
+        fiducials=[replace(f, size_m=0.032) for f in lay.fiducials],
+    )
+    p, R = _traj(3)
+    img = VirtualCamera(cam).render_fiducials(lay, p, R, np.random.default_rng(4))
+    est = FramePoseEstimator(cam, lay).estimate(img)
+    assert est.ok and est.n_points == 24
+    assert np.linalg.norm(est.position_O_m - p) < 1e-4
