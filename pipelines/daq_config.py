@@ -186,8 +186,39 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
         for k in PATH_KEYS:
             if k in settings and isinstance(settings[k], str):
                 settings[k] = str(_resolve(base, settings[k], origin, f"{prefix}.{k}"))
+        if "calibration_file" in settings:
+            _apply_calibration_file(settings, origin, prefix)
+            cal_path = Path(settings.pop("calibration_file"))
+            if cal_path not in cfg.calibrations:
+                cfg.calibrations.append(cal_path)  # attached to the run, its id recorded
         cfg.sources.append(SourceConfig(name, table["kind"], settings))
     return cfg
+
+
+def _apply_calibration_file(settings: dict[str, Any], origin: str, prefix: str) -> None:
+    """Take ``offset_counts`` and ``gain_N_per_count`` from a load-cell calibration file (written by
+    ``cdpr calibrate loadcells``) named by ``calibration_file``; its cables must match the
+    source's ``cables`` when both are given."""
+    path = settings["calibration_file"]
+    both = [k for k in ("offset_counts", "gain_N_per_count") if k in settings]
+    if both:
+        raise ConfigError(
+            origin, f"{prefix}.{both[0]}", "given both inline and by calibration_file"
+        )
+    cal = load_toml(path).get("calibration")
+    if not isinstance(cal, dict):
+        raise ConfigError(path, "calibration", "missing [calibration] table")
+    for k in ("offset_counts", "gain_N_per_count"):
+        if k not in cal:
+            raise ConfigError(path, f"calibration.{k}", "missing")
+        settings[k] = cal[k]
+    cables = settings.get("cables")
+    if cables is not None and "cables" in cal and list(cal["cables"]) != list(cables):
+        raise ConfigError(
+            origin,
+            f"{prefix}.calibration_file",
+            f"its cables {cal['cables']} differ from {prefix}.cables {list(cables)}",
+        )
 
 
 def build_sources(cfg: DaqConfig) -> list[Any]:

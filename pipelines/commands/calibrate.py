@@ -26,12 +26,15 @@ from typing import Any
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "calibrate",
-        help="camera calibration: intrinsics, extrinsics",
+        help="calibration: camera intrinsics/extrinsics, load cells, balance check loads",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     cs = p.add_subparsers(dest="calibrate_command", metavar="ACTION")
     cs.required = True
+    from ._calibrate_balance import register_actions  # loadcells, balance
+
+    register_actions(cs)
 
     cam = cs.add_parser("camera", help="ChArUco intrinsics from images, folders or videos")
     cam.add_argument("inputs", nargs="+", help="image files, folders of images, or video files")
