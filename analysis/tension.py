@@ -170,9 +170,14 @@ def _soa(x: FloatArray, s: int, e: int) -> FloatArray:
     return np.ascontiguousarray(np.moveaxis(x[s:e], 0, -1))
 
 
+def _compact(x: FloatArray) -> FloatArray:
+    """x without its broadcast (zero-stride) leading dimensions, which become length 1."""
+    return x[tuple(slice(0, 1) if st == 0 else slice(None) for st in x.strides[:-1])]
+
+
 def _ref_from_options(lo: FloatArray, hi: FloatArray, t_ref_N: ArrayLike | None) -> FloatArray:
-    if t_ref_N is None:
-        return 0.5 * (lo + hi)
+    if t_ref_N is None:  # once per distinct row, broadcast like lo and hi
+        return np.broadcast_to(0.5 * (_compact(lo) + _compact(hi)), lo.shape)
     ref = check_trailing(t_ref_N, "t_ref_N", (lo.shape[-1],))
     return np.broadcast_to(ref, np.broadcast_shapes(ref.shape, lo.shape))
 
@@ -686,37 +691,46 @@ def _cols(x: FloatArray, s: int, e: int, order: NDArray[np.intp]) -> FloatArray:
 def _exact2(
     A: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray, ref: FloatArray, objective: str
 ) -> TensionResult:
-    """:func:`exact` for m = n + 2: the fast path chunk by chunk, the general kernel where needed."""
+    """:func:`exact` for m = n + 2: the fast path chunk by chunk, then the general kernel once for
+    the poses the fast path left."""
     lead = A.shape[:-2]
     n, m = A.shape[-2:]
     A, w, lo, hi, ref = _flat(A, 2), _flat(w, 1), _flat(lo, 1), _flat(hi, 1), _flat(ref, 1)
     N = A.shape[0]
-    out = TensionResult(
-        np.empty((N, m)),
-        np.empty(N, dtype=bool),
-        np.empty(N),
-        np.empty(N),
-        objective,
-        "exact",
-        np.empty(N, dtype=np.int8),
-    )
-    sample = np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)
-    order = _pivot_order(A[sample])
+    T = np.empty((N, m))
+    feas = np.empty(N, dtype=bool)
+    res = np.empty(N)
+    viol = np.empty(N)
+    status = np.empty(N, dtype=np.int8)
+    out = (T, feas, res, viol, status)
+    order = _pivot_order(A[np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)])
+    deferred = []
     for s in range(0, N, CHUNK):
         e = min(N, s + CHUNK)
-        bad = _exact2_chunk(A, w, lo, hi, ref, s, e, order, out)
+        bad, undecided = _exact2_chunk(A, w, lo, hi, ref, s, e, order, out)
+        deferred += [s + bad, s + undecided]
         if 8 * bad.size > e - s:  # the order does not suit this part of the batch: re-choose
-            order = _pivot_order(
-                A[s + bad[np.linspace(0, bad.size - 1, _ORDER_SAMPLES).astype(int)]]
-            )
+            pick = np.linspace(0, bad.size - 1, min(bad.size, _ORDER_SAMPLES)).astype(np.intp)
+            order = _pivot_order(A[s + bad[pick]])
+    d = np.concatenate(deferred)
+    if d.size:
+        sub = _Chunked(A[d], w[d], lo[d], hi[d]).run(_exact_kernel, (ref[d],), objective, "exact")
+        T[d], feas[d], res[d], viol[d] = (
+            sub.tensions_N,
+            sub.feasible,
+            sub.residual_N,
+            sub.max_violation_N,
+        )
+        assert sub.status is not None
+        status[d] = sub.status
     return TensionResult(
-        out.tensions_N.reshape(lead + (m,)),
-        out.feasible.reshape(lead),
-        out.residual_N.reshape(lead),
-        out.max_violation_N.reshape(lead),
+        T.reshape(lead + (m,)),
+        feas.reshape(lead),
+        res.reshape(lead),
+        viol.reshape(lead),
         objective,
         "exact",
-        out.status.reshape(lead) if out.status is not None else None,
+        status.reshape(lead),
     )
 
 
@@ -729,44 +743,34 @@ def _exact2_chunk(
     s: int,
     e: int,
     order: tuple[NDArray[np.intp], NDArray[np.intp]],
-    out: TensionResult,
-) -> NDArray[np.intp]:
-    """Solve the poses s:e (flat inputs) into ``out``; returns the chunk positions that did not
-    suit the pivot order (solved by the general kernel)."""
+    out: tuple[FloatArray, BoolArray, FloatArray, FloatArray, IntArray],
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Solve the poses s:e (flat inputs) into ``out`` (tensions, feasible, residual, violation,
+    status).  Returns the chunk positions that do not suit the pivot order and those whose polygon
+    was not certified on its farthest violated line: the caller solves both again."""
     n, m = A.shape[-2:]
     C = e - s
     p, q = order
     J = (p[:, None] * m + q).ravel()
     Ap = np.ascontiguousarray(A[s:e].reshape(C, n * m)[:, J].T).reshape(n, m, C)
-    wp, lo_q, hi_q, ref_q = (
-        _cols(w, s, e, p),
-        _cols(lo, s, e, q),
-        _cols(hi, s, e, q),
-        _cols(ref, s, e, q),
-    )
+    wp, lo_q, hi_q = _cols(w, s, e, p), _cols(lo, s, e, q), _cols(hi, s, e, q)
     tol = np.broadcast_to(_REL_TOL * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
     S = np.empty((4, m, C))  # n1, n2, lo - T_p, hi - T_p
+    status = np.zeros(C, dtype=np.int8)
     with np.errstate(all="ignore"):
-        Tp, ok = _reduce(Ap, wp, ref_q, S[0], S[1])
+        Tp, ok = _reduce(Ap, wp, _cols(ref, s, e, q), S[0], S[1])
         lo_, hi_ = S[2], S[3]
         np.subtract(lo_q, Tp, out=lo_)
         np.subtract(hi_q, Tp, out=hi_)
         need = (lo_ > tol).any(axis=0)
         need |= (hi_ < -tol).any(axis=0)
         need &= ok
-        status = np.zeros(C, dtype=np.int8)
         idx = np.flatnonzero(need)
+        undecided = idx
         if idx.size:
             Sk = np.take(S, idx, axis=-1)
-            tol_k = tol[idx]
-            lam1, lam2, state = _polygon_one_line(Sk[0], Sk[1], Sk[2], Sk[3], tol_k)
-            u = np.flatnonzero(state == 2)
-            if u.size:  # not certified on the one line: all violated lines
-                U = np.take(Sk, u, axis=-1)
-                l1, l2, found = _polygon(U[0], U[1], U[2], U[3], tol_k[u])
-                lam1[u] = np.where(found, l1, 0.0)
-                lam2[u] = np.where(found, l2, 0.0)
-                state[u] = np.where(found, 0, 1)
+            lam1, lam2, state = _polygon_one_line(Sk[0], Sk[1], Sk[2], Sk[3], tol[idx])
+            undecided = idx[state == 2]
             status[idx[state == 1]] = STATUS_INFEASIBLE
             L = np.zeros((2, C))
             L[0, idx] = lam1
@@ -775,15 +779,6 @@ def _exact2_chunk(
             S[1] *= L[1]
             Tp += S[0]
             Tp += S[1]
-    bad = np.flatnonzero(~ok)
-    if bad.size:  # the pivot order does not suit these poses: general kernel (natural order)
-        At = np.ascontiguousarray(np.moveaxis(A[s:e][bad], 0, -1))
-        sub = [x if x.shape[-1] == 1 else np.take(x, bad, axis=-1) for x in (wp, lo_q, hi_q, ref_q)]
-        inv_p, inv_q = np.argsort(p), np.argsort(q)
-        Tb, status[bad] = _exact_kernel(
-            At, sub[0][inv_p], sub[1][inv_q], sub[2][inv_q], sub[3][inv_q]
-        )
-        Tp[:, bad] = Tb[q]
     # the contract's summary, in the pivot order (row order does not change |A T - w|)
     r = np.einsum("imc,mc->ic", Ap, Tp)
     r -= wp
@@ -792,14 +787,13 @@ def _exact2_chunk(
     np.maximum(viol, np.subtract(Tp, hi_q, out=S[3]), out=viol)
     vmax = viol.max(axis=0)
     np.maximum(vmax, 0.0, out=vmax)
-    ftol = np.broadcast_to(FEASIBILITY_TOL_N * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
+    ftol = FEASIBILITY_TOL_N * (1.0 + np.abs(hi_q).max(axis=0))
     feas = (res <= ftol) & (vmax <= ftol) & (status == STATUS_OK)
     status[~feas & (status == STATUS_OK)] = STATUS_INFEASIBLE
-    out.tensions_N[s:e] = Tp[np.argsort(q)].T
-    out.residual_N[s:e], out.max_violation_N[s:e], out.feasible[s:e] = res, vmax, feas
-    assert out.status is not None
-    out.status[s:e] = status
-    return bad
+    T_out, feas_out, res_out, viol_out, status_out = out
+    T_out[s:e] = Tp[np.argsort(q)].T
+    feas_out[s:e], res_out[s:e], viol_out[s:e], status_out[s:e] = feas, res, vmax, status
+    return np.flatnonzero(~ok), undecided
 
 
 def _reduce(
