@@ -1138,6 +1138,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     print(f"READY {a.pty_link or a.channel}", flush=True)
     try:
+        while not stop.is_set() and not run.started.wait(0.05):
+            pass
+        if run.started.is_set():  # the schedule's host start time, for a camera in the parent
+            print(f"STARTED {vr.t0_ns}", flush=True)
         while not stop.is_set() and not run.done.wait(0.05):
             pass
         if not stop.is_set():

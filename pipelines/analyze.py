@@ -82,6 +82,8 @@ class RunData:
     airspeed_mps: np.ndarray  # (n,)
     density_kgpm3: np.ndarray  # (n,)
     truth: dict[str, np.ndarray] | None
+    camera_t_ns: np.ndarray | None = None  # (k,) camera pose times, when the pose is the camera's
+    camera_poses: np.ndarray | None = None  # (k, 6) camera poses
 
 
 def _topic(messages: dict[str, list], suffix: str) -> list[tuple[int, dict[str, Any]]]:
@@ -140,6 +142,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             truth = {k: z[k] for k in z.files}
 
     pose_msgs = _topic(contents.messages, "pose")
+    cam_t = cam_q = None
     if pose_msgs:
         tp = np.array([t for t, _ in pose_msgs], dtype=np.int64)
         pos = np.array([[b["pose"]["position"][k] for k in "xyz"] for _, b in pose_msgs])
@@ -148,6 +151,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         if good.sum() >= 2:
             q6 = np.concatenate([pos[good], euler_from_quaternion(quat[good])], axis=1)
             poses, src = interpolate_at(t_ns, tp[good], q6), "camera (/pose stream)"
+            cam_t, cam_q = tp[good], q6
         else:
             pose_msgs = []
     if not pose_msgs and truth is not None and "position_O_m" in truth:
@@ -157,7 +161,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     elif not pose_msgs:
         ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
         poses, src = np.tile(ref, (len(t_ns), 1)), "rig reference pose (no pose stream)"
-    return RunData(p, rig, t_ns, T, poses, src, v, rho, truth)
+    return RunData(p, rig, t_ns, T, poses, src, v, rho, truth, cam_t, cam_q)
 
 
 def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
@@ -253,6 +257,30 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def camera_pose_error(run: RunData) -> dict[str, float] | None:
+    """RMS position (mm) and rotation (deg) error of the camera poses against the virtual rig's
+    truth, when the run has both."""
+    if run.camera_t_ns is None or run.camera_poses is None or run.truth is None:
+        return None
+    if "position_O_m" not in run.truth:
+        return None
+    q_true = np.concatenate([run.truth["position_O_m"], run.truth["euler_rad"]], axis=1)
+    tq = interpolate_at(run.camera_t_ns, run.truth["t_ns"], q_true)
+    pos_err = np.linalg.norm(run.camera_poses[:, :3] - tq[:, :3], axis=1)
+    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(
+        run.camera_poses[:, 3:]
+    )
+    cos = np.clip((np.trace(R_rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.degrees(np.arccos(cos))
+    return {
+        "n_poses": int(len(pos_err)),
+        "position_rms_mm": float(1e3 * np.sqrt(np.mean(pos_err**2))),
+        "position_max_mm": float(1e3 * pos_err.max()),
+        "rotation_rms_deg": float(np.sqrt(np.mean(ang**2))),
+        "rotation_max_deg": float(ang.max()),
+    }
+
+
 def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
     import matplotlib
 
@@ -342,6 +370,15 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
             + " | ".join("-" if np.isnan(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD"))
             + f" | {r.check_max_abs_dT_N:.3f} |"
         )
+    pe = summary.get("camera_pose_error_vs_truth")
+    if pe:
+        lines += [
+            "",
+            f"Camera pose against the virtual rig's truth ({pe['n_poses']} poses): position RMS "
+            f"{pe['position_rms_mm']:.3f} mm (max {pe['position_max_mm']:.3f}), rotation RMS "
+            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°); the paper's camera: "
+            "0.5 mm and 0.1°.",
+        ]
     if "true_fx_N" in df:
         on = df[df.wind_off == 0]
         errs = ", ".join(f"{c} {np.abs(on['err_' + c]).max():.3g}" for c in WRENCH_COLUMNS)
@@ -381,6 +418,9 @@ def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]
             "check_max_abs_dT_N": float(df["check_max_abs_dT_N"].max()),
             "check_pass": bool((df["check_max_abs_dT_N"] <= opts.check_limit_N).all()),
         }
+        pose_err = camera_pose_error(run)
+        if pose_err is not None:
+            summary["camera_pose_error_vs_truth"] = pose_err
         if "err_fx_N" in df:
             on = df[df.wind_off == 0]
             summary["max_abs_error_vs_truth"] = {

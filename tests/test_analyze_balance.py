@@ -160,3 +160,58 @@ def test_analyze_bad_file_is_one_line_and_no_output(tmp_path: Path, capsys) -> N
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "broken.mcap" in err[0]
     assert not (out / "broken").exists()
+
+
+def test_simulated_camera_poses_drive_the_analysis(tmp_path: Path) -> None:
+    """A run with the virtual camera: the analysis takes the camera's /pose stream, and its poses
+    match the virtual rig's truth within the vision figures (0.15 mm, 0.03 deg RMS)."""
+    import json
+
+    sched = tmp_path / "schedule.toml"
+    sched.write_text(SCHEDULE)
+    rig = ROOT / "data_samples" / "flat_optimum.toml"
+    args = [
+        "simulate",
+        "--rig",
+        str(rig),
+        "--schedule",
+        str(sched),
+        "--out",
+        str(tmp_path / "runs"),
+    ]
+    cam = ["--camera", str(ROOT / "data_samples" / "camera_virtual.json")]
+    cam += ["--markers", str(ROOT / "data_samples" / "markers_flat_ir6.toml"), "--quiet"]
+    assert main(args + cam) == 0
+    out = tmp_path / "analysis"
+    assert main(["analyze", str(tmp_path / "runs"), "--out", str(out)]) == 0
+    (folder,) = [p for p in out.iterdir() if p.is_dir()]
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["pose_source"].startswith("camera")
+    pe = summary["camera_pose_error_vs_truth"]
+    assert pe["n_poses"] >= 10
+    assert pe["position_rms_mm"] <= 0.15 and pe["rotation_rms_deg"] <= 0.03
+    df = pd.read_csv(folder / "segments.csv")
+    on = df[df.wind_off == 0]
+    for c in ("fx_N", "fy_N", "fz_N"):
+        err = np.abs(on[f"tare_{c}"] - on[f"true_{c}"])
+        assert (err <= 5 * on[f"tare_sd_{c}"] + 0.05).all(), (c, err.tolist())
+
+
+def test_camera_without_markers_is_refused(tmp_path: Path, capsys) -> None:
+    rig = ROOT / "data_samples" / "flat_optimum.toml"
+    args = [
+        "simulate",
+        "--rig",
+        str(rig),
+        "--schedule",
+        str(ROOT / "data_samples" / "schedule_demo.toml"),
+    ]
+    args += [
+        "--out",
+        str(tmp_path / "runs"),
+        "--camera",
+        str(ROOT / "data_samples" / "camera_virtual.json"),
+    ]
+    assert main(args) == 2
+    assert "--markers" in capsys.readouterr().err
+    assert not list((tmp_path / "runs").glob("*.mcap")) if (tmp_path / "runs").exists() else True

@@ -50,6 +50,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--speed", type=float, default=1.0, help="time scale of the schedule")
     p.add_argument("--seed", type=int, help="random seed (default: the schedule's)")
     p.add_argument("--quiet", action="store_true", help="no live view")
+    p.add_argument(
+        "--camera",
+        help="camera model (JSON, e.g. data_samples/camera_virtual.json): adds a virtual camera "
+        "rendering the markers at the true pose; the run then carries /pose (and /image)",
+    )
+    p.add_argument("--markers", help="marker layout on the model (TOML), with --camera")
+    p.add_argument(
+        "--camera-rate-hz", type=float, default=5.0, help="camera frame rate (default 5)"
+    )
+    p.add_argument(
+        "--image-rate-hz",
+        type=float,
+        default=0.5,
+        help="camera frames stored in the run (default 0.5)",
+    )
     p.set_defaults(func=run)
 
 
@@ -92,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     if not args.speed > 0:
         raise InputError(f"--speed must be > 0, got {args.speed}")
+    if (args.camera is None) != (args.markers is None):
+        raise InputError("--camera and --markers go together")
     rig = load_rig(args.rig)
     sched_data = load_toml(args.schedule)
     faults = [_parse_fault(f) for f in args.fault]
@@ -148,11 +165,45 @@ def run(args: argparse.Namespace) -> int:
             if not line.startswith("READY"):
                 err = child.stderr.read() if child.stderr else ""
                 raise InputError(f"virtual rig process failed to start: {(line + err).strip()}")
+
+            def follow_start(proc: subprocess.Popen[str]) -> None:
+                # "STARTED <t0_ns>": the child's schedule start, so the camera here renders the
+                # same true pose the child's load cells see
+                assert proc.stdout is not None
+                for text in proc.stdout:
+                    if text.startswith("STARTED "):
+                        vr.speed = args.speed
+                        vr.t0_ns = int(text.split()[1])
+
+            threading.Thread(target=follow_start, args=(child,), daemon=True).start()
             settings = vr.source_settings(
                 args.transport, link=str(link), tunnel_link=str(tunnel_link)
             )
         sources = [create_source(kind, name, s, origin=str(args.schedule))
                    for name, (kind, s) in settings.items()]  # fmt: skip
+        if args.camera:
+            from cdpr.analysis.rotations import rotation_from_euler
+            from cdpr.daq.camera_source import VirtualCameraSource
+
+            from ..vision_config import load_camera, load_marker_layout
+
+            sources.append(
+                VirtualCameraSource(
+                    "camera",
+                    load_camera(args.camera),
+                    load_marker_layout(args.markers),
+                    pose_at=vr.true_pose_at,
+                    rate_hz=args.camera_rate_hz,
+                    image_rate_hz=args.image_rate_hz,
+                    realtime=True,
+                    reference=(
+                        rig.reference_position_O_m,
+                        rotation_from_euler(rig.reference_euler_rad),
+                    ),
+                    seed=schedule.seed,
+                )
+            )
+            settings["camera"] = ("virtual_camera", sources[-1].settings())
         if args.transport == "virtual":
             # the transports exist once the RigRun is built; it sends only after start()
             rig_run = RigRun(vr, "virtual", channel, None, tunnel_link, 0.0, args.speed)
@@ -202,6 +253,13 @@ def run(args: argparse.Namespace) -> int:
         dbc = getattr(sources[0], "dbc_path", None)
         if dbc:
             attachments.append(Attachment.from_file(dbc, "calibration/" + Path(dbc).name))
+        if args.camera:
+            attachments.append(
+                Attachment.from_file(args.camera, "calibration/" + Path(args.camera).name)
+            )
+            attachments.append(
+                Attachment.from_file(args.markers, "calibration/" + Path(args.markers).name)
+            )
         if args.transport == "virtual":
             rig_run.started.wait(5.0)
         record_run(
