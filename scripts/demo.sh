@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # `make demo`: the main job on the built-in virtual rig, then the rest of the tool in short.
 #   1. the paper's flat prototype rig;
-#   2. acquisition: the virtual rig emulates an slcan CAN adapter in a second process, cdpr records
-#      the run to MCAP, inspects it, exports HDF5, and survives a kill -9 (scripts/demo_daq.sh);
-#   3. the main job: cdpr analyze on the recorded runs (wrench, coefficients, uncertainty, the
-#      paper's 1 N check, report with plots);
+#   2. acquisition: the virtual rig emulates an slcan CAN adapter in a second process and a camera
+#      renders its markers; cdpr records the run to MCAP, inspects it, exports HDF5, and survives a
+#      kill -9 (scripts/demo_daq.sh);
+#   3. the main job: cdpr analyze on the recorded runs (camera pose error against the truth,
+#      wrench, coefficients, uncertainty, the paper's 1 N check, report with plots);
 #   4. wrench recovery from CSV files and a CASPR robot (scripts/demo_wrench.sh);
 #   5. vision: poses from rendered camera frames against the truth (scripts/demo_vision.sh);
 #   6. the force-sensitivity study of the paper and a rig design (scripts/demo_sensitivity.sh).

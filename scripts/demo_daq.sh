@@ -11,8 +11,10 @@ RUNS="$OUT/runs"
 mkdir -p "$RUNS"
 
 echo "== cdpr simulate: virtual rig -> slcan on a pty (2nd process) -> recorder -> MCAP (~8 s)"
+echo "   with a virtual camera rendering the six IR marks at the true pose (5 Hz)"
 "$CDPR" simulate --rig data_samples/flat_optimum.toml --schedule data_samples/schedule_demo.toml \
-    --out "$RUNS" --transport slcan --label demo-slcan --quiet
+    --out "$RUNS" --transport slcan --label demo-slcan --quiet \
+    --camera data_samples/camera_virtual.json --markers data_samples/markers_flat_ir6.toml
 RUN=$(ls -t "$RUNS"/*_demo-slcan.mcap | head -n 1)
 echo
 echo "== cdpr inspect $RUN"
