@@ -105,18 +105,24 @@ _BIG = 1e100  # line parameters beyond this come from parallel, violated constra
 
 
 def check_problem(
-    A: ArrayLike, w: ArrayLike, t_min_N: ArrayLike, t_max_N: ArrayLike
+    A: ArrayLike,
+    w: ArrayLike,
+    t_min_N: ArrayLike,
+    t_max_N: ArrayLike,
+    *,
+    finite_A: bool = True,
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Validate and broadcast a tension-distribution problem.
 
     Returns ``A`` (..., n, m), ``w`` (..., n), ``t_min`` (..., m), ``t_max`` (..., m) with common
-    leading dimensions.
+    leading dimensions.  ``finite_A=False`` leaves the scan of A for NaN/inf to the caller.
     """
     A = as_float_array(A, "A")
     if A.ndim < 2:
         raise InputError(f"A: expected shape (..., n, m), got {A.shape}")
     n, m = A.shape[-2:]
-    A = check_trailing(A, "A", (n, m))
+    if finite_A:
+        _check_finite_A(A)
     if m < n:
         raise InputError(f"A: expected at least as many cables as DOF (m >= n), got n={n}, m={m}")
     w = check_trailing(w, "w", (n,))
@@ -131,6 +137,11 @@ def check_problem(
         np.broadcast_to(t_min, lead + (m,)),
         np.broadcast_to(t_max, lead + (m,)),
     )
+
+
+def _check_finite_A(A: FloatArray) -> None:
+    if not np.all(np.isfinite(_compact(A))):
+        raise InputError("A: expected finite values, got NaN or inf")
 
 
 def finish(
@@ -617,7 +628,7 @@ def _exact_kernel(
 # Fast path for m = n + 2 (the paper's rigs), used by :func:`exact`.  Per chunk: Gaussian
 # elimination of [A' | w'] (A': A with unit-norm rows) in one pivot order for the whole batch, a
 # per-pose check that this order is stable for the pose, the null-space basis and T_p from the
-# reduced form; for the poses whose T_p violates a limit, the polygon on ONE line (the farthest
+# reduced form; for the poses whose T_p violates a limit, the polygon on ONE line (the most
 # violated one) with a certificate: the KKT conditions at the point found there (optimum) or three
 # half-planes without a common point (infeasible).  Poses that fail a check or a certificate go
 # through the general kernel above (same answers, slower).  Everything in the chunk is in the
@@ -632,26 +643,6 @@ _DET_FACTOR = 10.0
 ``sigma_min(A') > _DET_FACTOR sqrt(PIVOT_TOL)``, so a pose the fast path accepts is not rank
 deficient for the general kernel either."""
 _ORDER_SAMPLES = 32  # poses sampled to choose the pivot order
-_MASK63 = np.int64(0x7FFFFFFFFFFFFFFF)
-
-
-def _row_of_max(x: FloatArray, low_bits: int) -> NDArray[np.int64]:
-    """Row index (K,) of a largest entry of each column of x (R, K), no NaN.
-
-    The float64 bits are mapped to order-preserving integers whose ``low_bits`` lowest bits are
-    replaced by the row index, so that one integer max gives the row (a reduction along axis 0 is
-    several times faster than ``argmax`` there).  Ties and values within ``2**low_bits`` ulps
-    resolve to any of the rows concerned.
-    """
-    b = x.view(np.int64)
-    key = b >> 63
-    key &= _MASK63
-    key ^= b  # order-preserving: a < b (floats) <=> key(a) < key(b) (signed integers)
-    low = np.int64((1 << low_bits) - 1)
-    key &= ~low
-    key |= np.arange(x.shape[0], dtype=np.int64)[:, None]
-    out: NDArray[np.int64] = np.bitwise_and(key.max(axis=0), low)
-    return out
 
 
 def _pivot_order(a: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
@@ -664,12 +655,9 @@ def _pivot_order(a: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     S, n, m = a.shape
     with np.errstate(all="ignore"):
         a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-        best, basic = -1.0, list(range(n))
-        for free in combinations(range(m), m - n):
-            cols = [j for j in range(m) if j not in free]
-            d = np.nan_to_num(np.abs(np.linalg.det(a[:, :, cols]))).min()
-            if d > best:
-                best, basic = d, cols
+        subsets = [[j for j in range(m) if j not in f] for f in combinations(range(m), m - n)]
+        dets = np.abs(np.linalg.det(np.moveaxis(a[:, :, subsets], 2, 0)))  # (subsets, S)
+        basic = subsets[int(np.argmax(np.nan_to_num(dets).min(axis=1)))]
         q = np.array(basic + [j for j in range(m) if j not in basic])
         M = np.nan_to_num(a[0][:, q])
     p = np.arange(n)
@@ -714,6 +702,7 @@ def _exact2(
             order = _pivot_order(A[s + bad[pick]])
     d = np.concatenate(deferred)
     if d.size:
+        _check_finite_A(A[d])
         sub = _Chunked(A[d], w[d], lo[d], hi[d]).run(_exact_kernel, (ref[d],), objective, "exact")
         T[d], feas[d], res[d], viol[d] = (
             sub.tensions_N,
@@ -747,12 +736,12 @@ def _exact2_chunk(
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Solve the poses s:e (flat inputs) into ``out`` (tensions, feasible, residual, violation,
     status).  Returns the chunk positions that do not suit the pivot order and those whose polygon
-    was not certified on its farthest violated line: the caller solves both again."""
+    was not certified on its most violated line: the caller solves both again."""
     n, m = A.shape[-2:]
     C = e - s
     p, q = order
-    J = (p[:, None] * m + q).ravel()
-    Ap = np.ascontiguousarray(A[s:e].reshape(C, n * m)[:, J].T).reshape(n, m, C)
+    J = p[:, None] * m + q
+    Ap = np.ascontiguousarray(A[s:e].reshape(C, n * m)[:, J.ravel()].T).reshape(n, m, C)
     wp, lo_q, hi_q = _cols(w, s, e, p), _cols(lo, s, e, q), _cols(hi, s, e, q)
     tol = np.broadcast_to(_REL_TOL * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
     S = np.empty((4, m, C))  # n1, n2, lo - T_p, hi - T_p
@@ -791,7 +780,7 @@ def _exact2_chunk(
     feas = (res <= ftol) & (vmax <= ftol) & (status == STATUS_OK)
     status[~feas & (status == STATUS_OK)] = STATUS_INFEASIBLE
     T_out, feas_out, res_out, viol_out, status_out = out
-    T_out[s:e] = Tp[np.argsort(q)].T
+    T_out[s:e] = Tp.take(np.argsort(q), axis=0).T
     feas_out[s:e], res_out[s:e], viol_out[s:e], status_out[s:e] = feas, res, vmax, status
     return np.flatnonzero(~ok), undecided
 
@@ -868,16 +857,16 @@ def _reduce(
 def _polygon_one_line(
     n1: FloatArray, n2: FloatArray, lo_: FloatArray, hi_: FloatArray, tol: FloatArray
 ) -> tuple[FloatArray, FloatArray, IntArray]:
-    """:func:`_polygon` on one violated line per pose (the farthest from the origin), certified.
+    """:func:`_polygon` on one violated line per pose (the most violated one), certified.
 
     Line i (``n_i . lam = c_i``, violated at 0) is ``x(s) = t n_i + s d_i`` with ``t = c_i/|n_i|^2``,
     ``d_i = (-n_i2, n_i1)``; the other constraints (relaxed by tol) allow ``[slo, shi]`` there, as
     in :func:`_polygon_lines`.  Shifting the line by ``dc`` into the half-plane ``H_i`` moves the
     bounds of cable l by ``-rho_l dc / |n_i|^2``, ``rho_l = (n_l . n_i) / (n_l . d_i)``.
 
-    - Interval not empty, ``s`` its point closest to 0: optimal if ``s = 0`` (the foot of 0: no
-      feasible point is closer than the farthest violated line), or if the KKT conditions hold at
-      the vertex with the bounding cable b: along b's line into ``H_i`` the objective
+    - Interval not empty, ``s`` its point closest to 0: optimal if ``s = 0`` (the foot of 0 is
+      feasible: no feasible point is closer than any violated line), or if the KKT conditions hold
+      at the vertex with the bounding cable b: along b's line into ``H_i`` the objective
       ``c^2/|n_i|^2 + s(c)^2 |n_i|^2`` must not decrease, i.e. ``sigma_i (t - s rho_b) >= 0``
       (``sigma_i`` = +1 for a lower limit, -1 for an upper one).
     - Interval empty (``slo`` from cable l1 > ``shi`` from cable l2): if the gap does not shrink
@@ -888,29 +877,37 @@ def _polygon_one_line(
     state (K,): 0 optimum found, 1 polygon empty, 2 not certified.
     """
     m, K = n1.shape
-    ar = np.arange(K)
-    q = n1 * n1
-    q += n2 * n2
-    c = np.where(lo_ > tol, lo_, 0.0)
-    np.copyto(c, hi_, where=hi_ < -tol)
-    d2 = c * c
-    d2 /= np.maximum(q, _TINY)  # squared distance of the violated lines from 0, else 0
-    fi = _row_of_max(d2, max(1, (m - 1).bit_length())) * K + ar
+    low = np.int64((1 << max(1, (m - 1).bit_length())) - 1)
+    # the most violated limit (in N) picks line i: integer max of the violation's float bits
+    # (order-preserving for values >= 0) with the row index in the lowest bits
+    v = np.negative(hi_)
+    np.maximum(v, lo_, out=v)
+    np.maximum(v, 0.0, out=v)
+    key = v.view(np.int64)
+    key &= ~low
+    key |= np.arange(m, dtype=np.int64)[:, None]
+    fi = np.bitwise_and(key.max(axis=0), low)
+    fi *= K
+    fi += np.arange(K)
     n1i, n2i = n1.ravel().take(fi), n2.ravel().take(fi)
-    ci, qi = c.ravel().take(fi), q.ravel().take(fi)
+    loi, hii = lo_.ravel().take(fi), hi_.ravel().take(fi)
+    ci = np.where(loi > tol, loi, hii)
+    qi = n1i * n1i + n2i * n2i
     t = ci / qi
     dot = n1 * n1i
-    dot += n2 * n2i
-    e = np.multiply(n2, n1i, out=d2)
-    e -= n1 * n2i
-    base = np.multiply(dot, t, out=q)
+    e = n2 * n1i
+    base = np.multiply(n2, n2i, out=v)
+    dot += base
+    np.multiply(n1, n2i, out=base)
+    e -= base
+    np.multiply(dot, t, out=base)
     a = lo_ - tol
     a -= base
     a /= e
     b = hi_ + tol
     b -= base
     b /= e
-    lo_s = np.fmin(a, b, out=c)
+    lo_s = np.fmin(a, b)
     hi_s = np.fmax(a, b, out=b)
     slo = np.fmax.reduce(lo_s, axis=0)
     shi = np.fmin.reduce(hi_s, axis=0)
@@ -922,7 +919,7 @@ def _polygon_one_line(
     one2 = sel.sum(axis=0) == 1
     rho2 = np.where(sel, rho, -np.inf).max(axis=0)
     sig = np.sign(ci)
-    fin = np.isfinite(slo) & np.isfinite(shi) & (qi > _NULL_TOL)
+    fin = np.isfinite(slo) & np.isfinite(shi) & (qi > _NULL_TOL) & (np.abs(ci) > tol)
     s = np.minimum(np.maximum(0.0, slo), shi)
     at_hi = s < 0.0
     kkt = sig * (t - s * np.where(at_hi, rho2, rho1)) >= 0.0
@@ -958,10 +955,14 @@ def exact(
     within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``.
     A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
     """
-    A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
+    # A is scanned for NaN/inf by the fast path (a non-finite row fails its pivot checks, and
+    # those poses are checked below) or here for the general kernel
+    A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N, finite_A=False)
     n, m = A_.shape[-2:]
     if m - n > 2:
         raise InputError(f"exact: supports m - n <= 2 redundant cables, got n={n}, m={m}")
+    if m - n != 2:
+        _check_finite_A(A_)
     ref = _ref_from_options(lo, hi, t_ref_N)
     if ref.shape[:-1] != lo.shape[:-1]:
         lead = np.broadcast_shapes(ref.shape[:-1], lo.shape[:-1])
