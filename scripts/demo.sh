@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # `make demo`: the main job on the built-in virtual rig, then the rest of the tool in short.
 #   1. the paper's flat prototype rig;
-#   2. acquisition: the virtual rig emulates an slcan CAN adapter in a second process and a camera
+#   2. calibration of the load cells and check loads on the balance (sample files);
+#   2b. acquisition: the virtual rig emulates an slcan CAN adapter in a second process and a camera
 #      renders its markers; cdpr records the run to MCAP, inspects it, exports HDF5, and survives a
 #      kill -9 (scripts/demo_daq.sh);
 #   3. the main job: cdpr analyze on the recorded runs (camera pose error against the truth,
@@ -19,7 +20,13 @@ banner() { printf '\n#### %s\n\n' "$*"; }
 banner "1. The paper's flat prototype rig (K21 = 51, K22 = 28, H = 0.67 m)"
 "$CDPR" rig show data_samples/flat_optimum.toml
 
-banner "2. Acquisition on the virtual rig"
+banner "2. Before the campaign: load cells and check loads (sample files in data_samples/)"
+"$CDPR" calibrate loadcells data_samples/loadcell_points.csv --rig data_samples/flat_optimum.toml \
+    --out "$OUT/calibration/loadcells.toml"
+"$CDPR" calibrate balance data_samples/checkloads_flat.csv --rig data_samples/flat_optimum.toml \
+    --out "$OUT/calibration/balance.json"
+
+banner "2b. Acquisition on the virtual rig"
 bash scripts/demo_daq.sh
 
 banner "3. The main job: cdpr analyze $OUT/runs"

@@ -167,7 +167,11 @@ def run_balance(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise ConfigError(args.checkloads, "rows", str(exc)) from None
     sha = file_sha256(args.checkloads)
-    fs = np.maximum(res.full_scale, 1e-12)
+    loaded_fs = res.full_scale > 0  # a component never loaded has no full scale
+    pct_fs = [
+        float(100 * e / f) if ok else None
+        for e, f, ok in zip(res.max_abs_error, res.full_scale, loaded_fs, strict=True)
+    ]
     doc = {
         "id": f"balance@{sha[:12]}",
         "kind": "balance-check-loads",
@@ -182,17 +186,20 @@ def run_balance(args: argparse.Namespace) -> int:
         "full_scale": res.full_scale.tolist(),
         "rms_error": res.rms_error.tolist(),
         "max_abs_error": res.max_abs_error.tolist(),
-        "max_abs_error_pct_fs": (100 * res.max_abs_error / fs).tolist(),
+        "max_abs_error_pct_fs": pct_fs,
         "interaction_matrix": res.interaction.tolist(),
         "corrected_rms_error": res.corrected_rms_error.tolist(),
     }
     _check_plot(res, Path(args.out).with_suffix(".png"))
     with atomic_output(args.out) as fh:
         fh.write(json.dumps(doc, indent=2) + "\n")
-    worst = int(np.argmax(doc["max_abs_error_pct_fs"]))
+    worst = max((k for k in range(6) if pct_fs[k] is not None), key=lambda k: pct_fs[k] or 0.0)
+    never = [WRENCH_NAMES[k] for k in range(6) if pct_fs[k] is None]
     print(
         f"cdpr calibrate balance: {doc['n_check_loads']} check loads, worst {WRENCH_NAMES[worst]} "
-        f"{doc['max_abs_error_pct_fs'][worst]:.3g} % of full scale -> {args.out}"
+        f"{pct_fs[worst]:.3g} % of full scale"
+        + (f" (never loaded: {', '.join(never)})" if never else "")
+        + f" -> {args.out}"
     )
     return 0
 
