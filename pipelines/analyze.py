@@ -115,8 +115,8 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     missing = [c for c in cols if c not in tens[0][1]]
     if missing:
         raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
-    t_ns = np.array([t for t, _ in tens], dtype=np.int64)
-    T = np.array([[b[c] for c in cols] for _, b in tens], dtype=np.float64)
+    t_ns = np.fromiter((t for t, _ in tens), dtype=np.int64, count=len(tens))
+    T = pd.DataFrame.from_records([b for _, b in tens], columns=cols).to_numpy(dtype=np.float64)
     order = np.argsort(t_ns, kind="stable")
     t_ns, T = t_ns[order], T[order]
     keep = np.concatenate([[True], np.diff(t_ns) > 0])
