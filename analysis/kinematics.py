@@ -19,14 +19,10 @@ from .rotations import rotation_from_euler
 FloatArray = NDArray[np.float64]
 
 
-def cable_vectors(
+def _checked(
     anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
-) -> FloatArray:
-    """Cable vectors ``l_i`` (..., m, 3) in {O}, m, from the platform points to the anchors.
-
-    anchors_O_m: (m, 3) or (..., m, 3); attach_P_m: (m, 3) or (..., m, 3); position_O_m: (..., 3);
-    R_O_P: (..., 3, 3).
-    """
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The geometry inputs as float arrays, their shapes checked (names expected vs actual)."""
     b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
     pp = check_trailing(attach_P_m, "attach_P_m", (3,))
     p = check_trailing(position_O_m, "position_O_m", (3,))
@@ -35,8 +31,27 @@ def cable_vectors(
         raise InputError(
             f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
         )
+    return b, pp, p, R
+
+
+def _lever_arms_and_vectors(
+    anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Checked inputs -> lever arms ``r_i = R pp_i`` and cable vectors ``l_i``, each (..., m, 3)."""
+    b, pp, p, R = _checked(anchors_O_m, attach_P_m, position_O_m, R_O_P)
     r = np.matmul(pp, np.swapaxes(R, -1, -2))  # (..., m, 3): r_i = R pp_i
-    return b - p[..., None, :] - r
+    return r, b - p[..., None, :] - r
+
+
+def cable_vectors(
+    anchors_O_m: ArrayLike, attach_P_m: ArrayLike, position_O_m: ArrayLike, R_O_P: ArrayLike
+) -> FloatArray:
+    """Cable vectors ``l_i`` (..., m, 3) in {O}, m, from the platform points to the anchors.
+
+    anchors_O_m: (m, 3) or (..., m, 3); attach_P_m: (m, 3) or (..., m, 3); position_O_m: (..., 3);
+    R_O_P: (..., 3, 3).
+    """
+    return _lever_arms_and_vectors(anchors_O_m, attach_P_m, position_O_m, R_O_P)[1]
 
 
 @dataclass(frozen=True)
@@ -61,16 +76,7 @@ def cable_geometry(
 
     Raises :class:`InputError` if a cable has zero length at some pose.
     """
-    b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
-    pp = check_trailing(attach_P_m, "attach_P_m", (3,))
-    p = check_trailing(position_O_m, "position_O_m", (3,))
-    R = check_trailing(R_O_P, "R_O_P", (3, 3))
-    if b.ndim < 2 or pp.ndim < 2 or b.shape[-2] != pp.shape[-2]:
-        raise InputError(
-            f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
-        )
-    r = np.matmul(pp, np.swapaxes(R, -1, -2))
-    lv = b - p[..., None, :] - r
+    r, lv = _lever_arms_and_vectors(anchors_O_m, attach_P_m, position_O_m, R_O_P)
     length = np.sqrt(np.einsum("...i,...i->...", lv, lv))
     if np.any(length < 1e-12):
         raise InputError("cable_geometry: a cable has zero length (anchor on the attachment point)")
@@ -88,14 +94,7 @@ def structure_matrix(
     arrays and written straight into a contiguous (..., 6, m) array (the hot path of batch
     tension distribution).  Raises :class:`InputError` if a cable has zero length at some pose.
     """
-    b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
-    pp = check_trailing(attach_P_m, "attach_P_m", (3,))
-    p = check_trailing(position_O_m, "position_O_m", (3,))
-    R = check_trailing(R_O_P, "R_O_P", (3, 3))
-    if b.ndim < 2 or pp.ndim < 2 or b.shape[-2] != pp.shape[-2]:
-        raise InputError(
-            f"anchors_O_m and attach_P_m: expected (m, 3) with the same m, got {b.shape} and {pp.shape}"
-        )
+    b, pp, p, R = _checked(anchors_O_m, attach_P_m, position_O_m, R_O_P)
     # r_k = (R pp)_k and l_k = b_k - p_k - r_k, each (..., m)
     r = [
         R[..., k, 0, None] * pp[..., 0]
