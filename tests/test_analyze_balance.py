@@ -103,25 +103,19 @@ transition_s = 0.2
 """
 
 
+def _simulate(folder: Path, rig_name: str, extra: list[str] | None = None) -> None:
+    """``cdpr simulate`` of SCHEDULE on a shipped rig into ``folder/runs``."""
+    sched = folder / "schedule.toml"
+    sched.write_text(SCHEDULE)
+    rig = ROOT / "data_samples" / rig_name
+    args = ["simulate", "--rig", str(rig), "--schedule", str(sched), "--out", str(folder / "runs")]
+    assert main([*args, "--quiet", *(extra or [])]) == 0
+
+
 @pytest.fixture(scope="module")
 def simulated_run(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("sim")
-    sched = d / "schedule.toml"
-    sched.write_text(SCHEDULE)
-    rig = ROOT / "data_samples" / "flat_experiment2.toml"
-    code = main(
-        [
-            "simulate",
-            "--rig",
-            str(rig),
-            "--schedule",
-            str(sched),
-            "--out",
-            str(d / "runs"),
-            "--quiet",
-        ]
-    )
-    assert code == 0
+    _simulate(d, "flat_experiment2.toml")
     (run,) = sorted((d / "runs").glob("*.mcap"))
     return run
 
@@ -167,21 +161,12 @@ def test_simulated_camera_poses_drive_the_analysis(tmp_path: Path) -> None:
     match the virtual rig's truth within the vision figures (0.15 mm, 0.03 deg RMS)."""
     import json
 
-    sched = tmp_path / "schedule.toml"
-    sched.write_text(SCHEDULE)
-    rig = ROOT / "data_samples" / "flat_optimum.toml"
-    args = [
-        "simulate",
-        "--rig",
-        str(rig),
-        "--schedule",
-        str(sched),
-        "--out",
-        str(tmp_path / "runs"),
-    ]
     cam = ["--camera", str(ROOT / "data_samples" / "camera_virtual.json")]
-    cam += ["--markers", str(ROOT / "data_samples" / "markers_flat_ir6.toml"), "--quiet"]
-    assert main(args + cam) == 0
+    _simulate(
+        tmp_path,
+        "flat_optimum.toml",
+        cam + ["--markers", str(ROOT / "data_samples" / "markers_flat_ir6.toml")],
+    )
     out = tmp_path / "analysis"
     assert main(["analyze", str(tmp_path / "runs"), "--out", str(out)]) == 0
     (folder,) = [p for p in out.iterdir() if p.is_dir()]
