@@ -1078,8 +1078,7 @@ def build_report(
         "k2 = k3: Mx), so the paper's optimum (0.15, 0.075, 0.075) is singular in it; the "
         "`crossed` layout keeps the x-z projection of the cube, so it is singular at k1 = k3 "
         "(My), which inside eq. 13 (k3 <= k2 <= k1) means k1 = k2 = k3, and it is regular at "
-        "k1 = k2 (note: the docstring of `cdpr.analysis.rigs` says k1 = k2 for the crossed "
-        "layout; the computation says k1 = k3)."
+        "k1 = k2."
     )
     for layout in sens.CUBIC_LAYOUTS:
         d = scan[scan.layout == layout]
