@@ -91,7 +91,7 @@ FEASIBILITY_TOL_N = 1e-6
 """Tolerance (N) on the residual and the bounds when a result is declared feasible, relative to
 ``1 + max |t_max|`` of the pose."""
 
-CHUNK = 4096
+CHUNK = 5000
 """Poses per chunk: bounds the working memory (well under 1 KiB per pose) and keeps it in cache."""
 
 PIVOT_TOL = 1e-12
