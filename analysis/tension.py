@@ -24,7 +24,9 @@ Objectives (named, because they differ):
   are ``A``, ``w`` with unit-norm rows.  Converges to the exact min ``|T - T_min|_2`` as lambda grows.
 - ``exact``: the exact min ``|T - T_ref|_2`` s.t. ``A T = w`` and the limits, ``T_ref = T_mid`` by
   default (``t_ref_N=t_min`` gives the penalty method's objective), for m - n <= 2 (null-space
-  polygon: the closest point of a convex polygon to the origin); certifies infeasibility.
+  polygon: the closest point of a convex polygon to the origin); certifies infeasibility.  For
+  m = n + 2 a fast path (elimination in a pivot order shared by the batch, one line of the
+  polygon with a KKT or emptiness certificate) handles the poses it can certify.
 
 Rank-deficient (or numerically singular, see :data:`PIVOT_TOL`) structure matrices do not raise:
 the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``.
@@ -952,7 +954,9 @@ def exact(
     basis ``N`` (m, m - n), ``T = T_p + N lam`` and ``|T - T_ref|^2 = |T_p - T_ref|^2 + |lam|^2``:
     the answer is the point of the polygon (interval for m = n + 1) ``{lam: limits}`` closest to
     the origin.  ``feasible=False`` with ``status == STATUS_INFEASIBLE`` certifies that no tensions
-    within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``.
+    within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``; the tensions are then
+    ``T_p``.  For m = n + 2 a fast path (shared pivot order, one certified line of the polygon, see
+    docs/tension.md) solves the poses it can and leaves the others to the general kernel.
     A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
     """
     # A is scanned for NaN/inf by the fast path (a non-finite row fails its pivot checks, and
