@@ -303,15 +303,8 @@ class _Chunked:
         self.N = self.A.shape[0]
 
     def run(
-        self,
-        kernel: Any,
-        extra: tuple[FloatArray, ...],
-        objective: str,
-        method: str,
-        expand: bool = True,
+        self, kernel: Any, extra: tuple[FloatArray, ...], objective: str, method: str
     ) -> TensionResult:
-        """``kernel(At, w, lo, hi, *extra) -> (T, status)`` per chunk; with ``expand=False`` the
-        batch-constant inputs other than A stay (..., 1) (the kernel broadcasts them)."""
         N, m = self.N, self.m
         T_out = np.empty((N, m))
         res_out = np.empty(N)
@@ -326,7 +319,7 @@ class _Chunked:
                 At = np.ascontiguousarray(np.broadcast_to(At, At.shape[:-1] + (e - s,)))
             # kernels index every column: expand batch-constant inputs to the chunk's width
             w, lo, hi, *ex_l = (
-                np.ascontiguousarray(np.broadcast_to(x, x.shape[:-1] + (e - s,))) if expand else x
+                np.ascontiguousarray(np.broadcast_to(x, x.shape[:-1] + (e - s,)))
                 for x in (_soa(y, s, e) for y in (self.w, self.lo, self.hi, *extra_f))
             )
             ex = tuple(ex_l)
