@@ -437,7 +437,7 @@ class Recorder:
                     backoff = min(2 * backoff, 5.0)
                     continue
                 if batch:
-                    if ren and hasattr(batch, "renamed"):
+                    if ren and getattr(batch, "can_frames", False) is True:
                         batch = batch.renamed(ren)  # a CAN frame batch (can_source.CanFrameBatch)
                     elif ren:
                         batch = [
@@ -467,7 +467,7 @@ class Recorder:
         write_many = w.write_many
         for q in self._queues.values():
             batches = q.take_all()
-            if len(batches) > 1 and all(hasattr(b, "join") for b in batches):
+            if len(batches) > 1 and all(getattr(b, "can_frames", False) is True for b in batches):
                 batches = _joined(batches)
             for batch in batches:
                 n += write_many(batch)
