@@ -686,6 +686,16 @@ def _exact2(
     viol = np.empty(N)
     status = np.empty(N, dtype=np.int8)
     out = (T, feas, res, viol, status)
+    if N == 0:
+        return TensionResult(
+            T.reshape(lead + (m,)),
+            feas.reshape(lead),
+            res.reshape(lead),
+            viol.reshape(lead),
+            objective,
+            "exact",
+            status.reshape(lead),
+        )
     order = _pivot_order(A[np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)])
     deferred = []
     for s in range(0, N, CHUNK):

@@ -180,3 +180,15 @@ def test_non_finite_structure_matrix_raises_on_the_fast_path():
             tn.exact(A_bad, w, lo, hi)
     with pytest.raises(InputError, match="A: expected finite values"):
         tn.exact(np.full((6, 8), np.nan), np.zeros((4, 6)), np.ones(8), np.full(8, 9.0))
+
+
+def test_empty_batch_and_batch_constant_wrench():
+    r = tn.exact(np.zeros((0, 6, 8)), np.zeros((0, 6)), np.ones(8), np.full(8, 9.0))
+    assert r.tensions_N.shape == (0, 8) and r.feasible.shape == (0,) and r.status.shape == (0,)
+    rng = np.random.default_rng(2)
+    A, w, lo, hi = _poses_of_one_rig(rng, 40)
+    res = tn.exact(A, w[0], lo, hi)  # one wrench for every pose
+    T_qp = _quadprog(A, np.broadcast_to(w[0], w.shape), lo, hi, 0.5 * (lo + hi))
+    feas = ~np.isnan(T_qp[:, 0])
+    assert np.array_equal(res.feasible, feas) and feas.any()
+    assert np.abs(res.tensions_N[feas] - T_qp[feas]).max() <= 1e-6
