@@ -445,8 +445,10 @@ def encode_can_frames(messages: Any) -> FrameRecords:
             ).reshape(k, 8)
             ids, flags, t_bus = ids[ok], flags[ok], t_bus[ok]
         bodies[:, _FRAME_ID : _FRAME_ID + 9] = _decimal(ids, 9)
-        d = bodies[:, _FRAME_DATA : _FRAME_DATA + 32].reshape(k, 8, 4)
-        d[:, :, :3] = t["byte3"][data]
+        chars = t["byte3"][data]  # (k, 8, 3)
+        for j in range(8):
+            a = _FRAME_DATA + 4 * j
+            bodies[:, a : a + 3] = chars[:, j]
         bodies[:, _FRAME_EXT] = 48 + (flags & 1)
         bodies[:, _FRAME_T : _FRAME_T + 19] = _decimal(t_bus.astype(np.int64), 19)
     return FrameRecords(ok, bodies)
