@@ -8,8 +8,8 @@ four 8-byte TPDOs per sample with a rolling counter, epoch timestamps), at full 
   no DBC decoding, like the BLF logger) opens that bus; the recorder's acquisition thread, bounded
   queue and writer thread, ``/can_raw`` JSON messages, zstd chunks closed every 0.25 s and fsynced.
   A 5 s probe measures the capacity C (the bus holds back while 20k frames are queued); then the bus
-  is paced at 0.85 C for 20 s and the recorder must drop nothing and keep up (at the end, at most
-  0.25 s of frames still queued); else 0.7 C, then 0.5 C are tried (12 s each).  The value is the
+  is paced at 0.85 C for 60 s and the recorder must drop nothing and keep up (at the end, at most
+  0.25 s of frames still queued); else 0.7 C, then 0.5 C are tried (30 s each).  The value is the
   paced rate achieved (frames written / paced duration).  ``frames_per_cpu_s`` (frames / process
   CPU time) is the same capacity, insensitive to other load on the machine.
 - peer: python-can's own pipeline, ``can.Notifier`` on the same bus class at full speed calling
@@ -25,8 +25,8 @@ frames per CPU-second.
 
 Each contestant runs in its own child process pinned to the same single CPU
 (``os.sched_setaffinity``), which also gives a clean peak RSS (``ru_maxrss``) per contestant.
-The issue asks for 60 s; the module is kept to about 60-80 s (5 + 10 + 20 s of measurement, more
-when a paced rate fails).
+The paced run lasts the issue's 60 s; the module takes about 85 s (5 + 10 + 60 s of measurement,
+more when a paced rate fails).
 """
 
 from __future__ import annotations
@@ -240,7 +240,7 @@ def run() -> dict[str, dict]:
         peers = [_in_child("peer", f"{d}/peer_0.blf", 5.0)]
         tries = []
         sustained = None
-        for factor, duration in ((0.85, 20.0), (0.7, 12.0), (0.5, 12.0)):
+        for factor, duration in ((0.85, 60.0), (0.7, 30.0), (0.5, 30.0)):
             rate = factor * probe["rate"]
             r = _in_child("recorder", f"{d}/paced_{len(tries)}.mcap", duration, rate)
             r["paced_at"] = rate
@@ -293,8 +293,8 @@ def run() -> dict[str, dict]:
                 "CAN load-cell driver (raw frames, no decoding) in the recorder, 5 s probe of the "
                 "capacity (bus held back when 20k "
                 "frames are queued), then the bus paced at 0.85x (else 0.7x, 0.5x) that rate for "
-                f"{best['elapsed_s']:.0f} s with zero drops and <= 0.25 s of backlog at the end (not "
-                "the issue's 60 s, to keep make bench near 60 s); MCAP JSON messages, zstd-1 "
+                f"{best['elapsed_s']:.0f} s with zero drops and <= 0.25 s of backlog at the end "
+                "(the issue's 60 s); MCAP JSON messages, zstd-1 "
                 "chunks closed every 0.25 s and fsynced; peer: can.Notifier + can.Logger(BLF), "
                 "2 x 5 s at max speed before and after the paced run (no queue, cannot drop); "
                 "frames_per_cpu_s = frames / CPU time of the process (robust to machine load); "
