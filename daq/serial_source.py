@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from abc import abstractmethod
 from collections.abc import Sequence
 from typing import Any
 
@@ -199,8 +200,9 @@ class SerialLineSource(Source):
                 self.stats.lost += step - 1
         self._last_seq = seq
 
+    @abstractmethod
     def _parse(self, line: bytes, t_ns: int) -> Reading:
-        raise NotImplementedError
+        """One good line as a reading (a subclass's protocol); raise LineError for a bad one."""
 
 
 class SerialLoadCellSource(SerialLineSource):
