@@ -686,37 +686,30 @@ def _exact2(
     viol = np.empty(N)
     status = np.empty(N, dtype=np.int8)
     out = (T, feas, res, viol, status)
-    if N == 0:
-        return TensionResult(
-            T.reshape(lead + (m,)),
-            feas.reshape(lead),
-            res.reshape(lead),
-            viol.reshape(lead),
-            objective,
-            "exact",
-            status.reshape(lead),
-        )
-    order = _pivot_order(A[np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)])
-    deferred = []
-    for s in range(0, N, CHUNK):
-        e = min(N, s + CHUNK)
-        bad, undecided = _exact2_chunk(A, w, lo, hi, ref, s, e, order, out)
-        deferred += [s + bad, s + undecided]
-        if 8 * bad.size > e - s:  # the order does not suit this part of the batch: re-choose
-            pick = np.linspace(0, bad.size - 1, min(bad.size, _ORDER_SAMPLES)).astype(np.intp)
-            order = _pivot_order(A[s + bad[pick]])
-    d = np.concatenate(deferred)
-    if d.size:
-        _check_finite_A(A[d])
-        sub = _Chunked(A[d], w[d], lo[d], hi[d]).run(_exact_kernel, (ref[d],), objective, "exact")
-        T[d], feas[d], res[d], viol[d] = (
-            sub.tensions_N,
-            sub.feasible,
-            sub.residual_N,
-            sub.max_violation_N,
-        )
-        assert sub.status is not None
-        status[d] = sub.status
+    if N:  # an empty batch has nothing to order or solve
+        order = _pivot_order(A[np.linspace(0, N - 1, min(N, _ORDER_SAMPLES)).astype(np.intp)])
+        deferred = []
+        for s in range(0, N, CHUNK):
+            e = min(N, s + CHUNK)
+            bad, undecided = _exact2_chunk(A, w, lo, hi, ref, s, e, order, out)
+            deferred += [s + bad, s + undecided]
+            if 8 * bad.size > e - s:  # the order does not suit this part of the batch: re-choose
+                pick = np.linspace(0, bad.size - 1, min(bad.size, _ORDER_SAMPLES)).astype(np.intp)
+                order = _pivot_order(A[s + bad[pick]])
+        d = np.concatenate(deferred)
+        if d.size:
+            _check_finite_A(A[d])
+            sub = _Chunked(A[d], w[d], lo[d], hi[d]).run(
+                _exact_kernel, (ref[d],), objective, "exact"
+            )
+            T[d], feas[d], res[d], viol[d] = (
+                sub.tensions_N,
+                sub.feasible,
+                sub.residual_N,
+                sub.max_violation_N,
+            )
+            assert sub.status is not None
+            status[d] = sub.status
     return TensionResult(
         T.reshape(lead + (m,)),
         feas.reshape(lead),
