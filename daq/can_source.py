@@ -45,6 +45,7 @@ from .source import (
     STATUS_SLACK,
     FieldDescription,
     Reading,
+    ReopenBackoff,
     Source,
     StreamDescription,
 )
@@ -568,8 +569,7 @@ class CanLoadCellSource(Source):
         self.backoff = (float(reopen_backoff_s[0]), float(reopen_backoff_s[1]))
         self.error_frame_limit = int(error_frame_limit)
         self.bus: can.BusABC | None = None
-        self._next_open = 0.0
-        self._delay = self.backoff[0]
+        self._reopen = ReopenBackoff(*self.backoff)
         self._err_window = (0.0, 0)
         self._last_state_check = 0.0
         self._ever_opened = False
@@ -631,26 +631,22 @@ class CanLoadCellSource(Source):
 
     def _fail(self, why: str) -> None:
         self.stats.errors += 1
-        log.warning("%s: %s; reopening the bus in %.2f s", self.name, why, self._delay)
+        log.warning("%s: %s; reopening the bus in %.2f s", self.name, why, self._reopen.delay_s)
         self._drop_bus()
         self.decoder.reset()
-        self._next_open = time.monotonic() + self._delay
-        self._delay = min(self._delay * 2, self.backoff[1])
+        self._reopen.failed()
 
     def _try_reopen(self, timeout_s: float) -> bool:
-        now = time.monotonic()
-        if now < self._next_open:
-            time.sleep(min(timeout_s, self._next_open - now))
+        if not self._reopen.due(timeout_s):
             return False
         try:
             self.bus = self._make_bus()
         except Exception as exc:
             log.info("%s: reopen failed: %s", self.name, exc)
-            self._next_open = time.monotonic() + self._delay
-            self._delay = min(self._delay * 2, self.backoff[1])
+            self._reopen.failed()
             return False
         self.stats.reopened += 1
-        self._delay = self.backoff[0]
+        self._reopen.succeeded()
         log.warning("%s: bus reopened", self.name)
         return True
 

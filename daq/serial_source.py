@@ -33,6 +33,7 @@ from .source import (
     STATUS_SLACK,
     FieldDescription,
     Reading,
+    ReopenBackoff,
     Source,
     StreamDescription,
 )
@@ -97,8 +98,7 @@ class SerialLineSource(Source):
         self.backoff = (float(reopen_backoff_s[0]), float(reopen_backoff_s[1]))
         self.ser: serial.Serial | None = None
         self.splitter = LineSplitter()
-        self._delay = self.backoff[0]
-        self._next_open = 0.0
+        self._reopen = ReopenBackoff(*self.backoff)
         self._last_seq: int | None = None
         self.seq_modulus = 1 << 32
         self.poll_s = 0.02  # pyserial read timeout: one blocking wait, then drain in_waiting
@@ -131,29 +131,29 @@ class SerialLineSource(Source):
     def _lost_port(self, why: str, out: list[Reading]) -> None:
         self.stats.errors += 1
         log.warning(
-            "%s: port %s lost (%s); reopening in %.2f s", self.name, self.port, why, self._delay
+            "%s: port %s lost (%s); reopening in %.2f s",
+            self.name,
+            self.port,
+            why,
+            self._reopen.delay_s,
         )
         self._drop_port()
         rest = self.splitter.reset()
         if rest:
             out.append(self._bad(rest, "partial line when the port was lost", time.time_ns()))
-        self._next_open = time.monotonic() + self._delay
-        self._delay = min(self._delay * 2, self.backoff[1])
+        self._reopen.failed()
 
     def _try_reopen(self, timeout_s: float) -> bool:
-        now = time.monotonic()
-        if now < self._next_open:
-            time.sleep(min(timeout_s, self._next_open - now))
+        if not self._reopen.due(timeout_s):
             return False
         try:
             self.ser = self._make_port()
         except (serial.SerialException, OSError, ValueError):
-            self._next_open = time.monotonic() + self._delay
-            self._delay = min(self._delay * 2, self.backoff[1])
-            time.sleep(min(timeout_s, self._delay))
+            self._reopen.failed()
+            time.sleep(min(timeout_s, self._reopen.delay_s))
             return False
         self.stats.reopened += 1
-        self._delay = self.backoff[0]
+        self._reopen.succeeded()
         log.warning("%s: port %s reopened", self.name, self.port)
         return True
 

@@ -146,6 +146,37 @@ class Source(ABC):
     def _close(self) -> None: ...
 
 
+class ReopenBackoff:
+    """Exponential backoff between attempts to reopen a lost device (monotonic clock, s).
+
+    ``delay_s`` starts at ``first_s``; each :meth:`failed` schedules the next attempt ``delay_s``
+    from now and doubles ``delay_s`` (at most ``max_s``); :meth:`succeeded` resets it.
+    """
+
+    def __init__(self, first_s: float, max_s: float) -> None:
+        self.first_s = float(first_s)
+        self.max_s = float(max_s)
+        self.delay_s = self.first_s
+        self.next_open = 0.0
+
+    def due(self, timeout_s: float) -> bool:
+        """True when an attempt is due; otherwise sleep up to ``timeout_s`` towards it, False."""
+        now = time.monotonic()
+        if now < self.next_open:
+            time.sleep(min(timeout_s, self.next_open - now))
+            return False
+        return True
+
+    def failed(self) -> None:
+        """Schedule the next attempt ``delay_s`` from now and double the delay (capped)."""
+        self.next_open = time.monotonic() + self.delay_s
+        self.delay_s = min(self.delay_s * 2, self.max_s)
+
+    def succeeded(self) -> None:
+        """An attempt worked: the next failure waits ``first_s`` again."""
+        self.delay_s = self.first_s
+
+
 def now_ns() -> int:
     """Host time in integer nanoseconds since the Unix epoch."""
     return time.time_ns()
