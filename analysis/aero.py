@@ -173,6 +173,27 @@ class AeroResult:
     Cn: FloatArray
 
 
+def _check_reference(
+    R_O_P: ArrayLike,
+    dynamic_pressure_Pa: ArrayLike,
+    area_m2: float,
+    span_m: float,
+    chord_m: float,
+    mrp_P_m: ArrayLike,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Checked attitude R (..., 3, 3), dynamic pressure q (Pa, > 0) and the moment reference point
+    in {O} axes, ``R_O_P @ mrp_P_m`` (..., 3) in m; reference lengths and area must be > 0."""
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    q = as_float_array(dynamic_pressure_Pa, "dynamic_pressure_Pa")
+    if np.any(~np.isfinite(q)) or np.any(q <= 0):
+        raise InputError("dynamic_pressure_Pa: expected finite values > 0 Pa")
+    for name, v in (("area_m2", area_m2), ("span_m", span_m), ("chord_m", chord_m)):
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"{name}: expected a finite value > 0, got {v}")
+    mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
+    return R, q, np.einsum("...ij,...j->...i", R, mrp)
+
+
 def aero_coefficients(
     wrench_O: ArrayLike,
     R_O_P: ArrayLike,
@@ -192,15 +213,7 @@ def aero_coefficients(
     point in {P} (m); nose_P, up_P: the model's mounting (see :func:`body_axes_in_platform`).
     """
     w = check_trailing(wrench_O, "wrench_O", (6,))
-    R = check_trailing(R_O_P, "R_O_P", (3, 3))
-    q = as_float_array(dynamic_pressure_Pa, "dynamic_pressure_Pa")
-    if np.any(~np.isfinite(q)) or np.any(q <= 0):
-        raise InputError("dynamic_pressure_Pa: expected finite values > 0 Pa")
-    for name, v in (("area_m2", area_m2), ("span_m", span_m), ("chord_m", chord_m)):
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name}: expected a finite value > 0, got {v}")
-    mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
-    r_O = np.einsum("...ij,...j->...i", R, mrp)
+    R, q, r_O = _check_reference(R_O_P, dynamic_pressure_Pa, area_m2, span_m, chord_m, mrp_P_m)
     w_mrp = transfer_moment(w, r_O)
     R_B_O = body_from_tunnel(R, nose_P, up_P)
     F_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., :3])
@@ -247,15 +260,7 @@ def coefficient_matrix(
     wrench covariance ``Sigma_W`` gives the coefficient covariance ``K Sigma_W K^T`` (the attitude's
     own error, which turns the axes, is left out: it adds about ``|F| sigma_angle``).
     """
-    R = check_trailing(R_O_P, "R_O_P", (3, 3))
-    q = as_float_array(dynamic_pressure_Pa, "dynamic_pressure_Pa")
-    if np.any(~np.isfinite(q)) or np.any(q <= 0):
-        raise InputError("dynamic_pressure_Pa: expected finite values > 0 Pa")
-    for name, v in (("area_m2", area_m2), ("span_m", span_m), ("chord_m", chord_m)):
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{name}: expected a finite value > 0, got {v}")
-    mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
-    r = np.einsum("...ij,...j->...i", R, mrp)
+    R, q, r = _check_reference(R_O_P, dynamic_pressure_Pa, area_m2, span_m, chord_m, mrp_P_m)
     R_B_O = body_from_tunnel(R, nose_P, up_P)
     alpha, beta = flow_angles(R, nose_P, up_P)
     sign = np.array([-1.0, 1.0, -1.0])[:, None]
