@@ -43,7 +43,7 @@ import tempfile
 import threading
 import time
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -189,6 +189,16 @@ def _vec3(source: str, key: str, v: Any) -> tuple[float, float, float]:
     return (a, b, c)
 
 
+def _table(source: str, key: str, value: Any, allowed: Collection[str]) -> Mapping[str, Any]:
+    """``value`` as a table whose keys are all in ``allowed`` (else ConfigError at ``key``)."""
+    if not isinstance(value, Mapping):
+        raise ConfigError(source, key, "expected a table")
+    for k in value:
+        if k not in allowed:
+            raise ConfigError(source, f"{key}.{k}", f"unknown key (allowed: {sorted(allowed)})")
+    return value
+
+
 def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Schedule:
     """Build and validate a :class:`Schedule` from a parsed schedule file (TOML mapping).
 
@@ -198,14 +208,7 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
     unknown = sorted(set(data) - _TOP)
     if unknown:
         raise ConfigError(source, unknown[0], f"unknown key (allowed: {sorted(_TOP)})")
-    sch = data.get("schedule", {})
-    if not isinstance(sch, Mapping):
-        raise ConfigError(source, "schedule", "expected a table")
-    for k in sch:
-        if k not in _SCHED_KEYS:
-            raise ConfigError(
-                source, f"schedule.{k}", f"unknown key (allowed: {sorted(_SCHED_KEYS)})"
-            )
+    sch = _table(source, "schedule", data.get("schedule", {}), _SCHED_KEYS)
     rate = _f(source, "schedule.rate_hz", sch.get("rate_hz", 200.0), 0.0, True)
     t_rate = _f(source, "schedule.tunnel_rate_hz", sch.get("tunnel_rate_hz", 10.0), 0.0, True)
     method = str(sch.get("method", "exact"))
@@ -225,15 +228,9 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
     ref_p = (float(rp[0]), float(rp[1]), float(rp[2]))
     ref_e = (float(re_[0]), float(re_[1]), float(re_[2]))
     prev_p, prev_e = ref_p, ref_e
-    for i, s in enumerate(segs_raw):
+    for i, s_raw in enumerate(segs_raw):
         k = f"segments[{i}]"
-        if not isinstance(s, Mapping):
-            raise ConfigError(source, k, "expected a table")
-        for key in s:
-            if key not in _SEG_KEYS:
-                raise ConfigError(
-                    source, f"{k}.{key}", f"unknown key (allowed: {sorted(_SEG_KEYS)})"
-                )
+        s = _table(source, k, s_raw, _SEG_KEYS)
         if "duration_s" not in s:
             raise ConfigError(source, f"{k}.duration_s", "missing")
         dur = _f(source, f"{k}.duration_s", s["duration_s"], 0.0, True)
@@ -263,15 +260,9 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
     f_raw = data.get("faults", [])
     if not isinstance(f_raw, list):
         raise ConfigError(source, "faults", "expected an array of [[faults]] tables")
-    for i, fr in enumerate(f_raw):
+    for i, fr_raw in enumerate(f_raw):
         k = f"faults[{i}]"
-        if not isinstance(fr, Mapping):
-            raise ConfigError(source, k, "expected a table")
-        for key in fr:
-            if key not in _FAULT_KEYS:
-                raise ConfigError(
-                    source, f"{k}.{key}", f"unknown key (allowed: {sorted(_FAULT_KEYS)})"
-                )
+        fr = _table(source, k, fr_raw, _FAULT_KEYS)
         kind = fr.get("kind")
         if kind not in FAULT_KINDS:
             raise ConfigError(
@@ -361,14 +352,18 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
 
 def load_schedule(path: str | os.PathLike[str], rig: Rig) -> Schedule:
     """Read a schedule TOML file (errors name the file and key)."""
+    return schedule_from_mapping(_read_toml(path), str(Path(path)), rig)
+
+
+def _read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Parse a TOML file; a missing or invalid file raises ConfigError naming it."""
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text())
     except FileNotFoundError:
         raise ConfigError(str(p), "", "file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
-    return schedule_from_mapping(data, str(p), rig)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1079,14 +1074,7 @@ class RigRun:
 def _load_rig(path: str) -> Rig:
     from cdpr.analysis.rig import rig_from_mapping
 
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(str(p), "", "file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
-    return rig_from_mapping(data, source=str(p))
+    return rig_from_mapping(_read_toml(path), source=str(Path(path)))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
