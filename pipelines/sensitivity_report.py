@@ -650,6 +650,23 @@ def _plot_lines(ax: Any, x: Sequence[float], series: dict[str, np.ndarray], **kw
         ax.plot(x, y, marker=_MARKERS[i % len(_MARKERS)], ms=4, lw=1.2, label=label, **kw)
 
 
+def _by_force(piv: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The columns of a pivot table whose columns are forces (N), labelled ``"<F> N"``."""
+    return {f"{F:g} N": piv[F].values for F in piv.columns}
+
+
+def _force_lines_figure(path: Path, piv: pd.DataFrame, xlabel: str, title: str) -> None:
+    """One panel: S (N) against the pivot's index, one line per force column."""
+    with _figure(path) as (fig, axes):
+        ax = axes[0, 0]
+        _plot_lines(ax, piv.index, _by_force(piv))
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("S (N)")
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+
+
 def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
     """Figs. 6-11 for every cubic method; returns the file names."""
     files = []
@@ -665,7 +682,7 @@ def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
                 for j, key in enumerate(("k1", "k2", "k3")):
                     ax = axes[0, j]
                     piv = g.groupby([key, "force_N"]).S_N.max().unstack()
-                    _plot_lines(ax, piv.index, {f"{F:g} N": piv[F].values for F in piv.columns})
+                    _plot_lines(ax, piv.index, _by_force(piv))
                     ax.set_xlabel(key)
                     ax.set_ylabel("S (N), max over the other ratios")
                     ax.set_title(f"({j + 1}) S vs {key}, force along {d}")
@@ -681,14 +698,12 @@ def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
             name = f"fig{fig_no}_cubic_S_vs_Z_force_{d}_{method}.png"
             z = Zdf[(Zdf.method == method) & (Zdf.direction == d)]
             piv = z.pivot_table(index="Z_m", columns="force_N", values="S_N")
-            with _figure(out / name) as (fig, axes):
-                ax = axes[0, 0]
-                _plot_lines(ax, piv.index, {f"{F:g} N": piv[F].values for F in piv.columns})
-                ax.set_xlabel("Z of the reference point P (m)")
-                ax.set_ylabel("S (N)")
-                ax.set_title(f"Force along {d}, k = {o.cubic.baseline_k}, {method}", fontsize=9)
-                ax.grid(alpha=0.3)
-                ax.legend(fontsize=7)
+            _force_lines_figure(
+                out / name,
+                piv,
+                "Z of the reference point P (m)",
+                f"Force along {d}, k = {o.cubic.baseline_k}, {method}",
+            )
             files.append(name)
         for fig_no, case, label in (
             ("10", "fig10_force_y_offset_x", "force along y, offset along x"),
@@ -697,14 +712,12 @@ def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
             name = f"fig{fig_no}_cubic_S_vs_deflection_{method}.png"
             dd = Ddf[(Ddf.method == method) & (Ddf.case == case)]
             piv = dd.pivot_table(index="deflection_m", columns="force_N", values="S_N")
-            with _figure(out / name) as (fig, axes):
-                ax = axes[0, 0]
-                _plot_lines(ax, piv.index, {f"{F:g} N": piv[F].values for F in piv.columns})
-                ax.set_xlabel("deflection of the point of application from P (m)")
-                ax.set_ylabel("S (N)")
-                ax.set_title(f"{label}, {method}", fontsize=9)
-                ax.grid(alpha=0.3)
-                ax.legend(fontsize=7)
+            _force_lines_figure(
+                out / name,
+                piv,
+                "deflection of the point of application from P (m)",
+                f"{label}, {method}",
+            )
             files.append(name)
     return files
 
