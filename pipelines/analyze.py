@@ -282,67 +282,68 @@ def camera_pose_error(run: RunData) -> dict[str, float] | None:
 
 
 def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import png_figure
 
     t0 = run.t_ns[0]
     ts = (run.t_ns - t0) * 1e-9
-    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True, height_ratios=[3, 1])
-    for k, name in enumerate(run.rig.cable_names):
-        ax[0].plot(ts, run.tensions_N[:, k], lw=0.8, label=name)
-    for _, r in df.iterrows():
-        for a in ax:
-            a.axvspan(
-                (r.start_ns - t0) * 1e-9,
-                (r.stop_ns - t0) * 1e-9,
-                color="0.9" if r.wind_off else "#dde8f7",
-                zorder=0,
-            )
-    ax[0].set_ylabel("tension (N)")
-    ax[0].legend(fontsize=7, ncol=4, loc="upper left")
-    ax[0].set_title(f"{run.path.name}: tensions; shaded = steady segments (grey: wind-off tares)")
-    ax[1].plot(ts, run.airspeed_mps, color="k", lw=1)
-    ax[1].set_ylabel("airspeed (m/s)")
-    ax[1].set_xlabel("time (s)")
-    fig.tight_layout()
-    fig.savefig(folder / "tensions.png", dpi=110)
-    plt.close(fig)
+    with png_figure(folder / "tensions.png", 2, 1, (10, 6), sharex=True, height_ratios=[3, 1]) as (
+        fig,
+        axes,
+    ):
+        ax = axes[:, 0]
+        for k, name in enumerate(run.rig.cable_names):
+            ax[0].plot(ts, run.tensions_N[:, k], lw=0.8, label=name)
+        for _, r in df.iterrows():
+            for a in ax:
+                a.axvspan(
+                    (r.start_ns - t0) * 1e-9,
+                    (r.stop_ns - t0) * 1e-9,
+                    color="0.9" if r.wind_off else "#dde8f7",
+                    zorder=0,
+                )
+        ax[0].set_ylabel("tension (N)")
+        ax[0].legend(fontsize=7, ncol=4, loc="upper left")
+        ax[0].set_title(
+            f"{run.path.name}: tensions; shaded = steady segments (grey: wind-off tares)"
+        )
+        ax[1].plot(ts, run.airspeed_mps, color="k", lw=1)
+        ax[1].set_ylabel("airspeed (m/s)")
+        ax[1].set_xlabel("time (s)")
 
     on = df[df.wind_off == 0]
-    fig, axes = plt.subplots(2, 3, figsize=(11, 6))
-    for k, c in enumerate(WRENCH_COLUMNS):
-        a = axes.flat[k]
-        use_tare = on["tare_segment"] >= 0
-        y = np.where(use_tare, on[f"tare_{c}"], on[f"abs_{c}"])
-        e = np.where(use_tare, on[f"tare_sd_{c}"], on[f"abs_sd_{c}"])
-        a.errorbar(on["airspeed_mps"], y, yerr=2 * e, fmt="o", capsize=3, label="recovered (±2σ)")
-        if f"true_{c}" in on:
-            a.plot(on["airspeed_mps"], on[f"true_{c}"], "x", color="C3", label="virtual-rig truth")
-        a.set_title(c)
-        a.set_xlabel("airspeed (m/s)")
-        a.grid(alpha=0.3)
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle("Recovered aerodynamic wrench per test point (tare method where a tare exists)")
-    fig.tight_layout()
-    fig.savefig(folder / "wrench.png", dpi=110)
-    plt.close(fig)
+    with png_figure(folder / "wrench.png", 2, 3, (11, 6)) as (fig, axes):
+        for k, c in enumerate(WRENCH_COLUMNS):
+            a = axes.flat[k]
+            use_tare = on["tare_segment"] >= 0
+            y = np.where(use_tare, on[f"tare_{c}"], on[f"abs_{c}"])
+            e = np.where(use_tare, on[f"tare_sd_{c}"], on[f"abs_sd_{c}"])
+            a.errorbar(
+                on["airspeed_mps"], y, yerr=2 * e, fmt="o", capsize=3, label="recovered (±2σ)"
+            )
+            if f"true_{c}" in on:
+                a.plot(
+                    on["airspeed_mps"], on[f"true_{c}"], "x", color="C3", label="virtual-rig truth"
+                )
+            a.set_title(c)
+            a.set_xlabel("airspeed (m/s)")
+            a.grid(alpha=0.3)
+        axes.flat[0].legend(fontsize=7)
+        fig.suptitle(
+            "Recovered aerodynamic wrench per test point (tare method where a tare exists)"
+        )
 
     dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
-    fig, ax = plt.subplots(figsize=(10, 4))
-    width = 0.8 / len(dcols)
-    for k, c in enumerate(dcols):
-        ax.bar(df["segment"] + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
-    ax.axhline(1.0, color="r", ls="--", lw=1)
-    ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
-    ax.set_xlabel("segment")
-    ax.set_ylabel("measured − expected tension (N)")
-    ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
-    ax.legend(fontsize=7, ncol=5)
-    fig.tight_layout()
-    fig.savefig(folder / "check.png", dpi=110)
-    plt.close(fig)
+    with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
+        ax = axes[0, 0]
+        width = 0.8 / len(dcols)
+        for k, c in enumerate(dcols):
+            ax.bar(df["segment"] + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+        ax.axhline(1.0, color="r", ls="--", lw=1)
+        ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
+        ax.set_xlabel("segment")
+        ax.set_ylabel("measured − expected tension (N)")
+        ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
+        ax.legend(fontsize=7, ncol=5)
 
 
 def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:

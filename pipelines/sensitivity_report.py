@@ -14,11 +14,9 @@ batched :mod:`cdpr.analysis.sensitivity` and writes into one folder:
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +29,7 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.tension import METHODS
 
 from .config import atomic_output, load_toml, write_table
+from .plotting import png_figure as _figure
 
 PAPER_FORCES_N = (19.041, 32.183, 48.327, 60.949, 70.043, 75.706)
 PAPER_SPEEDS_MPS = (17.27, 25.51, 41.42)
@@ -621,25 +620,6 @@ def singular_scan(o: StudyOptions) -> pd.DataFrame:
 
 
 # ------------------------------------------------------------------------------------ plots
-
-
-@contextmanager
-def _figure(path: Path, nrows: int = 1, ncols: int = 1, size: tuple[float, float] = (6.4, 4.4)):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
-    try:
-        yield fig, axes
-        fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110)
-    finally:
-        plt.close(fig)
-    with atomic_output(path, "wb") as fh:
-        fh.write(buf.getvalue())
 
 
 _MARKERS = "os^vD<>ph*"

@@ -104,27 +104,19 @@ def run_loadcells(args: argparse.Namespace) -> int:
 
 
 def _residual_plot(df, names, fits, path) -> None:  # type: ignore[no-untyped-def]
-    import matplotlib
+    from ..plotting import png_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..config import atomic_output
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    for name, f in zip(names, fits, strict=True):
-        sel = df[df["channel"] == name]
-        pred = (sel["counts"] - f.offset_counts) * f.gain_N_per_count
-        ax.plot(sel["load_N"], sel["load_N"] - pred, "o-", ms=3, label=name)
-    ax.axhline(0, color="k", lw=0.8)
-    ax.set_xlabel("applied load (N)")
-    ax.set_ylabel("residual (N)")
-    ax.set_title("Load-cell calibration residuals (straight-line fit)")
-    ax.legend(fontsize=7, ncol=4)
-    fig.tight_layout()
-    with atomic_output(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=110)
-    plt.close(fig)
+    with png_figure(path, size=(8, 4)) as (fig, axes):
+        ax = axes[0, 0]
+        for name, f in zip(names, fits, strict=True):
+            sel = df[df["channel"] == name]
+            pred = (sel["counts"] - f.offset_counts) * f.gain_N_per_count
+            ax.plot(sel["load_N"], sel["load_N"] - pred, "o-", ms=3, label=name)
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel("applied load (N)")
+        ax.set_ylabel("residual (N)")
+        ax.set_title("Load-cell calibration residuals (straight-line fit)")
+        ax.legend(fontsize=7, ncol=4)
 
 
 def run_balance(args: argparse.Namespace) -> int:
@@ -205,23 +197,14 @@ def run_balance(args: argparse.Namespace) -> int:
 
 
 def _check_plot(res, path) -> None:  # type: ignore[no-untyped-def]
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from cdpr.analysis.conventions import WRENCH_NAMES
 
-    from ..config import atomic_output
+    from ..plotting import png_figure
 
-    fig, axes = plt.subplots(2, 3, figsize=(10, 6))
-    for k, a in enumerate(axes.flat):
-        a.plot(res.applied[:, k], res.error[:, k], "o", ms=4)
-        a.axhline(0, color="k", lw=0.8)
-        a.set_title(f"{WRENCH_NAMES[k]}: recovered - applied")
-        a.set_xlabel("applied")
-    fig.suptitle("Balance check loads")
-    fig.tight_layout()
-    with atomic_output(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=110)
-    plt.close(fig)
+    with png_figure(path, 2, 3, (10, 6)) as (fig, axes):
+        for k, a in enumerate(axes.flat):
+            a.plot(res.applied[:, k], res.error[:, k], "o", ms=4)
+            a.axhline(0, color="k", lw=0.8)
+            a.set_title(f"{WRENCH_NAMES[k]}: recovered - applied")
+            a.set_xlabel("applied")
+        fig.suptitle("Balance check loads")

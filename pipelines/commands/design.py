@@ -231,7 +231,8 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import __version__
     from ..config import atomic_output, rig_toml, write_table
-    from ..sensitivity_report import StudyOptions, _figure, options_from_toml
+    from ..plotting import png_figure
+    from ..sensitivity_report import StudyOptions, options_from_toml
 
     if args.method not in METHODS:
         raise InputError(f"--method: expected one of {sorted(METHODS)}, got {args.method!r}")
@@ -323,7 +324,7 @@ def run(args: argparse.Namespace) -> int:
     header = {"cdpr": f"design {__version__}", "family": args.family, "objective": args.objective,
               "method": args.method, "load": ev_fn.load_text}  # fmt: skip
     write_table(out / "pareto_samples.csv", samples, header)
-    with _figure(out / "pareto.png", size=(7.2, 5.0)) as (fig, axes):
+    with png_figure(out / "pareto.png", size=(7.2, 5.0)) as (fig, axes):
         ax = axes[0, 0]
         sc = ax.scatter(
             evs["margin_N"][feas], evs["S_N"][feas], c=np.log10(evs["condition"][feas]), s=6,
