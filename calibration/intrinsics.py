@@ -13,6 +13,8 @@ fiducials at known positions in {O} (:func:`extrinsics_from_fiducials`).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -232,61 +234,71 @@ def split_half(
     return out
 
 
-def coverage_figure(result: IntrinsicsResult, path: str) -> None:
-    """PNG of every used corner over the image area, coloured by view (gaps show up as blank)."""
+@contextmanager
+def _png_figure(path: str, nrows: int, ncols: int, size: tuple[float, float]) -> Iterator[Any]:
+    """``plt.subplots(nrows, ncols)`` (figure, axes) at 100 dpi, saved as ``path`` when the block
+    ends without an exception and closed in every case (Agg backend)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    fig, axes = plt.subplots(nrows, ncols, figsize=size, dpi=100)
+    try:
+        yield fig, axes
+        fig.tight_layout()
+        fig.savefig(path)
+    finally:
+        plt.close(fig)
+
+
+def coverage_figure(result: IntrinsicsResult, path: str) -> None:
+    """PNG of every used corner over the image area, coloured by view (gaps show up as blank)."""
     W, H = result.camera.image_size_px
-    fig, ax = plt.subplots(figsize=(6.4, 6.4 * H / W + 0.6), dpi=100)
-    cmap = plt.get_cmap("tab20")
-    for i, v in enumerate(result.views):
-        ax.plot(v.corners_px[:, 0], v.corners_px[:, 1], ".", ms=2, color=cmap(i % 20))
-    ax.set_xlim(-0.5, W - 0.5)
-    ax.set_ylim(H - 0.5, -0.5)
-    ax.set_aspect("equal")
-    ax.set_title(f"corner coverage: {len(result.views)} views, RMS {result.rms_px:.3f} px")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _png_figure(path, 1, 1, (6.4, 6.4 * H / W + 0.6)) as (fig, ax):
+        import matplotlib.pyplot as plt
+
+        cmap = plt.get_cmap("tab20")
+        for i, v in enumerate(result.views):
+            ax.plot(v.corners_px[:, 0], v.corners_px[:, 1], ".", ms=2, color=cmap(i % 20))
+        ax.set_xlim(-0.5, W - 0.5)
+        ax.set_ylim(H - 0.5, -0.5)
+        ax.set_aspect("equal")
+        ax.set_title(f"corner coverage: {len(result.views)} views, RMS {result.rms_px:.3f} px")
+        ax.set_xlabel("u (px)")
+        ax.set_ylabel("v (px)")
 
 
 def crossval_figure(result: IntrinsicsResult, path: str) -> None:
     """PNG of the split-half cross-validation: held-out per-view RMS and the parameters of each half."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     sh = result.split_half
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=100)
-    if not sh:
-        axes[0].text(0.5, 0.5, "fewer than 8 views: no split-half test", ha="center")
-    else:
-        a, b = sh["heldout_rms_px_A"], sh["heldout_rms_px_B"]
-        axes[0].bar(np.arange(len(a)), a, color="C0", label="half A, intrinsics of B")
-        axes[0].bar(np.arange(len(b)) + len(a) + 1, b, color="C1", label="half B, intrinsics of A")
-        axes[0].axhline(
-            result.rms_px, color="k", ls="--", lw=1, label=f"all-view fit RMS {result.rms_px:.3f}"
-        )
-        axes[0].set_ylabel("held-out RMS (px)")
-        axes[0].set_xlabel("view")
-        axes[0].legend(fontsize=8)
-        names = ["fx", "fy", "cx", "cy"]
-        diff = [sh[f"{n}_A"] - sh[f"{n}_B"] for n in names]
-        # each half has sqrt(2) x the all-view std; their difference sqrt(2) x that again
-        sd = [2.0 * result.std.get(n, np.nan) for n in names]
-        axes[1].bar(names, diff, yerr=sd, capsize=4, color="C2")
-        axes[1].axhline(0, color="k", lw=0.8)
-        axes[1].set_ylabel("half A - half B (px)  [bars: +-1 sigma of the difference]")
-    axes[0].set_title("split-half cross-validation")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    with _png_figure(path, 1, 2, (10, 4)) as (fig, axes):
+        if not sh:
+            axes[0].text(0.5, 0.5, "fewer than 8 views: no split-half test", ha="center")
+        else:
+            a, b = sh["heldout_rms_px_A"], sh["heldout_rms_px_B"]
+            axes[0].bar(np.arange(len(a)), a, color="C0", label="half A, intrinsics of B")
+            axes[0].bar(
+                np.arange(len(b)) + len(a) + 1, b, color="C1", label="half B, intrinsics of A"
+            )
+            axes[0].axhline(
+                result.rms_px,
+                color="k",
+                ls="--",
+                lw=1,
+                label=f"all-view fit RMS {result.rms_px:.3f}",
+            )
+            axes[0].set_ylabel("held-out RMS (px)")
+            axes[0].set_xlabel("view")
+            axes[0].legend(fontsize=8)
+            names = ["fx", "fy", "cx", "cy"]
+            diff = [sh[f"{n}_A"] - sh[f"{n}_B"] for n in names]
+            # each half has sqrt(2) x the all-view std; their difference sqrt(2) x that again
+            sd = [2.0 * result.std.get(n, np.nan) for n in names]
+            axes[1].bar(names, diff, yerr=sd, capsize=4, color="C2")
+            axes[1].axhline(0, color="k", lw=0.8)
+            axes[1].set_ylabel("half A - half B (px)  [bars: +-1 sigma of the difference]")
+        axes[0].set_title("split-half cross-validation")
 
 
 # ------------------------------------------------------------------------------------ extrinsics
