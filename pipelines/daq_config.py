@@ -97,6 +97,19 @@ def _typed(
     return v
 
 
+def _section(data: Mapping[str, Any], name: str, known: set[str], origin: str) -> dict[str, Any]:
+    """The optional table ``[name]`` (empty if absent); a non-table or an unknown key raises."""
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        raise ConfigError(origin, name, "expected a table")
+    bad = set(table) - known
+    if bad:
+        raise ConfigError(
+            origin, f"{name}.{sorted(bad)[0]}", f"unknown key (known: {sorted(known)})"
+        )
+    return table
+
+
 def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
     """Load and validate ``tunnel.toml`` (layout in the module docstring).
 
@@ -114,14 +127,7 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
             origin, sorted(unknown)[0], "unknown section (expected run, recorder, sources)"
         )
 
-    run = data.get("run", {})
-    if not isinstance(run, dict):
-        raise ConfigError(origin, "run", "expected a table")
-    bad = set(run) - _RUN_KEYS
-    if bad:
-        raise ConfigError(
-            origin, f"run.{sorted(bad)[0]}", f"unknown key (known: {sorted(_RUN_KEYS)})"
-        )
+    run = _section(data, "run", _RUN_KEYS, origin)
     if "label" in run:
         cfg.label = _typed(run, "label", (str,), origin, "run")
     if "rig" in run:
@@ -137,14 +143,7 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
         if k in run:
             setattr(cfg, k, _typed(run, k, (str,), origin, "run"))
 
-    rec = data.get("recorder", {})
-    if not isinstance(rec, dict):
-        raise ConfigError(origin, "recorder", "expected a table")
-    bad = set(rec) - _REC_KEYS
-    if bad:
-        raise ConfigError(
-            origin, f"recorder.{sorted(bad)[0]}", f"unknown key (known: {sorted(_REC_KEYS)})"
-        )
+    rec = _section(data, "recorder", _REC_KEYS, origin)
     if "out" in rec:
         o = _typed(rec, "out", (str,), origin, "recorder")
         cfg.out = Path(o) if Path(o).is_absolute() else base / o
