@@ -83,14 +83,7 @@ def project_points(
     obj = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
     if obj.shape[0] == 0:
         return np.zeros((0, 2))
-    img, _ = cv2.projectPoints(
-        obj,
-        np.asarray(rvec, dtype=np.float64).reshape(3, 1),
-        np.asarray(tvec, dtype=np.float64).reshape(3, 1),
-        np.asarray(K, dtype=np.float64),
-        _dist(dist),
-    )
-    return img.reshape(-1, 2).astype(np.float64)
+    return _project(obj, rvec, tvec, K, dist)[0]
 
 
 def project_points_jacobian(
@@ -98,6 +91,14 @@ def project_points_jacobian(
 ) -> tuple[F64, F64]:
     """Projections (N, 2) and ``cv2.projectPoints``' Jacobian (2N, 6) w.r.t. ``[rvec, tvec]``."""
     obj = np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
+    return _project(obj, rvec, tvec, K, dist)
+
+
+def _project(
+    obj: F64, rvec: ArrayLike, tvec: ArrayLike, K: ArrayLike, dist: ArrayLike
+) -> tuple[F64, F64]:
+    """``cv2.projectPoints`` of (N, 1, 3) points: pixels (N, 2) and the Jacobian (2N, 6) w.r.t.
+    ``[rvec, tvec]``."""
     img, jac = cv2.projectPoints(
         obj,
         np.asarray(rvec, dtype=np.float64).reshape(3, 1),
