@@ -388,11 +388,11 @@ class PointMatcher:
         self._last = None
 
     # -- scoring -------------------------------------------------------------------------------
-    def _associate(self, rvec: F64, tvec: F64, blobs: F64) -> tuple[I64, float, float]:
-        """Labels by nearest blob within the gate; cost (chi-square units) and crowding margin."""
+    def _nearest_blobs(self, rvec: F64, tvec: F64, blobs: F64) -> tuple[I64, F64, F64]:
+        """Project the markers with the pose; per marker (M): blob indices by distance (M, N), the
+        distance to the nearest blob and to the second nearest (inf with one blob), px."""
         proj = cv.project_points(self.P, rvec, tvec, self.camera.K, self.camera.dist)
         d = np.linalg.norm(proj[:, None, :] - blobs[None, :, :2], axis=2)  # (M, N)
-        labels = np.full(len(self.P), -1, np.int64)
         order = np.argsort(d, axis=1)
         nearest = d[np.arange(len(self.P)), order[:, 0]]
         second = (
@@ -400,6 +400,12 @@ class PointMatcher:
             if d.shape[1] > 1
             else np.full(len(self.P), np.inf)
         )
+        return order, nearest, second
+
+    def _associate(self, rvec: F64, tvec: F64, blobs: F64) -> tuple[I64, float, float]:
+        """Labels by nearest blob within the gate; cost (chi-square units) and crowding margin."""
+        order, nearest, second = self._nearest_blobs(rvec, tvec, blobs)
+        labels = np.full(len(self.P), -1, np.int64)
         within = nearest < self.gate_px
         labels[within] = order[within, 0]
         # a blob claimed by two markers is not a valid labelling: drop both
@@ -489,15 +495,7 @@ class PointMatcher:
 
     def _track(self, b: F64) -> MatchResult | None:
         r, t = self._last  # type: ignore[misc]
-        proj = cv.project_points(self.P, r, t, self.camera.K, self.camera.dist)
-        d = np.linalg.norm(proj[:, None, :] - b[None, :, :2], axis=2)
-        order = np.argsort(d, axis=1)
-        near = d[np.arange(len(self.P)), order[:, 0]]
-        sec = (
-            d[np.arange(len(self.P)), order[:, 1]]
-            if d.shape[1] > 1
-            else np.full(len(self.P), np.inf)
-        )
+        order, near, sec = self._nearest_blobs(r, t, b)
         labels = np.where(near < self.track_gate_px, order[:, 0], -1)
         # unambiguous: the runner-up blob of each marker is much farther than the nearest
         if np.any((labels >= 0) & (sec < 2 * near + 4 * self.gate_px)):
