@@ -39,10 +39,8 @@ import io
 import math
 import os
 import sys
-import tempfile
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,6 +57,7 @@ from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
 
 from .aero_model import AeroModel, aero_from_mapping
+from .files import atomic_output, load_toml
 from .loadcell import INT24_MAX, INT24_MIN, Calibration, check_frame_budget
 
 FloatArray = NDArray[np.float64]
@@ -352,40 +351,15 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
 
 def load_schedule(path: str | os.PathLike[str], rig: Rig) -> Schedule:
     """Read a schedule TOML file (errors name the file and key)."""
-    return schedule_from_mapping(_read_toml(path), str(Path(path)), rig)
-
-
-def _read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Parse a TOML file; a missing or invalid file raises ConfigError naming it."""
-    p = Path(path)
-    try:
-        return tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(str(p), "", "file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+    return schedule_from_mapping(load_toml(path), str(Path(path)), rig)
 
 
 # --------------------------------------------------------------------------------------------
 # truth
 # --------------------------------------------------------------------------------------------
 def _atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the truth gets the usual permissions
-        os.replace(tmp, p)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    with atomic_output(path, "wb") as fh:
+        fh.write(data)
 
 
 class VirtualRig:
@@ -1074,7 +1048,7 @@ class RigRun:
 def _load_rig(path: str) -> Rig:
     from cdpr.analysis.rig import rig_from_mapping
 
-    return rig_from_mapping(_read_toml(path), source=str(Path(path)))
+    return rig_from_mapping(load_toml(path), source=str(Path(path)))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,68 @@
+"""Files read and written whole: TOML parsing with clear errors and atomic outputs.
+
+Shared by the drivers' tools (:mod:`cdpr.daq.virtual_rig`) and every pipeline
+(:mod:`cdpr.pipelines.config` re-exports both).  Errors are
+:class:`~cdpr.analysis.errors.ConfigError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import tomllib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from cdpr.analysis.errors import ConfigError
+
+
+def load_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Parse a TOML file; a missing file or a syntax error becomes a :class:`ConfigError`."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(str(p), "", "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any]:
+    """Write to a temporary file beside ``path`` and move it into place only on success.
+
+    A failure (or an exception from the caller) leaves no partial file behind.
+    """
+    p = Path(path)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".part", dir=p.parent)
+    except (FileExistsError, NotADirectoryError) as exc:
+        raise ConfigError(
+            str(p), "", f"cannot write: {exc.filename} is not a folder (a file is in the way)"
+        ) from None
+    except OSError as exc:
+        raise ConfigError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
+    try:
+        with os.fdopen(fd, mode) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get the usual permissions
+        try:
+            os.replace(tmp, p)
+        except OSError as exc:
+            raise ConfigError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
