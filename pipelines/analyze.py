@@ -164,6 +164,11 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     return RunData(p, rig, t_ns, T, poses, src, v, rho, truth, cam_t, cam_q)
 
 
+def _diag_cov(sd: np.ndarray) -> np.ndarray:
+    """(n_seg, n) standard deviations -> (n_seg, n, n) diagonal covariances (independent cables)."""
+    return sd[..., None] * np.eye(sd.shape[-1]) * sd[:, None, :]
+
+
 def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
     """One row per steady segment with the recovered wrench, its standard deviations, the
     coefficients and the tension check."""
@@ -187,7 +192,7 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
         rig,
         st.pose_mean,
         st.tension_mean_N,
-        sem[..., None] * np.eye(rig.n_cables) * sem[:, None, :],
+        _diag_cov(sem),
         np.array(opts.pose_sd),
     )
     has_tare = tare_idx >= 0
@@ -202,10 +207,10 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
         rig,
         st.pose_mean,
         st.tension_mean_N,
-        sem[..., None] * np.eye(rig.n_cables) * sem[:, None, :],
+        _diag_cov(sem),
         np.array(opts.pose_sd),
         tare_tensions_N=np.nan_to_num(T0),
-        tare_tension_cov=sem0[..., None] * np.eye(rig.n_cables) * sem0[:, None, :],
+        tare_tension_cov=_diag_cov(sem0),
     )
     W_best = np.where(has_tare[:, None], W_tare, W_abs)
     # The paper's check: tensions the method commands for the recovered wrench vs the measured ones.
