@@ -106,7 +106,7 @@ def _cycled_bus_class():  # noqa: ANN202 - child-process helper
             return msgs[i % N_FRAMES], False
 
         def send(self, msg, timeout=None) -> None:  # noqa: ANN001
-            raise NotImplementedError
+            raise can.CanOperationError("the benchmark's cycled bus only receives")
 
     return CycledBus
 
