@@ -86,51 +86,74 @@ class RunData:
     camera_poses: np.ndarray | None = None  # (k, 6) camera poses
 
 
-def _topic(messages: dict[str, list], suffix: str) -> list[tuple[int, dict[str, Any]]]:
-    hits = [t for t in messages if t.rstrip("/").split("/")[-1] == suffix and messages[t]]
-    return messages[hits[0]] if hits else []
+def _topic(run: Any, suffix: str) -> str | None:
+    """The first topic of ``run`` whose last name is ``suffix`` and that has messages."""
+    hits = [t for t, i in run.streams.items() if t.rstrip("/").split("/")[-1] == suffix and i.count]
+    return hits[0] if hits else None
 
 
 def load_run(path: str | os.PathLike[str]) -> RunData:
     """Read a run file: rig attachment, tensions, tunnel conditions, pose (camera, else the truth
     file beside the run, else the rig's reference pose)."""
-    from cdpr.daq.mcap_io import read_run
+    from cdpr.daq.run_reader import open_run
 
     p = Path(path)
-    contents = read_run(p)
-    rigs = [k for k in contents.attachments if k.startswith("rig/")]
-    if not rigs:
-        raise ConfigError(str(p), "attachments", "no rig file attached to the run")
-    rig_text = contents.attachments[rigs[0]][1].decode()
-    try:
-        rig = rig_from_mapping(tomllib.loads(rig_text), f"{p}:{rigs[0]}")
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}:{rigs[0]}", "", f"invalid TOML: {exc}") from None
-    tens = _topic(contents.messages, "tensions")
-    if len(tens) < 3:
-        raise ConfigError(
-            str(p), "/tensions", f"expected a tension stream, got {len(tens)} messages"
-        )
-    cols = [f"T_{n}_N" for n in rig.cable_names]
-    missing = [c for c in cols if c not in tens[0][1]]
-    if missing:
-        raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
-    t_ns = np.fromiter((t for t, _ in tens), dtype=np.int64, count=len(tens))
-    T = pd.DataFrame.from_records([b for _, b in tens], columns=cols).to_numpy(dtype=np.float64)
+    with open_run(p) as run:
+        rigs = [k for k in run.attachments if k.startswith("rig/")]
+        if not rigs:
+            raise ConfigError(str(p), "attachments", "no rig file attached to the run")
+        rig_text = run.attachments[rigs[0]][1].decode()
+        try:
+            rig = rig_from_mapping(tomllib.loads(rig_text), f"{p}:{rigs[0]}")
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{p}:{rigs[0]}", "", f"invalid TOML: {exc}") from None
+        cols = [f"T_{n}_N" for n in rig.cable_names]
+        topic = _topic(run, "tensions")
+        n_tens = run.streams[topic].count if topic else 0
+        if topic is None or n_tens < 3:
+            raise ConfigError(
+                str(p), "/tensions", f"expected a tension stream, got {n_tens} messages"
+            )
+        tens = run.table(topic)
+        missing = [c for c in cols if c not in tens.columns]
+        if missing:
+            raise ConfigError(
+                str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}"
+            )
+        tun_topic = _topic(run, "tunnel")
+        tun = run.table(tun_topic) if tun_topic else None
+        pose_topic = _topic(run, "pose")
+        pose_df = run.table(pose_topic) if pose_topic else None
+    t_ns = tens["t_ns"].to_numpy(np.int64)
+    T = tens[cols].to_numpy(dtype=np.float64)
     order = np.argsort(t_ns, kind="stable")
     t_ns, T = t_ns[order], T[order]
     keep = np.concatenate([[True], np.diff(t_ns) > 0])
     t_ns, T = t_ns[keep], T[keep]
 
-    tun = _topic(contents.messages, "tunnel")
-    if tun:
-        tt = np.array([t for t, _ in tun], dtype=np.int64)
-        v = interpolate_at(t_ns, tt, [b.get("airspeed_mps", 0.0) for _, b in tun])
-        rho_src = [
-            b.get("density_kgpm3")
-            or float(air_density(b["static_pressure_Pa"], b["temperature_K"]))
-            for _, b in tun
-        ]
+    if tun is not None and len(tun):
+        tt = tun["t_ns"].to_numpy(np.int64)
+        nan = np.full(len(tun), np.nan)
+        v = interpolate_at(
+            t_ns,
+            tt,
+            tun["airspeed_mps"].fillna(0.0).to_numpy(np.float64)
+            if "airspeed_mps" in tun
+            else np.zeros(len(tun)),
+        )
+        rho_src = tun["density_kgpm3"].to_numpy(np.float64) if "density_kgpm3" in tun else nan
+        need = ~(rho_src > 0)
+        if need.any():
+            if "static_pressure_Pa" not in tun or "temperature_K" not in tun:
+                raise ConfigError(
+                    str(p), tun_topic or "/tunnel",
+                    "no density_kgpm3, static_pressure_Pa or temperature_K for the air density",
+                )  # fmt: skip
+            rho_src = rho_src.copy()
+            rho_src[need] = air_density(
+                tun["static_pressure_Pa"].to_numpy(np.float64)[need],
+                tun["temperature_K"].to_numpy(np.float64)[need],
+            )
         rho = interpolate_at(t_ns, tt, rho_src)
     else:
         v, rho = np.zeros(len(t_ns)), np.full(len(t_ns), 1.204)
@@ -141,19 +164,19 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         with np.load(truth_path) as z:
             truth = {k: z[k] for k in z.files}
 
-    pose_msgs = _topic(contents.messages, "pose")
+    pose_msgs = pose_df is not None and len(pose_df) > 0
     cam_t = cam_q = None
-    if pose_msgs:
-        tp = np.array([t for t, _ in pose_msgs], dtype=np.int64)
-        pos = np.array([[b["pose"]["position"][k] for k in "xyz"] for _, b in pose_msgs])
-        quat = np.array([[b["pose"]["orientation"][k] for k in "wxyz"] for _, b in pose_msgs])
+    if pose_df is not None and pose_msgs:
+        tp = pose_df["t_ns"].to_numpy(np.int64)
+        pos = pose_df[["x_m", "y_m", "z_m"]].to_numpy(np.float64)
+        quat = pose_df[["qw", "qx", "qy", "qz"]].to_numpy(np.float64)
         good = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
         if good.sum() >= 2:
             q6 = np.concatenate([pos[good], euler_from_quaternion(quat[good])], axis=1)
             poses, src = interpolate_at(t_ns, tp[good], q6), "camera (/pose stream)"
             cam_t, cam_q = tp[good], q6
         else:
-            pose_msgs = []
+            pose_msgs = False
     if not pose_msgs and truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
         poses = interpolate_at(t_ns, truth["t_ns"], q6)

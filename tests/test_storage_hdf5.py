@@ -53,7 +53,7 @@ def test_export_reads_back_with_h5py_and_pandas(tmp_path: Path) -> None:
     counts = export_hdf5(run, out)
     assert counts == {"tensions": 300, "can_raw": 3, "pose": 1, "image_cam": 1, "event": 1}
     with h5py.File(out, "r") as f:
-        assert f.attrs["format"] == "cdpr-run-hdf5/1" and f.attrs["source_file"] == "run.mcap"
+        assert f.attrs["format"] == "cdpr-run-hdf5/2" and f.attrs["source_file"] == "run.mcap"
         ds = f["streams/tensions"]
         assert ds.attrs["schema"] == "cdpr.tensions" and ds.attrs["rate_hz"] == 200.0
         df = pd.DataFrame(ds[()])
@@ -64,9 +64,10 @@ def test_export_reads_back_with_h5py_and_pandas(tmp_path: Path) -> None:
         assert np.isnan(df["T_c2_N"][7]) and df["status"][7] == 16 and df["T_c2_N"][8] == 100.0
         raw = pd.DataFrame(f["streams/can_raw"][()])
         assert raw["arbitration_id"].tolist() == [0x181, 0x182, 0x183]
-        assert raw[["data_0", "data_1", "data_2"]].to_numpy().tolist()[2] == [2, 2, 3]
+        assert bytes(f["blobs/can_raw/data"][2]) == bytes([2, 2, 3])
         pose = pd.DataFrame(f["streams/pose"][()])
-        assert pose["pose_position_z"][0] == 0.335 and pose["pose_orientation_w"][0] == 1.0
+        assert list(pose.columns[:8]) == ["t_ns", "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz"]
+        assert pose["z_m"][0] == 0.335 and pose["qw"][0] == 1.0 and pose["qx"][0] == 0.0
         assert bytes(f["blobs/image_cam/data"][0]) == b"\x89PNG-bytes"
         ev = f["streams/event"][()]
         assert ev["message"][0].decode() == "wind on 17.27 m/s"

@@ -16,27 +16,32 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def inspect_run(path: str) -> dict[str, Any]:
     """The summary ``cdpr inspect`` prints, as a dict."""
-    from cdpr.daq.mcap_io import read_run, summarize
+    from cdpr.daq.run_reader import open_run, summarize
 
-    rc = read_run(path)
-    streams = summarize(rc)
+    with open_run(path) as rc:
+        streams = summarize(rc)
+        metadata = rc.metadata
+        attachments = {
+            k: {"media_type": v[0], "bytes": len(v[1])} for k, v in rc.attachments.items()
+        }
+        drops: dict[str, dict[str, int]] = {}
+        if "/recorder" in rc.streams and rc.streams["/recorder"].count:
+            stats = rc.table("/recorder")
+            last_stats = stats.iloc[-1]
+            for k, v in last_stats.items():
+                if k in ("t_ns", "status") or "_" not in str(k) or v != v:
+                    continue
+                src, _, what = str(k).rpartition("_")
+                drops.setdefault(src, {})[what] = int(v)
+        recovered, warning = rc.recovered, rc.warning
     first = [s.first_ns for s in streams if s.first_ns is not None]
     last = [s.last_ns for s in streams if s.last_ns is not None]
-    run_md = rc.metadata.get("run", {})
-    end_md = rc.metadata.get("run_end", {})
-    drops: dict[str, dict[str, int]] = {}
-    rec_msgs = rc.messages.get("/recorder", [])
-    if rec_msgs:
-        last_stats = max(rec_msgs, key=lambda m: m[0])[1]
-        for k, v in last_stats.items():
-            if k == "status" or "_" not in k:
-                continue
-            src, _, what = k.rpartition("_")
-            drops.setdefault(src, {})[what] = int(v)
+    run_md = metadata.get("run", {})
+    end_md = metadata.get("run_end", {})
     return {
         "file": str(path),
-        "complete": rc.complete,
-        "read_error": rc.error,
+        "complete": not recovered,
+        "read_error": warning,
         "duration_s": (max(last) - min(first)) / 1e9 if first else 0.0,
         "streams": [
             {
@@ -62,10 +67,8 @@ def inspect_run(path: str) -> dict[str, Any]:
             for k, v in end_md.items()
             if k in ("stop_time_utc", "duration_s", "stop_reason", "dropped_total")
         },
-        "other_metadata": sorted(k for k in rc.metadata if k not in ("run", "run_end")),
-        "attachments": {
-            k: {"media_type": v[0], "bytes": len(v[1])} for k, v in rc.attachments.items()
-        },
+        "other_metadata": sorted(k for k in metadata if k not in ("run", "run_end")),
+        "attachments": attachments,
     }
 
 
@@ -81,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(info, indent=2))
         return 0
     md = info["metadata"]
-    state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error'] or 'no footer'})"
+    state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error']})"
     print(f"run {info['file']}: {state}, {info['duration_s']:.3f} s of data")
     for k in ("label", "rig", "rig_sha256", "software_version", "host", "start_time_utc",
               "operator", "notes", "calibration_ids", "command"):  # fmt: skip

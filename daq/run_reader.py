@@ -1,0 +1,655 @@
+"""``open_run(path)``: the one columnar reader of run files (MCAP).
+
+A :class:`Run` gives the metadata records, the attachments, a description of every stream (schema,
+fields with units and shapes, message count, exact time range) and, for the topics asked for only,
+a ``pandas.DataFrame`` per topic: ``run.table("/tensions")``, or window by window for runs larger
+than memory: ``for df in run.iter_tables("/tensions", window_ns=60 * 10**9)``.
+
+The reader goes through the MCAP summary: the chunk index says which chunks hold a channel and over
+which times, the message index after each chunk says where each message of the channel sits in it,
+so a topic is read without decoding the others.  Bodies are decoded a chunk at a time: flat numeric
+JSON (tensions, tunnel, the recorder's stats) by one regular-expression pass and one numpy
+conversion per chunk, the rest by one ``json.loads`` of the chunk's bodies joined into a JSON array.
+Nothing outside this module knows the message layout: the columns are
+
+- ``t_ns`` (int64, the message log time, ns since the Unix epoch) first, sorted;
+- pose (``foxglove.PoseInFrame``): ``x_m, y_m, z_m, qw, qx, qy, qz``, then ``cov_00 .. cov_55``
+  when a covariance was recorded, then the other recorded values (``reprojection_px``, ``flags``,
+  ``status``, ``frame_id``, ...; a list value ``v`` of length k becomes ``v_0 .. v_{k-1}``);
+- events (``foxglove.Log``): ``level``, ``message``, ``name`` and the extra fields;
+- raw CAN frames (``/can_raw``): one column per recorded field, ``data`` as ``bytes``;
+- every other stream: its fields as recorded (``T_<cable>_N``, ``status``, ``counter``, ...).
+  A missing number (JSON ``null``, which the writer writes for NaN) is NaN.
+
+A file without a valid summary (a recorder killed mid-run) is read through
+:func:`cdpr.daq.mcap_io.recover_run` into a temporary file, with the same API: ``run.recovered`` is
+True and ``run.warning`` says what was lost.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import struct
+import tempfile
+import warnings
+import zlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdpr.analysis.errors import InputError
+
+__all__ = ["FieldInfo", "Run", "StreamInfo", "open_run"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_KEY = re.compile(rb'"(?:[^"\\]|\\.)*":')
+_U64 = np.dtype("<u8")
+
+
+@dataclass(frozen=True)
+class FieldInfo:
+    """A field of a stream as its schema describes it: JSON type, unit and shape (``()`` scalar)."""
+
+    type: str
+    unit: str = ""
+    shape: tuple[int, ...] = ()
+
+
+@dataclass
+class StreamInfo:
+    """One stream of a run: topic, schema name, fields, nominal rate, message count and time range
+    (``start_ns``/``stop_ns`` of its first and last message, None when it has none)."""
+
+    topic: str
+    schema_name: str
+    fields: dict[str, FieldInfo]
+    rate_hz: float
+    count: int
+    start_ns: int | None
+    stop_ns: int | None
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def units(self) -> dict[str, str]:
+        return {k: f.unit for k, f in self.fields.items() if f.unit}
+
+
+def _fields_of(schema: dict[str, Any] | None, units: dict[str, str]) -> dict[str, FieldInfo]:
+    out: dict[str, FieldInfo] = {}
+    props = (schema or {}).get("properties", {})
+    for name, p in props.items():
+        if not isinstance(p, dict) or name == "timestamp":
+            continue
+        shape: list[int] = []
+        q = p
+        while q.get("type") == "array" and "minItems" in q and isinstance(q.get("items"), dict):
+            shape.append(int(q["minItems"]))
+            q = q["items"]
+        typ = q.get("type", "object")
+        if isinstance(typ, list):  # ["number", "null"]: a number that may be missing
+            typ = next((t for t in typ if t != "null"), "null")
+        unit = units.get(name, "")
+        desc = str(p.get("description", ""))
+        if not unit and desc.startswith("unit: "):
+            unit = desc[6:]
+        out[name] = FieldInfo(str(typ), unit, tuple(shape))
+    return out
+
+
+class Run:
+    """An open run file (see the module docstring); use :func:`open_run`."""
+
+    def __init__(self, path: Path) -> None:
+        from mcap.exceptions import McapError
+        from mcap.reader import SeekingReader
+
+        self.path = path
+        self.recovered = False
+        self.warning: str | None = None
+        self._tmpdir: str | None = None
+        self._fh = path.open("rb")
+        summary = None
+        try:
+            summary = SeekingReader(self._fh).get_summary()
+        except (McapError, struct.error, ValueError, EOFError):
+            summary = None
+        if summary is None or (
+            summary.statistics and summary.statistics.message_count and not summary.chunk_indexes
+        ):
+            self._fh.close()
+            self._open_recovered(path)
+            summary = self._summary_of_recovered()
+        self._summary = summary
+        self._chunk_cache: dict[int, bytes] = {}
+        self.metadata: dict[str, dict[str, str]] = {}
+        for mi in summary.metadata_indexes:
+            self.metadata[mi.name] = self._read_metadata(mi.offset, mi.length)
+        self._attachment_index = {ai.name: ai for ai in summary.attachment_indexes}
+        self._attachments: dict[str, tuple[str, bytes]] | None = None
+        counts = dict(summary.statistics.channel_message_counts) if summary.statistics else {}
+        self._topic_cid: dict[str, int] = {}
+        self.streams: dict[str, StreamInfo] = {}
+        for cid, ch in sorted(summary.channels.items()):
+            sch = summary.schemas.get(ch.schema_id)
+            schema_json = None
+            if sch is not None and sch.encoding == "jsonschema":
+                try:
+                    schema_json = json.loads(sch.data)
+                except ValueError:
+                    schema_json = None
+            meta = dict(ch.metadata)
+            try:
+                units = json.loads(meta.get("units", "{}"))
+            except ValueError:
+                units = {}
+            try:
+                rate = float(meta.get("rate_hz", "0") or 0)
+            except ValueError:
+                rate = 0.0
+            self._topic_cid[ch.topic] = cid
+            self.streams[ch.topic] = StreamInfo(
+                ch.topic,
+                sch.name if sch is not None else "",
+                _fields_of(schema_json, units if isinstance(units, dict) else {}),
+                rate,
+                int(counts.get(cid, 0)),
+                None,
+                None,
+                meta,
+            )
+            self.streams[ch.topic].start_ns, self.streams[ch.topic].stop_ns = self._time_range(cid)
+
+    # -- opening ------------------------------------------------------------------------------
+    def _open_recovered(self, path: Path) -> None:
+        from .mcap_io import recover_run
+
+        self._tmpdir = tempfile.mkdtemp(prefix="cdpr-run-")
+        out = Path(self._tmpdir) / (path.name.removesuffix(".mcap") + ".recovered.mcap")
+        _, contents = recover_run(path, out)
+        n = sum(len(v) for v in contents.messages.values())
+        self.recovered = True
+        self.warning = (
+            f"{path}: no valid MCAP summary (truncated or damaged: "
+            f"{contents.error or 'no footer'}); read through recovery, {n} messages salvaged, "
+            "data after the damage is lost"
+        )
+        self._fh = out.open("rb")
+
+    def _summary_of_recovered(self) -> Any:
+        from mcap.reader import SeekingReader
+
+        summary = SeekingReader(self._fh).get_summary()
+        if summary is None:  # recover_run always writes a summary
+            raise InputError(f"{self.path}: recovery produced no summary")
+        return summary
+
+    def close(self) -> None:
+        """Close the file (and remove the recovered copy of a truncated run)."""
+        self._fh.close()
+        self._chunk_cache.clear()
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
+
+    def __enter__(self) -> Run:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- records ------------------------------------------------------------------------------
+    def _read_at(self, offset: int, length: int) -> bytes:
+        self._fh.seek(offset)
+        data = self._fh.read(length)
+        if len(data) != length:
+            raise InputError(f"{self.path}: record at byte {offset} cut short")
+        return data
+
+    def _read_metadata(self, offset: int, length: int) -> dict[str, str]:
+        raw = self._read_at(offset, length)
+        pos = 9
+        (nlen,) = struct.unpack_from("<I", raw, pos)
+        pos += 4 + nlen
+        (mlen,) = struct.unpack_from("<I", raw, pos)
+        pos += 4
+        end = pos + mlen
+        out: dict[str, str] = {}
+        while pos < end:
+            (kl,) = struct.unpack_from("<I", raw, pos)
+            k = raw[pos + 4 : pos + 4 + kl].decode()
+            pos += 4 + kl
+            (vl,) = struct.unpack_from("<I", raw, pos)
+            out[k] = raw[pos + 4 : pos + 4 + vl].decode()
+            pos += 4 + vl
+        return out
+
+    @property
+    def attachments(self) -> dict[str, tuple[str, bytes]]:
+        """Attachment name -> (media type, bytes), read on first use."""
+        if self._attachments is None:
+            from mcap.data_stream import ReadDataStream
+            from mcap.records import Attachment
+
+            out: dict[str, tuple[str, bytes]] = {}
+            for name, ai in self._attachment_index.items():
+                raw = self._read_at(ai.offset + 9, ai.length - 9)
+                import io
+
+                rec = Attachment.read(ReadDataStream(io.BytesIO(raw)))
+                out[name] = (rec.media_type, bytes(rec.data))
+            self._attachments = out
+        return self._attachments
+
+    def _chunk(self, ci: Any) -> bytes:
+        """The uncompressed records of the chunk of chunk index ``ci`` (cached: the last few)."""
+        hit = self._chunk_cache.get(ci.chunk_start_offset)
+        if hit is not None:
+            return hit
+        raw = self._read_at(ci.chunk_start_offset, ci.chunk_length)
+        # opcode, length, start, end, uncompressed size, crc, compression string, records length
+        pos = 9 + 24
+        (crc,) = struct.unpack_from("<I", raw, pos)
+        (clen,) = struct.unpack_from("<I", raw, pos + 4)
+        compression = raw[pos + 8 : pos + 8 + clen].decode()
+        pos += 8 + clen
+        (rlen,) = struct.unpack_from("<Q", raw, pos)
+        body = raw[pos + 8 : pos + 8 + rlen]
+        if compression == "zstd":
+            import zstandard
+
+            data = zstandard.ZstdDecompressor().decompress(
+                body, max_output_size=ci.uncompressed_size
+            )
+        elif compression == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.decompress(body)
+        elif compression == "":
+            data = bytes(body)
+        else:
+            raise InputError(
+                f"{self.path}: chunk at byte {ci.chunk_start_offset}: "
+                f"unknown compression {compression!r}"
+            )
+        if crc and zlib.crc32(data) != crc:
+            raise InputError(f"{self.path}: chunk at byte {ci.chunk_start_offset}: CRC mismatch")
+        if len(self._chunk_cache) >= 4:
+            self._chunk_cache.pop(next(iter(self._chunk_cache)))
+        self._chunk_cache[ci.chunk_start_offset] = data
+        return data
+
+    def _message_index(self, ci: Any, cid: int) -> np.ndarray:
+        """(k, 2) uint64 (log_time, offset in the chunk) of channel ``cid`` in chunk ``ci``."""
+        off = ci.message_index_offsets.get(cid)
+        if off is None:
+            return np.empty((0, 2), _U64)
+        head = self._read_at(off, 15)
+        (blen,) = struct.unpack_from("<I", head, 11)
+        raw = self._read_at(off + 15, blen)
+        return np.frombuffer(raw, _U64).reshape(-1, 2)
+
+    def _chunks_of(self, cid: int, start_ns: int | None, stop_ns: int | None) -> list[Any]:
+        out = [
+            ci
+            for ci in self._summary.chunk_indexes
+            if cid in ci.message_index_offsets
+            and (start_ns is None or ci.message_end_time >= start_ns)
+            and (stop_ns is None or ci.message_start_time < stop_ns)
+        ]
+        out.sort(key=lambda c: (c.message_start_time, c.chunk_start_offset))
+        return out
+
+    def _time_range(self, cid: int) -> tuple[int | None, int | None]:
+        chunks = self._chunks_of(cid, None, None)
+        if not chunks:
+            return None, None
+        first = min(chunks, key=lambda c: c.message_start_time)
+        last = max(chunks, key=lambda c: c.message_end_time)
+        lo = [int(self._message_index(c, cid)[:, 0].min()) for c in chunks
+              if c.message_start_time == first.message_start_time]  # fmt: skip
+        hi = [int(self._message_index(c, cid)[:, 0].max()) for c in chunks
+              if c.message_end_time == last.message_end_time]  # fmt: skip
+        return min(lo), max(hi)
+
+    # -- columnar data --------------------------------------------------------------------------
+    def _cid(self, topic: str) -> int:
+        cid = self._topic_cid.get(topic)
+        if cid is None:
+            raise InputError(
+                f"{self.path}: no topic {topic!r} in the run (topics: {', '.join(self.streams)})"
+            )
+        return cid
+
+    def _bodies(
+        self, cid: int, start_ns: int | None, stop_ns: int | None
+    ) -> Iterator[tuple[np.ndarray, list[bytes]]]:
+        """Per chunk: log times (int64) and bodies of channel ``cid`` in [start_ns, stop_ns)."""
+        for ci in self._chunks_of(cid, start_ns, stop_ns):
+            idx = self._message_index(ci, cid)
+            if not len(idx):
+                continue
+            t = idx[:, 0].astype(np.int64)
+            keep = np.ones(len(t), bool)
+            if start_ns is not None:
+                keep &= t >= start_ns
+            if stop_ns is not None:
+                keep &= t < stop_ns
+            if not keep.all():
+                idx, t = idx[keep], t[keep]
+                if not len(t):
+                    continue
+            data = self._chunk(ci)
+            buf = np.frombuffer(data, np.uint8)
+            off = idx[:, 1].astype(np.int64)
+            # message record: opcode, u64 length, u16 channel, u32 sequence, u64 log, u64 publish
+            lens = buf[(off + 1)[:, None] + np.arange(8)].copy().view(_U64).ravel().astype(np.int64)
+            starts = off + 31
+            ends = off + 9 + lens
+            yield t, [data[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
+
+    def _decode(self, topic: str, t: np.ndarray, bodies: list[bytes]) -> Any:
+        schema = self.streams[topic].schema_name
+        df = None
+        if schema not in ("foxglove.PoseInFrame", "foxglove.Log", "foxglove.CompressedImage"):
+            df = _flat_numeric(bodies, self.streams[topic].fields)
+        if df is None:
+            rows = json.loads(b"[" + b",".join(bodies) + b"]")
+            df = _rows_frame(rows, schema)
+        df.insert(0, "t_ns", t)
+        return df
+
+    def times(self, topic: str) -> np.ndarray:
+        """The log times (int64 ns, sorted) of every message of ``topic``, from the message indexes
+        alone (no chunk is decompressed)."""
+        cid = self._cid(topic)
+        parts = [self._message_index(ci, cid)[:, 0] for ci in self._chunks_of(cid, None, None)]
+        t = np.concatenate(parts).astype(np.int64) if parts else np.empty(0, np.int64)
+        t.sort(kind="stable")
+        return t
+
+    def table(
+        self,
+        topic: str,
+        columns: Sequence[str] | None = None,
+        start_ns: int | None = None,
+        stop_ns: int | None = None,
+    ) -> Any:
+        """The messages of ``topic`` with ``start_ns <= t_ns < stop_ns`` as a DataFrame sorted by
+        ``t_ns`` (``columns``: only these, after ``t_ns``; a column no message has is an error)."""
+        import pandas as pd
+
+        cid = self._cid(topic)
+        parts = [self._decode(topic, t, b) for t, b in self._bodies(cid, start_ns, stop_ns)]
+        if parts:
+            df = pd.concat(parts, ignore_index=True, sort=False) if len(parts) > 1 else parts[0]
+        else:
+            df = pd.DataFrame({"t_ns": np.empty(0, np.int64)})
+        return self._finish_frame(topic, df, columns)
+
+    def _finish_frame(self, topic: str, df: Any, columns: Sequence[str] | None) -> Any:
+        t = df["t_ns"].to_numpy()
+        if len(t) > 1 and np.any(np.diff(t) < 0):
+            df = df.iloc[np.argsort(t, kind="stable")].reset_index(drop=True)
+        if columns is not None:
+            missing = [c for c in columns if c not in df.columns]
+            if missing and len(df):
+                raise InputError(
+                    f"{self.path}: topic {topic!r} has no column {missing[0]!r} "
+                    f"(columns: {', '.join(map(str, df.columns))})"
+                )
+            df = df.reindex(columns=["t_ns", *[c for c in columns if c != "t_ns"]])
+        return df
+
+    def iter_tables(
+        self,
+        topic: str,
+        window_ns: int,
+        columns: Sequence[str] | None = None,
+        start_ns: int | None = None,
+        stop_ns: int | None = None,
+    ) -> Iterator[Any]:
+        """``table(topic)`` in consecutive time windows of ``window_ns`` (bounded memory): each
+        message comes in exactly one window; empty windows are skipped."""
+        window_ns = int(window_ns)
+        if window_ns <= 0:
+            raise InputError(f"window_ns must be > 0, got {window_ns}")
+        info = self.streams.get(topic)
+        self._cid(topic)
+        if info is None or info.start_ns is None or info.stop_ns is None:
+            return
+        a = info.start_ns if start_ns is None else max(int(start_ns), info.start_ns)
+        end = info.stop_ns + 1 if stop_ns is None else min(int(stop_ns), info.stop_ns + 1)
+        while a < end:
+            b = min(a + window_ns, end)
+            df = self.table(topic, columns, a, b)
+            if len(df):
+                yield df
+            a = b
+
+    def __repr__(self) -> str:
+        extra = ", recovered" if self.recovered else ""
+        return f"Run({str(self.path)!r}, {len(self.streams)} streams{extra})"
+
+
+@dataclass
+class StreamSummary:
+    """Counts and timing of one stream (``cdpr inspect``)."""
+
+    topic: str
+    schema: str
+    count: int
+    first_ns: int | None
+    last_ns: int | None
+    rate_hz: float
+    nominal_rate_hz: float
+    gaps: int
+    max_gap_s: float
+    bad_status: int
+
+
+def summarize(run: Run) -> list[StreamSummary]:
+    """Per-stream counts, rates, gaps and readings with a non-zero ``status``.
+
+    A gap is an interval longer than 3x the larger of the nominal period (channel metadata
+    ``rate_hz``) and the 90th-percentile interval (so bursts, e.g. 4 CAN frames per sample, are not
+    gaps).  Times come from the message indexes; ``status`` is decoded window by window."""
+    out = []
+    for topic, info in run.streams.items():
+        t = run.times(topic)
+        n = len(t)
+        nominal = info.rate_hz
+        if n == 0:
+            out.append(StreamSummary(topic, info.schema_name, 0, None, None, 0.0, nominal, 0,
+                                     0.0, 0))  # fmt: skip
+            continue
+        span = (t[-1] - t[0]) / 1e9
+        rate = float((n - 1) / span) if span > 0 else 0.0
+        gaps, max_gap = 0, 0.0
+        if n > 2:
+            dt = np.diff(t) / 1e9
+            ref = max(1.0 / nominal if nominal > 0 else 0.0, float(np.percentile(dt, 90)))
+            if ref > 0:
+                gaps = int(np.count_nonzero(dt > 3 * ref))
+            max_gap = float(dt.max())
+        bad = 0
+        if "status" in info.fields or info.schema_name.startswith("cdpr."):
+            for df in run.iter_tables(topic, 600 * 10**9):
+                if "status" in df.columns:
+                    bad += int(np.count_nonzero(df["status"].fillna(0).to_numpy()))
+        out.append(StreamSummary(topic, info.schema_name, n, int(t[0]), int(t[-1]), rate,
+                                 nominal, gaps, max_gap, bad))  # fmt: skip
+    return out
+
+
+def open_run(path: str | os.PathLike[str]) -> Run:
+    """Open a run file for reading (see the module docstring).  Bad input (missing file, not an
+    MCAP file) raises :class:`~cdpr.analysis.errors.ConfigError` naming the file."""
+    from .mcap_io import _check_file
+
+    return Run(_check_file(path))
+
+
+# -------------------------------------------------------------------------------------------------
+# decoding
+
+
+def _flat_numeric(bodies: list[bytes], types: dict[str, FieldInfo]) -> Any:
+    """Columns of flat JSON objects of numbers with the same keys in the same order, or None when
+    the bodies are not like that.  Vectorised over the chunk with numpy on the joined bytes: the
+    positions of ``:`` start the values, the next ``,`` or ``}`` ends each; the keys before every
+    ``:`` are checked to be the first body's keys in order in every row; the values are gathered
+    into one fixed-width byte-string array and each column converted at once (``integer`` fields of
+    the schema to int64, exactly; others to float64, ``null`` to NaN)."""
+    import pandas as pd
+
+    n = len(bodies)
+    keys0 = _KEY.findall(bodies[0])
+    k = len(keys0)
+    if not k or any(b"," in key or b":" in key[:-1] or b"{" in key for key in keys0):
+        return None
+    text = b",".join(bodies)
+    buf = np.frombuffer(text, np.uint8)
+    colon = np.flatnonzero(buf == 58)
+    if len(colon) != n * k:
+        return None
+    seps = np.flatnonzero((buf == 44) | (buf == 125))
+    ends = seps[np.searchsorted(seps, colon)]  # every value ends at the next ',' or '}'
+    # the keys: '"key"' right before each ':', after '{' (first key of a row) or ','
+    klen = np.array([len(key) - 1 for key in keys0], np.int64)  # with both quotes
+    kstart = colon - np.tile(klen, n)
+    lead = np.full(k, 44, np.uint8)
+    lead[0] = 123
+    if np.any(kstart < 1) or np.any(buf[kstart - 1] != np.tile(lead, n)):
+        return None
+    kw = int(klen.max())
+    expect = np.zeros((k, kw), np.uint8)
+    for j, key in enumerate(keys0):
+        expect[j, : len(key) - 1] = np.frombuffer(key[:-1], np.uint8)
+    kidx = kstart[:, None] + np.arange(kw)
+    got = np.where(
+        np.arange(kw) < np.tile(klen, n)[:, None], buf[np.minimum(kidx, len(buf) - 1)], 0
+    )
+    if not np.array_equal(got.reshape(n, k, kw), np.broadcast_to(expect, (n, k, kw))):
+        return None
+    vlen = ends - colon - 1
+    width = int(vlen.max())
+    if width < 1 or width > 64:
+        return None
+    # the values, space-padded to one width, each followed by ',': the text np.fromstring parses
+    vidx = (colon + 1)[:, None] + np.arange(width)
+    vals = np.full((n * k, width + 1), 44, np.uint8)
+    vals[:, :width] = np.where(
+        np.arange(width) < vlen[:, None], buf[np.minimum(vidx, len(buf) - 1)], 32
+    )
+    if np.any((vals == 34) | (vals == 91) | (vals == 123) | (vals == 116) | (vals == 102)):
+        return None  # a string, an array, an object, true or false
+    null = vals[:, 0] == 110  # 'null' (NaN written by the writer): parsed as 'nan'
+    if null.any():
+        vals[null, :4] = np.frombuffer(b"nan ", np.uint8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # text it cannot parse: not silent
+        try:
+            flat = np.fromstring(vals.tobytes()[:-1], dtype=np.float64, sep=",")  # noqa: NPY201
+        except (DeprecationWarning, ValueError):
+            return None
+    if len(flat) != n * k:
+        return None
+    table = flat.reshape(n, k)
+    digits = vals[:, :width].reshape(n, k, width)
+    cols: dict[str, Any] = {}
+    for j, key in enumerate(keys0):
+        name = key[1:-2].decode()
+        fi = types.get(name)
+        col = table[:, j]
+        if fi is not None and fi.type == "number":
+            cols[name] = col
+            continue
+        ints = _exact_ints(digits[:, j])
+        if ints is not None:
+            cols[name] = ints
+        elif fi is not None and fi.type == "integer":
+            return None
+        else:
+            cols[name] = col
+    return pd.DataFrame(cols)
+
+
+def _exact_ints(chars: np.ndarray) -> np.ndarray | None:
+    """int64 values of right-space-padded ASCII integers (n, w) (optional leading '-'), exactly;
+    None when a value is not an integer of at most 18 digits."""
+    if chars.shape[1] > 19:
+        if np.any(chars[:, 19:] != 32):  # beyond int64
+            return None
+        chars = chars[:, :19]
+    neg = chars[:, 0] == 45
+    d = chars.astype(np.int64) - 48
+    d[:, 0] = np.where(neg, 0, d[:, 0])
+    pad = chars == 32
+    isdig = (d >= 0) & (d <= 9)
+    if not np.all(isdig | pad):
+        return None
+    # digits must be contiguous from the start (then padding): a pad followed by a digit is not
+    if np.any(pad[:, :-1] & ~pad[:, 1:]) or np.any(pad[:, 0]):
+        return None
+    acc = np.zeros(len(chars), np.int64)
+    for c in range(chars.shape[1]):
+        p = ~pad[:, c]
+        acc = np.where(p, acc * 10 + d[:, c], acc)
+    return np.where(neg, -acc, acc)
+
+
+def _flatten(prefix: str, v: Any, out: dict[str, Any]) -> None:
+    if isinstance(v, dict):
+        for k, x in v.items():
+            _flatten(f"{prefix}_{k}" if prefix else str(k), x, out)
+    elif isinstance(v, list):
+        if prefix == "covariance" and len(v) == 36:
+            for i, x in enumerate(v):
+                out[f"cov_{i // 6}{i % 6}"] = x
+        else:
+            for i, x in enumerate(v):
+                _flatten(f"{prefix}_{i}", x, out)
+    else:
+        out[prefix] = v
+
+
+def _rows_frame(rows: list[dict[str, Any]], schema: str) -> Any:
+    import base64
+
+    import pandas as pd
+
+    flat_rows = []
+    for body in rows:
+        out: dict[str, Any] = {}
+        body = dict(body)
+        body.pop("timestamp", None)
+        if schema == "foxglove.PoseInFrame":
+            pose = body.pop("pose", {}) or {}
+            p = pose.get("position", {}) or {}
+            q = pose.get("orientation", {}) or {}
+            out.update(
+                x_m=p.get("x"), y_m=p.get("y"), z_m=p.get("z"),
+                qw=q.get("w"), qx=q.get("x"), qy=q.get("y"), qz=q.get("z"),
+            )  # fmt: skip
+            cov = body.pop("covariance", None)
+            if isinstance(cov, list):
+                _flatten("covariance", cov, out)
+        elif schema == "foxglove.CompressedImage":
+            raw = body.pop("data", "")
+            out["data"] = base64.b64decode(raw) if isinstance(raw, str) else bytes(raw or b"")
+        if "data" in body and isinstance(body["data"], list):  # raw CAN payload
+            out["data"] = bytes(body.pop("data"))
+        for key, v in body.items():
+            _flatten(key, v, out)
+        flat_rows.append(out)
+    df = pd.DataFrame.from_records(flat_rows)
+    for c in df.columns:
+        if df[c].dtype == object and df[c].map(lambda x: x is None).all():
+            df[c] = np.nan
+    return df
