@@ -126,14 +126,22 @@ class StreamCodec:
     encode_frames: Callable[[Any], FrameRecords] | None = None
 
 
+#: a float that may be missing: NaN is written as JSON ``null`` (strict JSON has no NaN)
+_NUMBER_OR_NULL = {"type": ["number", "null"], "description": "null: missing (NaN)"}
+
+
 def _field_schema(desc: Any) -> dict[str, Any]:
     base = dict(_JSON_TYPES.get(getattr(desc, "dtype", "float64"), {}))
+    if base.get("type") == "number":
+        base = dict(_NUMBER_OR_NULL)
     shape = tuple(getattr(desc, "shape", ()) or ())
     for n in reversed(shape):
         base = {"type": "array", "items": base, "minItems": n, "maxItems": n}
     unit = getattr(desc, "unit", "")
     if unit:
-        base["description"] = f"unit: {unit}"
+        base["description"] = f"unit: {unit}" + (
+            "; null: missing (NaN)" if "description" in base else ""
+        )
     return base
 
 
@@ -183,11 +191,11 @@ def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCod
                 "properties": {
                     "position": {
                         "type": "object",
-                        "properties": {k: {"type": "number"} for k in "xyz"},
+                        "properties": {k: _NUMBER_OR_NULL for k in "xyz"},
                     },
                     "orientation": {
                         "type": "object",
-                        "properties": {k: {"type": "number"} for k in "xyzw"},
+                        "properties": {k: _NUMBER_OR_NULL for k in "xyzw"},
                     },
                 },
             },

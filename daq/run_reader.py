@@ -97,7 +97,7 @@ def _fields_of(schema: dict[str, Any] | None, units: dict[str, str]) -> dict[str
         unit = units.get(name, "")
         desc = str(p.get("description", ""))
         if not unit and desc.startswith("unit: "):
-            unit = desc[6:]
+            unit = desc[6:].split(";")[0]
         out[name] = FieldInfo(str(typ), unit, tuple(shape))
     return out
 

@@ -92,7 +92,10 @@ def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path)
     assert rc.messages["/event"][0][1]["level"] == 3  # foxglove.Log WARNING
     assert json.loads(rc.metadata["run"]["calibration_ids"]) == {"lc": "abc"}
     sch = rc.channels["/tensions"].schema
-    assert sch["properties"]["T_c1_N"] == {"type": "number", "description": "unit: N"}
+    assert sch["properties"]["T_c1_N"] == {
+        "type": ["number", "null"],
+        "description": "unit: N; null: missing (NaN)",
+    }
     assert json.loads(rc.channels["/tensions"].metadata["units"]) == {"T_c1_N": "N"}
 
 
@@ -250,3 +253,40 @@ def test_summary_indexes_serve_time_range_queries(tmp_path: Path) -> None:
         got = [m.log_time for _, _, m in it]
     assert got == list(range(T0 + 1500, T0 + 2000))
     assert node_read(p)["indexed"]["topics"] == {"/a": 2000, "/b": 1000}
+
+
+def test_every_message_is_valid_against_its_channel_schema(tmp_path: Path) -> None:
+    """A lost CAN frame (NaN tension), a failed camera pose (NaN position) and the recorded raw
+    frames: each message validates against its own channel's JSON schema (jsonschema, Draft 2020-12
+    validator), and the reader gives NaN back for the missing numbers."""
+    import jsonschema
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from cdpr.daq.run_reader import open_run
+
+    p = tmp_path / "run.mcap"
+    w = McapRunWriter(p)
+    w.add_stream("tensions", _tension_desc())
+    w.write(Reading("tensions", T0, {"T_c1_N": 40.0, "raw_c1_counts": 7}))
+    w.write(Reading("tensions", T0 + 1, {"T_c1_N": math.nan, "raw_c1_counts": -(2**31)}, 16))
+    w.write(
+        Reading(
+            "pose",
+            T0,
+            {"position_O_m": [math.nan] * 3, "quaternion_wxyz": [math.nan] * 4, "flags": 4},
+            4,
+        )
+    )
+    w.write(Reading("event", T0, {"message": "point 1", "level": "info"}))
+    w.finish()
+    n = 0
+    with p.open("rb") as fh:
+        for schema, _, msg in make_reader(fh).iter_messages():
+            jsonschema.Draft202012Validator(json.loads(schema.data)).validate(json.loads(msg.data))
+            n += 1
+    assert n == 4
+    with open_run(p) as run:
+        t = run.table("/tensions")
+        assert np.isnan(t["T_c1_N"][1]) and t["status"].tolist() == [0, 16]
+        assert run.table("/pose")[["x_m", "qw"]].isna().all().all()
