@@ -7,8 +7,8 @@ following that naming works; the frames of one sample are the messages that carr
 
 Streams:
 
-- ``can_raw``: every frame as received: ``arbitration_id``, ``data`` (bytes), ``dlc``,
-  ``is_extended``, ``is_error_frame``, ``t_bus_ns`` (the interface's timestamp).
+- ``can_raw``: every frame as it was on the bus, every field python-can gives it (layout and codec:
+  :mod:`cdpr.daq.can_raw`, registered here).
 - ``tensions``: one reading per sample: ``T_<cable>_N``, ``raw_<cable>_counts``, ``status_<cable>``
   (DBC bits: 1 saturated, 2 slack, 4 fault), ``counter`` (0..255), ``seq`` (unwrapped counter) and
   ``t_bus_ns`` of the first frame.  A sample with a missing frame comes out with NaN for the missing
@@ -36,9 +36,10 @@ import cantools
 
 from cdpr.analysis.errors import ConfigError
 
+from . import can_raw
 from .loadcell import Calibration, calibration_from_settings, check_frame_budget
+from .mcap_io import register_stream_codec
 from .source import (
-    STATUS_BAD_FRAME,
     STATUS_GAP,
     STATUS_SATURATED,
     STATUS_SENSOR_FAULT,
@@ -160,7 +161,15 @@ class LoadCellDecoder:
     def decode(self, msg: can.Message, t_ns: int) -> list[Reading]:
         """Feed one frame; returns the completed (or flushed partial) samples, usually 0 or 1."""
         fid = msg.arbitration_id
-        if fid not in self._msgs or msg.is_error_frame or msg.is_remote_frame:
+        m = self._msgs.get(fid)
+        # the id with its extended flag: an extended frame whose id equals a standard load-cell
+        # id is another frame
+        if (
+            m is None
+            or bool(m.is_extended_frame) != bool(msg.is_extended_id)
+            or msg.is_error_frame
+            or msg.is_remote_frame
+        ):
             return []
         data = bytes(msg.data)
         try:
@@ -297,35 +306,8 @@ class LoadCellDecoder:
         )
 
 
-CAN_RAW_DESCRIPTION = StreamDescription(
-    {
-        "arbitration_id": FieldDescription("", "int64"),
-        "data": FieldDescription("", "bytes"),
-        "dlc": FieldDescription("", "int64"),
-        "is_extended": FieldDescription("", "int64"),
-        "is_error_frame": FieldDescription("", "int64"),
-        "t_bus_ns": FieldDescription("ns", "int64"),
-    },
-    0.0,
-    "every CAN frame as received (t_bus_ns: the interface's timestamp)",
-)
-
-
-def raw_reading(msg: can.Message, t_ns: int) -> Reading:
-    """A ``can_raw`` reading of one frame."""
-    return Reading(
-        "can_raw",
-        t_ns,
-        {
-            "arbitration_id": msg.arbitration_id,
-            "data": bytes(msg.data),
-            "dlc": msg.dlc,
-            "is_extended": int(msg.is_extended_id),
-            "is_error_frame": int(msg.is_error_frame),
-            "t_bus_ns": int(round(msg.timestamp * 1e9)),
-        },
-        STATUS_BAD_FRAME if msg.is_error_frame else 0,
-    )
+CAN_RAW_DESCRIPTION = can_raw.DESCRIPTION
+raw_reading = can_raw.raw_reading
 
 
 class CanFrameBatch(Sequence[Reading]):
@@ -371,10 +353,7 @@ class CanFrameBatch(Sequence[Reading]):
 
     def frame_reading(self, i: int) -> Reading:
         """The ``can_raw`` reading of frame ``i``."""
-        r = raw_reading(self.messages[i], self.t_ns[i])
-        if self.stream != "can_raw":
-            r = Reading(self.stream, r.t_ns, r.values, r.status)
-        return r
+        return raw_reading(self.messages[i], self.t_ns[i], self.stream)
 
     def renamed(self, renames: Mapping[str, str]) -> CanFrameBatch:
         """The same batch with streams renamed (``{"can_raw": "bus_a/can_raw", ...}``)."""
@@ -736,3 +715,6 @@ class CanLoadCellSource(Source):
             self.stats.lost += self.decoder.lost - lost0
             self.stats.bad += self.decoder.bad - bad0
             self.stats.extra["partial_samples"] = self.decoder.partial
+
+
+can_raw.register(CanFrameBatch, register_stream_codec)

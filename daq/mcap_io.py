@@ -313,153 +313,26 @@ def _log_codec(stream: str, description: StreamDescription | None) -> StreamCode
     return StreamCodec("foxglove.Log", schema, encode)
 
 
-def _can_raw_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
-    """Raw CAN frames (the CAN drivers' ``can_raw``), formatted directly (the hot path of a busy bus):
-    ``arbitration_id``, ``data`` (array of byte values, so a plot panel can graph ``.data[2]``),
-    ``dlc``, ``is_extended``, ``is_error_frame``, ``t_bus_ns`` (interface time), ``status``.
-    Readings with other fields fall back to the generic encoder."""
-    base = flat_codec(stream, description)
-    schema = dict(base.schema)
-    schema["title"] = f"cdpr.{stream}"
-    schema["properties"] = {
-        "arbitration_id": {"type": "integer", "description": "CAN identifier"},
-        "data": _JSON_TYPES["bytes"],
-        "dlc": {"type": "integer"},
-        "is_extended": {"type": "integer", "description": "1 for a 29-bit identifier"},
-        "is_error_frame": {"type": "integer"},
-        "t_bus_ns": {"type": "integer", "description": "interface timestamp, ns"},
-        **base.schema["properties"],
-    }
-    generic = base.encode
-
-    def encode(r: Reading) -> Any:
-        v = r.values
-        if len(v) != 6:
-            return generic(r)
-        try:
-            d = v["data"]
-            if len(d) == 8:
-                data = f"{d[0]},{d[1]},{d[2]},{d[3]},{d[4]},{d[5]},{d[6]},{d[7]}"
-            else:
-                data = ",".join(map(str, d))
-            return (
-                f'{{"arbitration_id":{v["arbitration_id"]:d},"data":[{data}],"dlc":{v["dlc"]:d},'
-                f'"is_extended":{v["is_extended"]:d},"is_error_frame":{v["is_error_frame"]:d},'
-                f'"t_bus_ns":{v["t_bus_ns"]:d},"status":{r.status:d}}}'
-            ).encode()
-        except (KeyError, TypeError, ValueError):
-            return generic(r)
-
-    return StreamCodec(base.schema_name, schema, encode, encode_can_frames)
-
-
-# the raw-CAN hot path: a batch of frames formatted at once with numpy into fixed-width JSON bodies
-# (numbers right-aligned in space-padded fields: still plain JSON, the same values as the per-frame
-# encoder above), for the common frame: 8 data bytes, dlc 8, not an error frame
-
-_FRAME_TEMPLATE = (
-    '{"arbitration_id":#########,"data":[###,###,###,###,###,###,###,###],"dlc":8,'
-    '"is_extended":#,"is_error_frame":0,"t_bus_ns":###################,"status":0}'
-)
-_FRAME_ID = _FRAME_TEMPLATE.index("#")
-_FRAME_DATA = _FRAME_TEMPLATE.index("[") + 1
-_FRAME_EXT = _FRAME_TEMPLATE.index('"is_extended":') + len('"is_extended":')
-_FRAME_T = _FRAME_TEMPLATE.index('"t_bus_ns":') + len('"t_bus_ns":')
-_FRAME_LEN = len(_FRAME_TEMPLATE)
-
-
 @dataclass
 class FrameRecords:
-    """Message bodies of a batch of frames: ``ok[i]`` says frame ``i`` has its body in
-    ``bodies[j]`` (``j`` counts the ok frames, fixed length rows of uint8); the others (error frames,
-    other lengths) are encoded one by one from their readings."""
+    """Message bodies of a batch of frames, as a codec's ``encode_frames`` returns them: ``ok[i]``
+    says frame ``i`` has its body in ``bodies[j]`` (``j`` counts the ok frames; fixed-length rows
+    of uint8); the others are encoded one by one from their readings."""
 
     ok: Any
     bodies: Any
 
 
-_np_tables: dict[str, Any] = {}
+#: batch types whose frames the writer hands to the stream codec's ``encode_frames`` at once
+#: (registered by the drivers, e.g. :class:`cdpr.daq.can_source.CanFrameBatch`)
+_FRAME_BATCH_TYPES: set[type] = set()
 
 
-def _tables() -> dict[str, Any]:
-    if not _np_tables:
-        import numpy as np
-
-        tpl = np.frombuffer(_FRAME_TEMPLATE.replace("#", " ").encode(), np.uint8)
-        _np_tables["template"] = tpl
-        _np_tables["byte3"] = np.array(
-            [list(f"{b:>3d}".encode()) for b in range(256)], dtype=np.uint8
-        )
-        _np_tables["pow10"] = 10 ** np.arange(18, -1, -1, dtype=np.int64)
-    return _np_tables
-
-
-def _decimal(v: Any, width: int) -> Any:
-    """Right-aligned decimal digits of non-negative integers ``v`` (n,) below 10**width, as ASCII
-    (n, width) uint8, leading zeros as spaces."""
-    import numpy as np
-
-    x = v.astype(np.int64)
-    digits = np.empty((width, len(x)), np.uint8)
-    for c in range(width - 1, -1, -1):  # integer division by a scalar: vectorised by numpy
-        q = x // 10
-        digits[c] = x - q * 10
-        x = q
-    digits += 48
-    chars = digits.T
-    lead = v[:, None] < _tables()["pow10"][-width:]
-    lead[:, -1] = False
-    chars[lead] = 32
-    return chars
-
-
-def encode_can_frames(messages: Any) -> FrameRecords:
-    """JSON bodies (``/can_raw`` layout) of ``can.Message`` frames, formatted with numpy.
-
-    A frame qualifies when it has exactly 8 data bytes and dlc 8, is not an error frame, its
-    identifier is below 10**9 and its timestamp in [0, 9e9) s; the body is the template above with
-    the numbers filled in right-aligned (``json.loads`` of it equals the per-frame encoder's)."""
-    import numpy as np
-
-    n = len(messages)
-    ids = np.array([m.arbitration_id for m in messages], dtype=np.int64)
-    ts = np.array([m.timestamp for m in messages], dtype=np.float64)
-    flags = np.array(
-        [(m.dlc << 2) | (m.is_error_frame << 1) | m.is_extended_id for m in messages],
-        dtype=np.int64,
-    )
-    datas = [m.data for m in messages]
-    lens = np.fromiter(map(len, datas), np.int64, n)
-    t_bus = np.rint(ts * 1e9)
-    ok = (
-        (lens == 8)
-        & ((flags >> 1) == 16)  # dlc 8, not an error frame
-        & (ids >= 0)
-        & (ids < 1_000_000_000)
-        & (t_bus >= 0)
-        & (t_bus < 9e18)
-    )
-    k = int(ok.sum())
-    t = _tables()
-    bodies = np.empty((k, _FRAME_LEN), np.uint8)
-    bodies[:] = t["template"]
-    if k:
-        if k == n:
-            data = np.frombuffer(b"".join(datas), np.uint8).reshape(k, 8)
-        else:
-            data = np.frombuffer(
-                b"".join([d for d, good in zip(datas, ok.tolist(), strict=True) if good]),
-                np.uint8,
-            ).reshape(k, 8)
-            ids, flags, t_bus = ids[ok], flags[ok], t_bus[ok]
-        bodies[:, _FRAME_ID : _FRAME_ID + 9] = _decimal(ids, 9)
-        chars = t["byte3"][data]  # (k, 8, 3)
-        for j in range(8):
-            a = _FRAME_DATA + 4 * j
-            bodies[:, a : a + 3] = chars[:, j]
-        bodies[:, _FRAME_EXT] = 48 + (flags & 1)
-        bodies[:, _FRAME_T : _FRAME_T + 19] = _decimal(t_bus.astype(np.int64), 19)
-    return FrameRecords(ok, bodies)
+def register_frame_batch_type(batch_type: type) -> None:
+    """Have :meth:`McapRunWriter.write_many` treat ``batch_type`` as a batch of frames: it has
+    ``stream``, ``messages``, ``t_ns``, ``others`` and ``frame_reading(i)`` (see
+    :class:`cdpr.daq.can_source.CanFrameBatch`)."""
+    _FRAME_BATCH_TYPES.add(batch_type)
 
 
 CodecFactory = Callable[[str, "StreamDescription | None"], StreamCodec]
@@ -469,7 +342,6 @@ _CODECS: list[tuple[str, CodecFactory]] = [
     ("image*", _image_codec),
     ("*image*", _image_codec),  # camera_image, ...
     ("event*", _log_codec),
-    ("can_raw", _can_raw_codec),
 ]
 
 
@@ -909,10 +781,11 @@ class McapRunWriter:
     def write_many(self, readings: Iterable[Reading]) -> int:
         """Write readings in order (the recorder's hot loop); returns how many.
 
-        A :class:`~cdpr.daq.can_source.CanFrameBatch` (the CAN driver's batches) has its frames
-        formatted at once (:func:`encode_can_frames`) when its stream uses the ``can_raw`` codec;
-        its other readings (decoded tensions) follow."""
-        if getattr(readings, "can_frames", False) is True:
+        A registered batch type (:func:`register_frame_batch_type`: the CAN driver's
+        :class:`~cdpr.daq.can_source.CanFrameBatch`) has its frames formatted at once by its stream
+        codec's ``encode_frames`` (:func:`cdpr.daq.can_raw.encode_can_frames`); its other readings
+        (decoded tensions) follow."""
+        if type(readings) in _FRAME_BATCH_TYPES:
             return self._write_frame_batch(readings)
         channels = self._channels
         codecs = self._codecs

@@ -50,6 +50,7 @@ __all__ = ["FieldInfo", "Run", "StreamInfo", "open_run"]
 _MAGIC = b"\x89MCAP0\r\n"
 _KEY = re.compile(rb'"(?:[^"\\]|\\.)*":')
 _U64 = np.dtype("<u8")
+_NULLABLE_TEXT = {"channel", "frame_id", "message", "name"}
 
 
 @dataclass(frozen=True)
@@ -650,6 +651,8 @@ def _rows_frame(rows: list[dict[str, Any]], schema: str) -> Any:
         flat_rows.append(out)
     df = pd.DataFrame.from_records(flat_rows)
     for c in df.columns:
+        if c in _NULLABLE_TEXT:  # a null here is a value (a frame without a channel)
+            continue
         if df[c].dtype == object and df[c].map(lambda x: x is None).all():
             df[c] = np.nan
     return df

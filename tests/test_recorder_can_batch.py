@@ -24,10 +24,16 @@ def _expected(m: can.Message) -> dict:
     """The /can_raw body of a frame, written out by hand from docs/recording.md."""
     return {
         "arbitration_id": m.arbitration_id,
-        "data": list(m.data),
-        "dlc": m.dlc,
         "is_extended": 1 if m.is_extended_id else 0,
+        "is_remote": 1 if m.is_remote_frame else 0,
         "is_error_frame": 1 if m.is_error_frame else 0,
+        "is_fd": 1 if m.is_fd else 0,
+        "bitrate_switch": 1 if m.bitrate_switch else 0,
+        "error_state_indicator": 1 if m.error_state_indicator else 0,
+        "dlc": m.dlc,
+        "data": list(m.data),
+        "channel": m.channel,
+        "is_rx": 1 if m.is_rx else 0,
         "t_bus_ns": round(m.timestamp * 1e9),
         "status": 8 if m.is_error_frame else 0,
     }
@@ -127,9 +133,9 @@ def test_frame_batches_written_exactly_with_small_chunks(tmp_path: Path) -> None
         summary = reader.get_summary()
         assert summary is not None
         sizes = [ci.uncompressed_size for ci in summary.chunk_indexes]
-    # a chunk is closed as soon as it outgrows chunk_size: at most one record (<= 31 + 180 bytes)
+    # a chunk is closed as soon as it outgrows chunk_size: at most one record (<= 31 + 300 bytes)
     # beyond it, and the batches were split over many chunks
-    assert len(sizes) > 100 and max(sizes) <= 4096 + 31 + 180
+    assert len(sizes) > 100 and max(sizes) <= 4096 + 31 + 300
     # the formatted bodies are plain JSON with the same values as the compact encoder's
     assert json.loads('{"arbitration_id":      385,"data":[  0,255],"dlc":8}') == {
         "arbitration_id": 385,
@@ -217,7 +223,8 @@ def test_two_can_drivers_recorded_through_batches(tmp_path: Path) -> None:
     for name, n in n_samples.items():
         assert node["topics"][f"/{name}/can_raw"] == 4 * n
         bodies = [b for _, b in rc.messages[f"/{name}/can_raw"]]
-        assert bodies == [_expected(m) for m in sent[name]]
+        # received frames carry the channel of the bus they came in on
+        assert bodies == [{**_expected(m), "channel": chans[name]} for m in sent[name]]
         ten = [b for _, b in rc.messages[f"/{name}/tensions"]]
         # a sample is complete (and written) once its four frames are in
         assert [b["counter"] for b in ten] == [c & 0xFF for c in range(n)]
