@@ -138,7 +138,7 @@ def test_recorded_frames_from_a_virtual_bus_read_back_identical(tmp_path: Path) 
             raw.drop(columns="t_bus_ns").assign(
                 t_bus_ns=[round(m.timestamp * 1e9) for m in received]
             ),
-            [_on(m, ch, r.timestamp) for m, r in zip(sent, received)],
+            [_on(m, ch, r.timestamp) for m, r in zip(sent, received, strict=True)],
         )
         ten = run.table("/tensions")
     assert ten["counter"].tolist() == [0, 1, 2]  # no sample from the extended frames
