@@ -29,8 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "simulate",
         help="run the virtual rig through a real transport and record it (MCAP run + truth)",
     )
-    p.add_argument("--rig", required=True, help="rig file (TOML)")
-    p.add_argument("--schedule", required=True, help="virtual-rig schedule (TOML)")
+    p.add_argument("--rig", help="rig file (TOML); with --campaign, the campaign's rig")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--schedule", help="virtual-rig schedule (TOML)")
+    what.add_argument(
+        "--campaign",
+        help="test matrix (TOML, docs/campaign.md): rehearse the campaign; the run carries "
+        "the test-point events on /events",
+    )
     p.add_argument("--out", required=True, help="output folder for the run")
     p.add_argument(
         "--transport",
@@ -109,8 +115,23 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--speed must be > 0, got {args.speed}")
     if (args.camera is None) != (args.markers is None):
         raise InputError("--camera and --markers go together")
+    matrix = None
+    if args.campaign is not None:
+        from ..campaign import load_test_matrix, schedule_mapping
+
+        matrix = load_test_matrix(args.campaign)
+        if args.rig is not None:
+            raise InputError("--rig: the campaign file names its rig (campaign.rig)")
+        args.rig = str(matrix.rig_path)
+        if args.camera is None and matrix.camera is not None:
+            args.camera, args.markers = str(matrix.camera), str(matrix.markers)
+        sched_data = schedule_mapping(matrix)
+        args.schedule = args.campaign
+    elif args.rig is None:
+        raise InputError("--rig is required with --schedule")
+    else:
+        sched_data = load_toml(args.schedule)
     rig = load_rig(args.rig)
-    sched_data = load_toml(args.schedule)
     faults = [_parse_fault(f) for f in args.fault]
     if faults:
         sched_data.setdefault("faults", [])
@@ -122,7 +143,12 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         sched_data.setdefault("schedule", {})["seed"] = args.seed
     try:
-        schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
+        if matrix is not None:
+            from ..campaign import schedule_from_matrix
+
+            schedule = schedule_from_matrix(matrix, rig, faults)
+        else:
+            schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
         vr = VirtualRig(rig, schedule)
     except (
         InputError
@@ -204,6 +230,14 @@ def run(args: argparse.Namespace) -> int:
                 )
             )
             settings["camera"] = ("virtual_camera", sources[-1].settings())
+        events = vr.test_point_events()
+        if events:
+            from cdpr.daq.vrig_events import TestPointEventSource
+
+            sources.append(
+                TestPointEventSource("events", events, clock=lambda: (vr.t0_ns, vr.speed))
+            )
+            settings["events"] = ("test_point_events", sources[-1].settings())
         if args.transport == "virtual":
             # the transports exist once the RigRun is built; it sends only after start()
             rig_run = RigRun(vr, "virtual", channel, None, tunnel_link, 0.0, args.speed)
@@ -236,6 +270,7 @@ def run(args: argparse.Namespace) -> int:
                 "command": "simulate",
                 "transport": args.transport,
                 "schedule_file": str(args.schedule),
+                "campaign_file": str(args.campaign) if args.campaign else None,
                 "schedule": sched_data,
                 "faults_added": faults,
                 "speed": args.speed,
@@ -250,6 +285,10 @@ def run(args: argparse.Namespace) -> int:
                 "schedule/" + Path(args.schedule).name, sched_file.read_bytes(), "application/toml"
             ),
         ]
+        if args.campaign:
+            attachments.append(
+                Attachment.from_file(args.campaign, "campaign/" + Path(args.campaign).name)
+            )
         dbc = getattr(sources[0], "dbc_path", None)
         if dbc:
             attachments.append(Attachment.from_file(dbc, "calibration/" + Path(dbc).name))
