@@ -136,7 +136,7 @@ class SensorModel:
     latency_s: float = 0.002
     slack_threshold_N: float = 2.0
     offset_counts: tuple[float, ...] | None = None
-    gain_N_per_count: float = 5.0e-5
+    gain_N_per_count: float | tuple[float, ...] = 5.0e-5
     tunnel_airspeed_sd_mps: float = 0.05
     tunnel_pressure_sd_Pa: float = 2.0
     tunnel_temperature_sd_K: float = 0.02
@@ -352,15 +352,13 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
             raise ConfigError(
                 source, f"sensor.{key}", f"unknown key (allowed: {sorted(sens_fields)})"
             )
-        if key == "offset_counts":
+        if key == "offset_counts" or (key == "gain_N_per_count" and isinstance(v, list)):
             if not isinstance(v, list) or len(v) != rig.n_cables:
-                raise ConfigError(
-                    source, "sensor.offset_counts", f"expected {rig.n_cables} numbers"
-                )
-            kw[key] = tuple(_f(source, "sensor.offset_counts", x) for x in v)
+                raise ConfigError(source, f"sensor.{key}", f"expected {rig.n_cables} numbers")
+            kw[key] = tuple(_f(source, f"sensor.{key}", x) for x in v)
         else:
             kw[key] = _f(source, f"sensor.{key}", v, 0.0)
-    if kw.get("gain_N_per_count", 1.0) <= 0:
+    if np.any(np.asarray(kw.get("gain_N_per_count", 1.0)) <= 0):
         raise ConfigError(source, "sensor.gain_N_per_count", "must be > 0")
     seed = sch.get("seed", 0)
     if not isinstance(seed, int):
@@ -429,7 +427,8 @@ class VirtualRig:
             off = np.asarray(sens.offset_counts, dtype=np.float64)
         else:
             off = rng.integers(-60_000, 60_000, size=m).astype(np.float64)
-        self.calibration = Calibration(off, np.full(m, sens.gain_N_per_count))
+        gain = np.broadcast_to(np.asarray(sens.gain_N_per_count, dtype=np.float64), (m,))
+        self.calibration = Calibration(off, gain.copy())
         self.drift_rate_N_per_s = sens.drift_N_per_s * rng.uniform(-1.0, 1.0, size=m)
         self._compute_truth(rng)
 
@@ -674,6 +673,21 @@ class VirtualRig:
                     )
             t += s.duration_s
         return out
+
+    def write_calibration(self, path: str | os.PathLike[str]) -> Path:
+        """Write the amplifiers' true calibration as a load-cell calibration file (the format
+        ``cdpr calibrate loadcells`` writes), atomically: what ``cdpr import`` of this rig's CAN
+        frames needs."""
+        from .loadcell import calibration_file_text
+
+        text = calibration_file_text(
+            self.cable_names,
+            self.calibration,
+            f"virtual-rig:{self.schedule.name}:seed{self.seed}",
+            {"source": f"virtual rig {self.rig.name}, schedule {self.schedule.name}"},
+        )
+        _atomic_write_bytes(path, text.encode())
+        return Path(path)
 
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
         """Write the truth atomically: ``.npz`` (all arrays plus ``cable_names``, ``segment_labels``)

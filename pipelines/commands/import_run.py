@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--rig", required=True, help="rig file (TOML); cable names come from it")
     p.add_argument(
         "--calibration",
-        help="TOML with offset_counts and gain_N_per_count (one value or one per cable)",
+        help="load-cell calibration file (written by `cdpr calibrate loadcells`)",
     )
     p.add_argument(
         "--tunnel",
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
     from .. import __version__
-    from ..config import file_sha256, load_rig, load_toml, read_table
+    from ..config import file_sha256, load_rig, read_table
 
     out = Path(args.out)
     if out.exists():
@@ -74,16 +74,10 @@ def run(args: argparse.Namespace) -> int:
     _check_can_log(args.can_log)
     rig = load_rig(args.rig)
     cal: dict[str, object] = {}
-    if args.calibration:
-        data = load_toml(args.calibration)
-        unknown = set(data) - {"offset_counts", "gain_N_per_count"}
-        if unknown:
-            raise ConfigError(
-                args.calibration,
-                sorted(unknown)[0],
-                "unknown key (expected offset_counts, gain_N_per_count)",
-            )
-        cal = dict(data)
+    if args.calibration:  # the file `cdpr calibrate loadcells` writes
+        from cdpr.daq.loadcell import read_calibration_file
+
+        cal = dict(read_calibration_file(args.calibration).settings(rig.cable_names))
     poses = None
     if args.poses:
         df = read_table(args.poses, POSE_COLUMNS, "pose table")

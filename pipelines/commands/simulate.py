@@ -51,6 +51,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         metavar="KIND:START_S:DURATION_S[:CABLE]",
         help="add a fault to the schedule (kinds: docs/daq_drivers.md), repeatable",
     )
+    p.add_argument(
+        "--loadcell-calibration",
+        help="load-cell calibration file (cdpr calibrate loadcells): the virtual amplifiers' "
+        "offsets and gains (default: the campaign's, else random offsets from the seed); the "
+        "rig's calibration is always written beside the run as <run>.loadcells.toml",
+    )
     p.add_argument("--label", help="test-point label (default: the schedule's name)")
     p.add_argument("--duration", type=float, help="stop recording after this many seconds")
     p.add_argument("--speed", type=float, default=1.0, help="time scale of the schedule")
@@ -132,6 +138,28 @@ def run(args: argparse.Namespace) -> int:
     else:
         sched_data = load_toml(args.schedule)
     rig = load_rig(args.rig)
+    cal_file = args.loadcell_calibration
+    if cal_file is None and matrix is not None and matrix.loadcell_calibration is not None:
+        cal_file = str(matrix.loadcell_calibration)
+    if cal_file is not None:
+        from cdpr.daq.loadcell import read_calibration_file
+
+        lc = read_calibration_file(cal_file).for_cables(rig.cable_names)
+        sensor = sched_data.setdefault("sensor", {})
+        if "offset_counts" in sensor or "gain_N_per_count" in sensor:
+            from cdpr.analysis.errors import ConfigError
+
+            raise ConfigError(
+                str(args.schedule), "sensor.offset_counts", f"given both here and by {cal_file}"
+            )
+        sensor["offset_counts"] = lc.offset_counts.tolist()
+        sensor["gain_N_per_count"] = lc.gain_N_per_count.tolist()
+        if matrix is not None:  # the matrix's schedule is rebuilt from the matrix
+            import dataclasses
+
+            vr_tab = dict(matrix.virtual_rig)
+            vr_tab["sensor"] = {**dict(vr_tab.get("sensor", {})), **sensor}
+            matrix = dataclasses.replace(matrix, virtual_rig=vr_tab)
     faults = [_parse_fault(f) for f in args.fault]
     if faults:
         sched_data.setdefault("faults", [])
@@ -159,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     label = args.label or schedule.name
     path = new_run_path(args.out, label)
     truth_path = path.with_name(path.stem + ".truth.npz")
+    cal_out = path.with_name(path.stem + ".loadcells.toml")
     try:  # before any source opens: a bad --out must not leave a bus or a child process behind
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -265,7 +294,13 @@ def run(args: argparse.Namespace) -> int:
             software_version=__version__,
             rig=rig.name,
             rig_sha256=file_sha256(args.rig),
-            calibration_ids={"loadcell": f"virtual-rig:{schedule.name}:seed{schedule.seed}"},
+            calibration_ids={
+                "loadcell": (
+                    f"{Path(cal_file).name}@{file_sha256(cal_file)[:12]}"
+                    if cal_file
+                    else f"virtual-rig:{schedule.name}:seed{schedule.seed}"
+                )
+            },
             config={
                 "command": "simulate",
                 "transport": args.transport,
@@ -285,6 +320,8 @@ def run(args: argparse.Namespace) -> int:
                 "schedule/" + Path(args.schedule).name, sched_file.read_bytes(), "application/toml"
             ),
         ]
+        if cal_file:
+            attachments.append(Attachment.from_file(cal_file, "calibration/" + Path(cal_file).name))
         if args.campaign:
             attachments.append(
                 Attachment.from_file(args.campaign, "campaign/" + Path(args.campaign).name)
@@ -318,6 +355,8 @@ def run(args: argparse.Namespace) -> int:
             rig_run.stop()
             if path.exists():
                 vr.write_truth(truth_path)
+        if path.exists():
+            vr.write_calibration(cal_out)
         if child is not None:
             if child.poll() is None:
                 child.terminate()
@@ -326,5 +365,5 @@ def run(args: argparse.Namespace) -> int:
             except subprocess.TimeoutExpired:
                 child.kill()
         shutil.rmtree(work, ignore_errors=True)
-    print(f"truth written to {truth_path}")
+    print(f"truth written to {truth_path}; load-cell calibration to {cal_out}")
     return 0
