@@ -41,7 +41,11 @@ from .plotting import png_figure
 COEFFS = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
 WRENCH = ("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz_Nm")
 POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-TEXT_COLUMNS = ("run", "point", "kind", "source", "flags", "repeat_of")
+TEXT_COLUMNS = ("run", "point", "kind", "source", "flags")
+TARGET_COLUMNS = ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps")
+OPTIONAL_COLUMNS = (*TARGET_COLUMNS, "repeat_of")
+"""Only in tables whose points come from test-point events (``source == "events"``); absent for
+detected points: filled with NaN / "" (the report says the points have no targets)."""
 NUMBER_COLUMNS = (
     "start_ns",
     "stop_ns",
@@ -53,9 +57,6 @@ NUMBER_COLUMNS = (
     "q_Pa",
     "aoa_rad",
     "sideslip_rad",
-    "target_aoa_deg",
-    "target_sideslip_deg",
-    "target_airspeed_mps",
     *WRENCH,
     *(f"sd_{c}" for c in WRENCH),
     *COEFFS,
@@ -79,7 +80,13 @@ def read_points(path: str | os.PathLike[str]) -> pd.DataFrame:
     missing = [c for c in REQUIRED_COLUMNS if c not in df.columns]
     if missing:
         raise ConfigError(p, f"column {missing[0]}", f"missing (have: {list(df.columns)})")
-    for c in (*NUMBER_COLUMNS, *(c for c in df.columns if c.startswith(("true_", "err_")))):
+    for c in TARGET_COLUMNS:
+        if c not in df.columns:
+            df[c] = np.nan
+    if "repeat_of" not in df.columns:
+        df["repeat_of"] = ""
+    numbers = (*NUMBER_COLUMNS, *TARGET_COLUMNS)
+    for c in (*numbers, *(c for c in df.columns if c.startswith(("true_", "err_")))):
         num = pd.to_numeric(df[c], errors="coerce")
         bad = np.flatnonzero(df[c].notna().to_numpy() & num.isna().to_numpy())
         if bad.size:
@@ -88,7 +95,7 @@ def read_points(path: str | os.PathLike[str]) -> pd.DataFrame:
                 p, f"row {i + 2}, column {c}", f"expected a number, got {df[c].iloc[i]!r}"
             )
         df[c] = num.astype(np.float64)
-    for c in TEXT_COLUMNS:
+    for c in (*TEXT_COLUMNS, "repeat_of"):
         df[c] = df[c].astype(object).where(df[c].notna(), "").astype(str).str.strip()
     return df
 
@@ -100,14 +107,24 @@ class CampaignTable:
     df: pd.DataFrame
     inputs: list[tuple[str, str]] = field(default_factory=list)  # (points file, sha256)
     missing_points: list[str] = field(default_factory=list)
+    info_flags: frozenset[str] = frozenset()
+
+    def warning_words(self) -> pd.Series:
+        """Per point, its flag words that are warnings (all but ``info_flags``), ";"-joined."""
+        return self.df["flags"].map(
+            lambda f: ";".join(w for w in f.split(";") if w and w not in self.info_flags)
+        )
 
     @property
     def flagged(self) -> pd.DataFrame:
-        return self.df[self.df["flags"] != ""]
+        """The points with a warning flag (a point with only informational flags is not)."""
+        return self.df[self.warning_words() != ""]
 
 
 def campaign_table(
-    paths: Sequence[str | os.PathLike[str]], matrix_labels: Sequence[str] | None = None
+    paths: Sequence[str | os.PathLike[str]],
+    matrix_labels: Sequence[str] | None = None,
+    info_flags: frozenset[str] = frozenset(),
 ) -> CampaignTable:
     """Stack the per-point tables of ``paths`` (in that order); with ``matrix_labels`` (the test
     matrix's points) the table follows the matrix order and lists the points no run has."""
@@ -132,7 +149,7 @@ def campaign_table(
         df["matrix_index"] = df["point"].map(order).astype("float64")
         df = df.sort_values(["matrix_index", "start_ns"], kind="stable", na_position="last")
         df = df.reset_index(drop=True)
-    return CampaignTable(df, inputs, missing)
+    return CampaignTable(df, inputs, missing, info_flags)
 
 
 def write_campaign_table(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Path]:
@@ -185,11 +202,11 @@ def _series(ax: Any, d: pd.DataFrame, x: str, y: str, label: str, color: Any) ->
     """Normal points (filled), repeats (open squares), flagged points (red x), +-2 sigma bars."""
     d = d.sort_values(x)
     sx = d.get(f"sd_{x}") if x in COEFFS else None
-    normal = ~d["is_repeat"] & (d["flags"] == "")
+    normal = ~d["is_repeat"] & ~d["warned"]
     for sel, kw in (
         (normal, {"fmt": "o-", "label": label}),
         (d["is_repeat"], {"fmt": "s", "mfc": "none", "ms": 9, "label": f"{label} repeat"}),
-        (d["flags"] != "", {"fmt": "x", "ms": 10, "mew": 2, "ecolor": "red", "label": None}),
+        (d["warned"], {"fmt": "x", "ms": 10, "mew": 2, "ecolor": "red", "label": None}),
     ):
         if not sel.any():
             continue
@@ -203,7 +220,8 @@ def _series(ax: Any, d: pd.DataFrame, x: str, y: str, label: str, color: Any) ->
 
 
 def _groups(d: pd.DataFrame, keys: list[str]) -> list[tuple[tuple[Any, ...], pd.DataFrame]]:
-    return [((k,) if not isinstance(k, tuple) else k, g) for k, g in d.groupby(keys, sort=True)]
+    groups = d.groupby(keys, sort=True, dropna=False)
+    return [((k,) if not isinstance(k, tuple) else k, g) for k, g in groups]
 
 
 def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Figure]:
@@ -213,7 +231,8 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    d = table.df[table.df["kind"] == WIND_ON]
+    d = table.df.assign(warned=table.warning_words() != "")
+    d = d[d["kind"] == WIND_ON]
     figs: list[Figure] = []
     if d.empty:
         return figs
@@ -235,8 +254,8 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
             with png_figure(path, size=(6.4, 4.6)) as (_, axes):
                 ax = axes[0, 0]
                 for (beta, v), g in alpha_sweeps:
-                    lab = f"{v:g} m/s" + (f", sideslip {beta:g} deg" if beta else "")
-                    _series(ax, g, x, y, lab, color[v])
+                    lab = f"{v:g} m/s" + (f", sideslip {beta:g} deg" if beta != 0 else "")
+                    _series(ax, g, x, y, lab, color.get(v, "0.4"))
                 ax.set_xlabel(xl)
                 ax.set_ylabel(yl)
                 ax.set_title(f"{title}\n({note})", fontsize=9)
@@ -252,7 +271,8 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
         with png_figure(path, 3, 1, size=(6.4, 8.5), sharex=True) as (_, axes):
             for ax, y in zip(axes[:, 0], ("CY", "Cl", "Cn"), strict=True):
                 for (a, v), g in beta_sweeps:
-                    _series(ax, g, "sideslip_deg", y, f"{v:g} m/s, aoa {a:g} deg", color[v])
+                    lab = f"{v:g} m/s, aoa {a:g} deg"
+                    _series(ax, g, "sideslip_deg", y, lab, color.get(v, "0.4"))
                 ax.set_ylabel(y)
                 ax.grid(True, alpha=0.3)
             axes[0, 0].set_title(f"CY, Cl, Cn - sideslip\n({note})", fontsize=9)
@@ -434,7 +454,16 @@ def report_content(
     if len(fl):
         warnings.append(
             f"{len(fl)} point(s) flagged: "
-            + "; ".join(f"{r.point} [{r.flags}]" for r in fl.itertuples())
+            + "; ".join(
+                f"{r.point} [{w}]"
+                for r, w in zip(fl.itertuples(), table.warning_words()[fl.index], strict=True)
+            )
+        )
+    detected = df[df["source"] != "events"]
+    if len(detected):
+        warnings.append(
+            f"{len(detected)} point(s) found by steady-point detection, not by test-point "
+            "events: no targets, no repeat links (" + ", ".join(map(str, detected["point"])) + ")"
         )
     masked = df[df["n_masked"] > 0]
     if len(masked):

@@ -41,9 +41,10 @@ def _points(run: str, flagged: str = "") -> pd.DataFrame:
         on = kind == "wind_on"
         r.update(
             run=run, point=label, kind=kind, source="events", flags=flags,
-            repeat_of=rep, start_ns=t + i * 2 * 10**9, stop_ns=t + (2 * i + 1) * 10**9,
+            start_ns=t + i * 2 * 10**9, stop_ns=t + (2 * i + 1) * 10**9,
             n_samples=200, n_masked=0, z_m=0.36, pitch_rad=ar, airspeed_mps=v, density_kgpm3=1.2,
-            q_Pa=0.6 * v * v, aoa_rad=ar, target_aoa_deg=a, target_airspeed_mps=v,
+            q_Pa=0.6 * v * v, aoa_rad=ar, target_aoa_deg=a, target_airspeed_mps=v, repeat_of=rep,
+            target_sideslip_deg=0.0,
             CL=cl, CD=0.035 + 0.09 * cl**2, Cm=-0.4 * ar if on else np.nan,
             sd_CL=0.01, sd_CD=0.002, sd_Cm=0.003, fz_N=0.6 * v * v * 0.0146 * (cl if on else 0),
             err_fx_N=0.01 * i, err_fy_N=-0.002, err_fz_N=0.03, err_mx_Nm=0.001, err_my_Nm=-0.002,
@@ -170,3 +171,21 @@ def test_cli_reports_flags_and_renders_in_chromium(
     h, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
     red = ((h < 8) | (h > 170)) & (sat > 120) & (val > 60)
     assert red.sum() > 50  # the flag warning and the flagged marker are red
+
+
+def test_info_flags_are_not_warnings_and_detected_points_are_said(tmp_path: Path) -> None:
+    from cdpr.pipelines.report import report_content
+
+    df = _points("r")
+    df["flags"] = ["tare"] * len(df)
+    df.loc[5, "flags"] = "tare;no_tare"
+    df = df.drop(columns=["target_aoa_deg", "target_sideslip_deg", "repeat_of"])
+    df["source"] = "detected"
+    p = tmp_path / "points.csv"
+    df.to_csv(p, index=False)
+    t = campaign_table([p], info_flags=frozenset({"tare"}))
+    assert list(t.flagged["point"]) == [df.loc[5, "point"]]
+    assert t.df["target_aoa_deg"].isna().all() and (t.df["repeat_of"] == "").all()
+    w = report_content("x", t, [], {}).warnings
+    assert w[0] == f"1 point(s) flagged: {df.loc[5, 'point']} [no_tare]"
+    assert w[1].startswith("13 point(s) found by steady-point detection")

@@ -92,7 +92,11 @@ def run(args: argparse.Namespace) -> int:
         labels = [p.label for p in m.points]
         title = f"Campaign {m.name} (model {m.model.name})"
         prov["test matrix"] = f"{args.matrix} sha256={file_sha256(args.matrix)}"
-    table = campaign_table(files, labels)
+    from .. import analyze as analyze_module
+
+    # flag words that describe what was done, not a problem: defined once, by the analysis
+    info = frozenset(getattr(analyze_module, "INFO_FLAGS", frozenset()))
+    table = campaign_table(files, labels, info)
     for p, sha in table.inputs:
         prov[f"points {p}"] = f"sha256={sha}"
     prov["written"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
@@ -106,7 +110,9 @@ def run(args: argparse.Namespace) -> int:
     for run_name, d in table.df.groupby("run", sort=False):
         stem = Path(str(run_name)).stem
         sub = CampaignTable(
-            d.reset_index(drop=True), [i for i in table.inputs if i[0] in set(d["points_file"])]
+            d.reset_index(drop=True),
+            [i for i in table.inputs if i[0] in set(d["points_file"])],
+            info_flags=info,
         )
         rfigs = sweep_figures(sub, out / "plots" / stem)
         if runs_dir is not None and (runs_dir / f"{stem}.mcap").is_file():
