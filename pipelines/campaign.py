@@ -218,6 +218,27 @@ def _fmt(x: float) -> str:
 # --------------------------------------------------------------------------------------------
 # loader
 # --------------------------------------------------------------------------------------------
+def model_geometry_from_mapping(data: Any, src: str) -> ModelGeometry:
+    """The ``[model]`` table of a test matrix (also as attached to a run by ``cdpr simulate
+    --campaign``: ``campaign/<file>.toml``), checked; errors name ``src`` and ``model.<key>``."""
+    mod = _table(src, "model", data, _MODEL)
+    for k in ("area_m2", "span_m", "chord_m", "mrp_P_m"):
+        if k not in mod:
+            raise ConfigError(src, f"model.{k}", "missing")
+    return ModelGeometry(
+        name=_str(src, "model.name", mod.get("name", "model")),
+        area_m2=_num(src, "model.area_m2", mod["area_m2"], 0.0, True),
+        span_m=_num(src, "model.span_m", mod["span_m"], 0.0, True),
+        chord_m=_num(src, "model.chord_m", mod["chord_m"], 0.0, True),
+        mrp_P_m=_vec3(src, "model.mrp_P_m", mod["mrp_P_m"]),
+        volume_m3=(
+            _num(src, "model.volume_m3", mod["volume_m3"], 0.0, True)
+            if "volume_m3" in mod
+            else None
+        ),
+    )
+
+
 def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -> TestMatrix:
     """Validate a parsed test-matrix file and expand its sweeps (paths relative to ``base``)."""
     src = source
@@ -239,22 +260,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
 
     if "model" not in data:
         raise ConfigError(src, "model", "missing [model] table")
-    mod = _table(src, "model", data["model"], _MODEL)
-    for k in ("area_m2", "span_m", "chord_m", "mrp_P_m"):
-        if k not in mod:
-            raise ConfigError(src, f"model.{k}", "missing")
-    model = ModelGeometry(
-        name=_str(src, "model.name", mod.get("name", "model")),
-        area_m2=_num(src, "model.area_m2", mod["area_m2"], 0.0, True),
-        span_m=_num(src, "model.span_m", mod["span_m"], 0.0, True),
-        chord_m=_num(src, "model.chord_m", mod["chord_m"], 0.0, True),
-        mrp_P_m=_vec3(src, "model.mrp_P_m", mod["mrp_P_m"]),
-        volume_m3=(
-            _num(src, "model.volume_m3", mod["volume_m3"], 0.0, True)
-            if "volume_m3" in mod
-            else None
-        ),
-    )
+    model = model_geometry_from_mapping(data["model"], src)
 
     dft = _table(src, "defaults", data.get("defaults", {}), _DEFAULTS)
     dft_dur = _num(src, "defaults.duration_s", dft.get("duration_s", 1.0), 0.0, True)
@@ -436,3 +442,6 @@ def schedule_from_matrix(
                 else ("virtual_rig." + key)
             )
         raise ConfigError(exc.source, key, exc.problem) from None
+
+
+test_matrix_from_mapping.__test__ = False  # type: ignore[attr-defined]  # not a pytest test
