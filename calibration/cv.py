@@ -518,6 +518,8 @@ class CharucoBoard:
     """A ChArUco board: ``squares_x`` x ``squares_y`` squares of ``square_m``, markers of
     ``marker_m``; chessboard corner ids follow OpenCV (row-major, from the top-left inner corner)."""
 
+    kind = "charuco"
+
     def __init__(
         self,
         squares_x: int,
@@ -554,14 +556,149 @@ class CharucoBoard:
         return self.board.generateImage((w, h), marginSize=margin_px, borderBits=1)
 
     def detect(
-        self, gray: NDArray[np.uint8], subpix_half_window: int = 4
+        self, gray: NDArray[np.uint8], refine: str | int = "adaptive"
     ) -> tuple[F64, NDArray[np.int64]]:
-        """ChArUco corners (N, 2) px, sub-pixel refined, and their ids (N,)."""
+        """ChArUco corners (N, 2) px and their ids (N,).
+
+        ``refine``: ``"adaptive"`` (default) refines ``CharucoDetector``'s corners once more with
+        ``cornerSubPix`` in a half-window of 0.3 x the shortest distance between neighbouring
+        corners in the image (2 to 11 px); ``"none"`` keeps ``CharucoDetector``'s corners; an
+        integer is a fixed half-window.  Measured on rendered views (docs/vision.md): the
+        detector's own corners carry a bias that puts fx 0.1 % (5 sigma) low; the adaptive window
+        removes it and gives the lowest corner error at every blur tried, where a fixed 9 x 9
+        window (half 4) is worse than none once the blur exceeds ~1 px."""
         cc, ci, _, _ = self._det.detectBoard(gray)
         if ci is None or len(ci) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-        pts = corner_subpix(gray, np.asarray(cc).reshape(-1, 2), subpix_half_window)
-        return pts, np.asarray(ci, dtype=np.int64).reshape(-1)
+        pts = np.asarray(cc, dtype=np.float64).reshape(-1, 2)
+        ids = np.asarray(ci, dtype=np.int64).reshape(-1)
+        if refine == "adaptive":
+            if len(ids) >= 2:
+                # the white margin between a corner and the nearest marker, in squares
+                margin = (self.square_m - self.marker_m) / (2.0 * self.square_m)
+                pts = corner_subpix(gray, pts, _spacing_half_window(pts, ADAPTIVE_K * margin))
+        elif isinstance(refine, int) and not isinstance(refine, bool):
+            pts = corner_subpix(gray, pts, refine)
+        elif refine != "none":
+            raise InputError(
+                f"refine: expected 'adaptive', 'none' or a half-window, got {refine!r}"
+            )
+        return pts, ids
+
+
+ADAPTIVE_K = 0.8
+
+
+def _spacing_half_window(points_px: F64, fraction: float) -> int:
+    """``fraction`` of the shortest distance between two of the points, within [2, 11] px: a
+    ``cornerSubPix`` half-window that never reaches the neighbouring corner."""
+    d = np.linalg.norm(points_px[:, None, :] - points_px[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return int(np.clip(round(fraction * float(d.min())), 2, 11))
+
+
+CHESSBOARD_DETECTORS = ("classic", "sb")
+"""``"classic"``: ``cv2.findChessboardCorners`` + ``cv2.cornerSubPix`` with a window sized from the
+corner spacing (the default: the lowest RMS on OpenCV's sample photos, docs/vision.md); ``"sb"``:
+``cv2.findChessboardCornersSB`` (sector-based, sub-pixel by itself; more robust to blur)."""
+
+
+class ChessboardTarget:
+    """A plain chessboard of ``squares_x`` x ``squares_y`` squares of ``square_m``: the
+    ``(squares_x - 1) x (squares_y - 1)`` inner corners, ids row-major from the first corner OpenCV
+    reports (a chessboard has no id marks: the order may turn by 180 degrees between views, which
+    intrinsics do not mind, but a known board pose in {O} cannot be used with it)."""
+
+    kind = "chessboard"
+
+    def __init__(
+        self,
+        squares_x: int,
+        squares_y: int,
+        square_m: float,
+        detector: str = "classic",
+        subpix_fraction: float = 0.3,
+    ) -> None:
+        if detector not in CHESSBOARD_DETECTORS:
+            raise InputError(f"chessboard detector: expected one of {CHESSBOARD_DETECTORS}")
+        self.squares_x, self.squares_y = int(squares_x), int(squares_y)
+        self.square_m = float(square_m)
+        self.detector = detector
+        self.subpix_fraction = float(subpix_fraction)
+        self.pattern = (self.squares_x - 1, self.squares_y - 1)
+
+    @property
+    def corners_board_m(self) -> F64:
+        """Inner corners (N, 3) in the board frame (m), row-major: x right, y down, z = 0."""
+        nx, ny = self.pattern
+        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+        xy = np.stack([jj.ravel(), ii.ravel()], axis=1) * self.square_m
+        return np.hstack([xy, np.zeros((nx * ny, 1))]).astype(np.float64)
+
+    def subpix_half_window(self, corners_px: F64) -> int:
+        """``cornerSubPix`` half-window for the classic detector: ``subpix_fraction`` of the
+        shortest distance between neighbouring corners, within [2, 11] px, so the window never
+        reaches the next corner (OpenCV's tutorial uses a fixed 11: on left02.jpg, 22 px squares,
+        that view's RMS is 1.22 px instead of 0.16 px; docs/vision.md)."""
+        return _spacing_half_window(corners_px, self.subpix_fraction)
+
+    def detect(self, gray: NDArray[np.uint8]) -> tuple[F64, NDArray[np.int64]]:
+        """All inner corners (N, 2) px and ids ``0..N-1``, or empty arrays if the whole pattern is
+        not found (OpenCV's chessboard detectors find all corners or none)."""
+        if self.detector == "sb":
+            flags = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+            ok, c = cv2.findChessboardCornersSB(gray, self.pattern, flags=flags)
+        else:
+            flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+            ok, c = cv2.findChessboardCorners(gray, self.pattern, flags=flags)
+            if ok:
+                c = np.asarray(c, dtype=np.float64).reshape(-1, 2)
+                c = corner_subpix(gray, c, self.subpix_half_window(c), 30)
+        if not ok or c is None:
+            return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+        pts = np.asarray(c, dtype=np.float64).reshape(-1, 2)
+        return pts, np.arange(pts.shape[0], dtype=np.int64)
+
+
+class CircleGridTarget:
+    """A grid of ``circles_x`` x ``circles_y`` dark circles on white, centre spacing ``spacing_m``
+    (``asymmetric``: OpenCV's asymmetric grid, whose ``spacing_m`` is OpenCV's ``squareSize``: rows
+    ``spacing_m`` apart, circles of one row ``2 spacing_m`` apart, odd rows shifted by
+    ``spacing_m``); ids row-major as ``cv2.findCirclesGrid`` orders the centres."""
+
+    kind = "circles"
+
+    def __init__(
+        self, circles_x: int, circles_y: int, spacing_m: float, asymmetric: bool = False
+    ) -> None:
+        self.circles_x, self.circles_y = int(circles_x), int(circles_y)
+        self.spacing_m = float(spacing_m)
+        self.asymmetric = bool(asymmetric)
+
+    @property
+    def corners_board_m(self) -> F64:
+        """Circle centres (N, 3) in the board frame (m), in ``findCirclesGrid``'s order."""
+        nx, ny = self.circles_x, self.circles_y
+        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+        if self.asymmetric:
+            x = (2 * jj + ii % 2) * self.spacing_m
+        else:
+            x = jj * self.spacing_m
+        y = ii * self.spacing_m
+        return np.stack([x.ravel(), y.ravel(), np.zeros(nx * ny)], axis=1).astype(np.float64)
+
+    def detect(self, gray: NDArray[np.uint8]) -> tuple[F64, NDArray[np.int64]]:
+        """All circle centres (N, 2) px and ids ``0..N-1``, or empty arrays if not all are found."""
+        flags = cv2.CALIB_CB_ASYMMETRIC_GRID if self.asymmetric else cv2.CALIB_CB_SYMMETRIC_GRID
+        ok, c = cv2.findCirclesGrid(gray, (self.circles_x, self.circles_y), flags=flags)
+        if not ok or c is None:
+            return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+        pts = np.asarray(c, dtype=np.float64).reshape(-1, 2)
+        return pts, np.arange(pts.shape[0], dtype=np.int64)
+
+
+CalibrationTarget = CharucoBoard | ChessboardTarget | CircleGridTarget
+"""Anything with ``kind``, ``corners_board_m`` (N, 3) and ``detect(gray) -> (corners (n, 2), ids)``."""
 
 
 # ------------------------------------------------------------------------------------ calibration

@@ -1,6 +1,6 @@
-"""Camera calibration: ChArUco intrinsics and extrinsics to the tunnel frame {O}.
+"""Camera calibration: intrinsics (ChArUco, chessboard or circle grid) and extrinsics to {O}.
 
-Intrinsics (:func:`calibrate_intrinsics`): ChArUco corners per view (sub-pixel), views checked for
+Intrinsics (:func:`calibrate_intrinsics`): target corners per view (sub-pixel), views checked for
 "no board", "too few corners" and blur (edge spread estimated at the corners), OpenCV's
 ``calibrateCameraExtended`` (pinhole + k1, k2, p1, p2 [, k3]), then iterative rejection of views whose
 RMS exceeds ``reject_k`` times the median, parameter standard deviations, and a split-half
@@ -31,22 +31,49 @@ from .pose import camera_pose_from_points
 F64 = NDArray[np.float64]
 
 
+BOARD_TYPES = ("charuco", "chessboard", "circles")
+"""Calibration target kinds (the board file's ``[board] type``)."""
+
+
 @dataclass
 class BoardSpec:
-    """A ChArUco board: squares (x, y), square and marker sizes (m), dictionary, legacy pattern flag;
-    optionally its pose in {O} (for extrinsics): ``R_O_B`` and ``position_O_m`` of the board origin
-    (OpenCV board frame: origin at the top-left outer corner, x right, y down, z into the board)."""
+    """A calibration target of kind ``type``:
 
+    - ``"charuco"``: ``squares_x`` x ``squares_y`` squares of ``square_m``, markers of ``marker_m``
+      from ``dictionary``, ``legacy_pattern`` flag;
+    - ``"chessboard"``: ``squares_x`` x ``squares_y`` squares of ``square_m`` (the inner corners,
+      ``(squares_x - 1) x (squares_y - 1)``, are measured), ``detector`` ``"classic"`` or ``"sb"``;
+    - ``"circles"``: ``circles_x`` x ``circles_y`` circles, centre spacing ``spacing_m``,
+      ``asymmetric`` grid flag.
+
+    Optionally its pose in {O} (for extrinsics; ChArUco only): ``R_O_B`` and ``position_O_m`` of
+    the board origin (OpenCV board frame: origin at the top-left outer corner, x right, y down,
+    z into the board)."""
+
+    type: str = "charuco"
     squares_x: int = 12
     squares_y: int = 9
     square_m: float = 0.030
     marker_m: float = 0.022
     dictionary: str = "DICT_5X5_100"
     legacy_pattern: bool = False
+    detector: str = "classic"
+    circles_x: int = 4
+    circles_y: int = 11
+    spacing_m: float = 0.02
+    asymmetric: bool = False
     R_O_B: F64 | None = None
     position_O_m: F64 | None = None
 
-    def make(self) -> cv.CharucoBoard:
+    def make(self) -> cv.CalibrationTarget:
+        if self.type == "chessboard":
+            return cv.ChessboardTarget(self.squares_x, self.squares_y, self.square_m, self.detector)
+        if self.type == "circles":
+            return cv.CircleGridTarget(
+                self.circles_x, self.circles_y, self.spacing_m, self.asymmetric
+            )
+        if self.type != "charuco":
+            raise InputError(f"board type: expected one of {BOARD_TYPES}, got {self.type!r}")
         return cv.CharucoBoard(
             self.squares_x,
             self.squares_y,
@@ -55,6 +82,15 @@ class BoardSpec:
             self.dictionary,
             self.legacy_pattern,
         )
+
+    def description(self) -> dict[str, Any]:
+        """The keys that define this target (for the camera file's provenance)."""
+        keys = {
+            "charuco": ("squares_x", "squares_y", "square_m", "marker_m", "dictionary"),
+            "chessboard": ("squares_x", "squares_y", "square_m", "detector"),
+            "circles": ("circles_x", "circles_y", "spacing_m", "asymmetric"),
+        }[self.type]
+        return {"type": self.type, **{k: getattr(self, k) for k in keys}}
 
 
 @dataclass
@@ -73,7 +109,8 @@ class CalibrationSettings:
 
 @dataclass
 class View:
-    """ChArUco corners found in one image: name, corners (N, 2) px, ids (N,), blur estimate (px)."""
+    """Target corners (or circle centres) found in one image: name, corners (N, 2) px, ids (N,),
+    blur estimate (px)."""
 
     name: str
     corners_px: F64
@@ -102,15 +139,16 @@ def edge_spread_px(gray: NDArray[np.uint8], points_px: F64, half: int = 5) -> fl
 
 
 def detect_view(
-    name: str, gray: NDArray[np.uint8], board: cv.CharucoBoard, settings: CalibrationSettings
+    name: str, gray: NDArray[np.uint8], board: cv.CalibrationTarget, settings: CalibrationSettings
 ) -> tuple[View | None, str]:
-    """ChArUco corners of one image, or ``(None, reason)`` if the view is unusable."""
+    """Target corners of one image, or ``(None, reason)`` if the view is unusable."""
     corners, ids = board.detect(gray)
     if len(ids) == 0:
         return None, "no board found"
     if len(ids) < settings.min_corners:
-        return None, f"only {len(ids)} ChArUco corners (need {settings.min_corners})"
-    blur = edge_spread_px(gray, corners)
+        return None, f"only {len(ids)} {board.kind} corners (need {settings.min_corners})"
+    # circle centres are not edges: the edge-spread blur check applies to corners only
+    blur = float("nan") if board.kind == "circles" else edge_spread_px(gray, corners)
     if blur > settings.max_blur_px:
         return None, f"blurred (edge spread {blur:.2f} px > {settings.max_blur_px:g} px)"
     return View(name, corners, ids, blur), ""
@@ -134,7 +172,7 @@ _STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
 def _calibrate(
     views: list[View],
-    board: cv.CharucoBoard,
+    board: cv.CalibrationTarget,
     size: tuple[int, int],
     fix_k3: bool,
     zero_tangential: bool = False,
@@ -149,7 +187,7 @@ def _calibrate(
     )
 
 
-def _holdout_rms(views: list[View], board: cv.CharucoBoard, K: F64, dist: F64) -> list[float]:
+def _holdout_rms(views: list[View], board: cv.CalibrationTarget, K: F64, dist: F64) -> list[float]:
     obj_all = board.corners_board_m
     out = []
     for v in views:
@@ -165,12 +203,12 @@ def _holdout_rms(views: list[View], board: cv.CharucoBoard, K: F64, dist: F64) -
 
 def calibrate_intrinsics(
     views: list[View],
-    board: cv.CharucoBoard,
+    board: cv.CalibrationTarget,
     image_size_px: tuple[int, int],
     settings: CalibrationSettings | None = None,
     name: str = "camera",
 ) -> IntrinsicsResult:
-    """Intrinsics from ChArUco views (see the module docstring); raises :class:`InputError` if
+    """Intrinsics from target views (see the module docstring); raises :class:`InputError` if
     fewer than ``min_views`` views are usable."""
     s = settings or CalibrationSettings()
     if len(views) < s.min_views:
@@ -194,7 +232,7 @@ def calibrate_intrinsics(
     out = IntrinsicsResult(cam, res["rms_px"], per_view, std, rejected, current)
     out.split_half = split_half(current, board, image_size_px, s.fix_k3, s.zero_tangential)
     cam.calibration = {
-        "method": "ChArUco, cv2.calibrateCameraExtended"
+        "method": f"{board.kind}, cv2.calibrateCameraExtended"
         + (", k3 fixed at 0" if s.fix_k3 else "")
         + (", p1 = p2 = 0" if s.zero_tangential else ""),
         "rms_px": out.rms_px,
@@ -210,7 +248,7 @@ def calibrate_intrinsics(
 
 def split_half(
     views: list[View],
-    board: cv.CharucoBoard,
+    board: cv.CalibrationTarget,
     size: tuple[int, int],
     fix_k3: bool,
     zero_tangential: bool = False,
@@ -313,6 +351,11 @@ def extrinsics_from_board(
     if spec.R_O_B is None or spec.position_O_m is None:
         raise InputError("board: its pose in {O} ([pose_O]) is needed for extrinsics")
     board = spec.make()
+    if not isinstance(board, cv.CharucoBoard):
+        raise InputError(
+            f"board: extrinsics need a ChArUco board (a {spec.type} has no marks that fix its "
+            "orientation, so its corner order is ambiguous)"
+        )
     corners, ids = board.detect(gray)
     if len(ids) < min_corners:
         raise InputError(f"board: only {len(ids)} ChArUco corners found (need {min_corners})")

@@ -39,31 +39,102 @@ def _number(
     return kind(v)
 
 
+_BOARD_KEYS = {
+    "charuco": ("squares_x", "squares_y", "square_m", "marker_m", "dictionary", "legacy_pattern"),
+    "chessboard": ("squares_x", "squares_y", "square_m", "detector"),
+    "circles": ("circles_x", "circles_y", "spacing_m", "asymmetric"),
+}
+_BOARD_TABLES = ("board", "calibration", "pose_O")
+_CALIBRATION_KEYS = (
+    "min_corners",
+    "min_views",
+    "max_blur_px",
+    "reject_k",
+    "reject_floor_px",
+    "max_reject_rounds",
+    "fix_k3",
+    "zero_tangential",
+)
+
+
+def _no_unknown_keys(src: str, table: dict[str, Any], known: tuple[str, ...], prefix: str) -> None:
+    for key in table:
+        if key not in known:
+            raise ConfigError(
+                src, prefix + key, f"unknown key (expected one of {', '.join(known)})"
+            )
+
+
+def _bool(src: str, table: dict[str, Any], key: str, prefix: str, default: bool) -> bool:
+    v = table.get(key, default)
+    if not isinstance(v, bool):
+        raise ConfigError(src, prefix + key, f"expected true or false, got {v!r}")
+    return v
+
+
 def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSettings]:
-    """A board file: ``[board]`` (squares_x, squares_y, square_m, marker_m, dictionary,
-    legacy_pattern), optional ``[calibration]`` limits and optional ``[pose_O]`` (position_m,
-    euler_rad: Z-Y-X angles of the board frame in {O}) for extrinsics."""
+    """A board file: ``[board]`` with ``type`` (``"charuco"``, the default, ``"chessboard"`` or
+    ``"circles"``) and that kind's keys (ChArUco: squares_x, squares_y, square_m, marker_m,
+    dictionary, legacy_pattern; chessboard: squares_x, squares_y, square_m, detector; circles:
+    circles_x, circles_y, spacing_m, asymmetric), optional ``[calibration]`` limits and optional
+    ``[pose_O]`` (position_m, euler_rad: Z-Y-X angles of the board frame in {O}) for extrinsics.
+    An unknown table, key or type is an error naming the file and the key."""
     src = str(path)
     data = load_toml(path)
+    _no_unknown_keys(src, data, _BOARD_TABLES, "")
     b = data.get("board")
     if not isinstance(b, dict):
         raise ConfigError(src, "board", "missing [board] table")
-    spec = BoardSpec(
-        squares_x=_number(src, b, "squares_x", "board.", int),
-        squares_y=_number(src, b, "squares_y", "board.", int),
-        square_m=_number(src, b, "square_m", "board.", float),
-        marker_m=_number(src, b, "marker_m", "board.", float),
-        dictionary=str(b.get("dictionary", "DICT_5X5_100")),
-        legacy_pattern=bool(b.get("legacy_pattern", False)),
-    )
-    if spec.squares_x < 3 or spec.squares_y < 3:
-        raise ConfigError(src, "board.squares_x", "expected at least 3 x 3 squares")
-    if spec.marker_m >= spec.square_m:
-        raise ConfigError(src, "board.marker_m", f"must be smaller than square_m ({spec.square_m})")
-    if not spec.dictionary.startswith("DICT_"):
+    kind = b.get("type", "charuco")
+    if kind not in _BOARD_KEYS:
         raise ConfigError(
-            src, "board.dictionary", f"expected a name like 'DICT_5X5_100', got {spec.dictionary!r}"
+            src, "board.type", f"expected one of {', '.join(map(repr, _BOARD_KEYS))}, got {kind!r}"
         )
+    _no_unknown_keys(src, b, ("type", *_BOARD_KEYS[kind]), "board.")
+    if kind == "circles":
+        spec = BoardSpec(
+            type=kind,
+            circles_x=_number(src, b, "circles_x", "board.", int),
+            circles_y=_number(src, b, "circles_y", "board.", int),
+            spacing_m=_number(src, b, "spacing_m", "board.", float),
+            asymmetric=_bool(src, b, "asymmetric", "board.", False),
+        )
+        if spec.circles_x < 3 or spec.circles_y < 3:
+            raise ConfigError(src, "board.circles_x", "expected at least 3 x 3 circles")
+    else:
+        spec = BoardSpec(
+            type=kind,
+            squares_x=_number(src, b, "squares_x", "board.", int),
+            squares_y=_number(src, b, "squares_y", "board.", int),
+            square_m=_number(src, b, "square_m", "board.", float),
+        )
+        if spec.squares_x < 3 or spec.squares_y < 3:
+            raise ConfigError(src, "board.squares_x", "expected at least 3 x 3 squares")
+    if kind == "chessboard":
+        from cdpr.calibration.cv import CHESSBOARD_DETECTORS
+
+        spec.detector = str(b.get("detector", "classic"))
+        if spec.detector not in CHESSBOARD_DETECTORS:
+            raise ConfigError(
+                src,
+                "board.detector",
+                f"expected one of {', '.join(map(repr, CHESSBOARD_DETECTORS))}, "
+                f"got {b['detector']!r}",
+            )
+    if kind == "charuco":
+        spec.marker_m = _number(src, b, "marker_m", "board.", float)
+        spec.dictionary = str(b.get("dictionary", "DICT_5X5_100"))
+        spec.legacy_pattern = _bool(src, b, "legacy_pattern", "board.", False)
+        if spec.marker_m >= spec.square_m:
+            raise ConfigError(
+                src, "board.marker_m", f"must be smaller than square_m ({spec.square_m})"
+            )
+        if not spec.dictionary.startswith("DICT_"):
+            raise ConfigError(
+                src,
+                "board.dictionary",
+                f"expected a name like 'DICT_5X5_100', got {spec.dictionary!r}",
+            )
     try:
         spec.make()
     except Exception as exc:  # noqa: BLE001 - OpenCV raises its own error type for bad boards
@@ -71,8 +142,9 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
     c = data.get("calibration", {})
     if not isinstance(c, dict):
         raise ConfigError(src, "calibration", "expected a table")
+    _no_unknown_keys(src, c, _CALIBRATION_KEYS, "calibration.")
     s = CalibrationSettings()
-    for key, kind in (
+    for key, num in (
         ("min_corners", int),
         ("min_views", int),
         ("max_blur_px", float),
@@ -81,7 +153,7 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
         ("max_reject_rounds", int),
     ):
         if key in c:
-            setattr(s, key, _number(src, c, key, "calibration.", kind))
+            setattr(s, key, _number(src, c, key, "calibration.", num))
     for key in ("fix_k3", "zero_tangential"):
         if key in c:
             if not isinstance(c[key], bool):
@@ -93,6 +165,15 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
     if pose is not None:
         from cdpr.analysis.rotations import rotation_from_euler
 
+        if not isinstance(pose, dict):
+            raise ConfigError(src, "pose_O", "expected a table")
+        if kind != "charuco":
+            raise ConfigError(
+                src,
+                "pose_O",
+                f"a {kind} has no marks that fix its orientation: use a ChArUco board",
+            )
+        _no_unknown_keys(src, pose, ("position_m", "euler_rad"), "pose_O.")
         for key in ("position_m", "euler_rad"):
             v = pose.get(key) if isinstance(pose, dict) else None
             try:

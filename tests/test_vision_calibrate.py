@@ -50,7 +50,8 @@ def _check_calibration(views, tmp_path: Path, zero_tangential: bool) -> None:
     the principal point's standard deviation is ~0.5 px with 20 views at 0.1 px on this 10.6 mm lens
     (cx, cy correlate with p2, p1): the 0.5 px target is then ~1 sigma, so we check 3 sigma."""
     cam, folder, corner_rms = views
-    assert 0.08 <= corner_rms <= 0.13, f"corner noise {corner_rms:.3f} px is not ~0.1 px"
+    # ~0.08 px with the adaptive refinement (docs/vision.md)
+    assert 0.06 <= corner_rms <= 0.13, f"corner noise {corner_rms:.3f} px is not ~0.1 px"
     tmp_path = tmp_path / f"zt_{zero_tangential}"
     tmp_path.mkdir()
     board = tmp_path / "board.toml"

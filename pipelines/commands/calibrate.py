@@ -1,7 +1,8 @@
-"""``cdpr calibrate``: camera intrinsics (ChArUco) and extrinsics (camera pose in {O}).
+"""``cdpr calibrate``: camera intrinsics and extrinsics (camera pose in {O}).
 
 ``cdpr calibrate camera IMAGES_OR_VIDEO... --board board.toml --out camera.json`` reads image files,
-folders of images or video files, finds the ChArUco board in each, and fits the intrinsics.  Any bad
+folders of images or video files, finds the board (``[board] type``: ``"charuco"``,
+``"chessboard"`` or ``"circles"``) in each, and fits the intrinsics.  Any bad
 image (no board, too few corners, blurred, unreadable) is an error naming the files (exit 2, nothing
 written) unless ``--skip-bad`` is given.  Writes ``camera.json`` (with an id), ``camera.yaml``
 (OpenCV FileStorage), ``camera_coverage.png`` and ``camera_crossval.png`` beside it.
@@ -36,7 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
     register_actions(cs)
 
-    cam = cs.add_parser("camera", help="ChArUco intrinsics from images, folders or videos")
+    cam = cs.add_parser(
+        "camera", help="intrinsics from ChArUco, chessboard or circle-grid images or videos"
+    )
     cam.add_argument("inputs", nargs="+", help="image files, folders of images, or video files")
     cam.add_argument("--board", required=True, help="board file (TOML)")
     cam.add_argument("--out", required=True, help="output camera model (JSON)")
@@ -207,10 +210,7 @@ def run_camera(args: argparse.Namespace) -> int:
     cam.calibration["board"] = {
         "file": args.board,
         "sha256": file_sha256(args.board),
-        **{
-            k: getattr(spec, k)
-            for k in ("squares_x", "squares_y", "square_m", "marker_m", "dictionary")
-        },
+        **spec.description(),
     }
     cam.calibration["skipped_images"] = dict(bad)
     cam.calibration["software"] = f"cdpr {__version__}"

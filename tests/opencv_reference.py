@@ -1,0 +1,46 @@
+"""OpenCV's own calibration of chessboard photos, exactly as its calibration tutorial does it
+(``findChessboardCorners`` with default flags, ``cornerSubPix`` with an 11 x 11 window and the
+tutorial's stop criteria, ``calibrateCameraExtended`` with default flags): the independent reference
+for the tests on real photographs.  This is the one file besides ``calibration/cv.py`` that imports
+``cv2`` (``test_vision_cv.py`` allows it): a reference must not go through the code under test."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+
+def tutorial_calibration(
+    files: list[Path], pattern: tuple[int, int], keep: list[int] | None = None
+) -> dict[str, Any]:
+    """fx, fy, cx, cy with their standard deviations, RMS and per-view RMS (px) of OpenCV's
+    tutorial pipeline on ``files`` (``keep``: indices of the files to use, default all)."""
+    objp = np.zeros((pattern[0] * pattern[1], 3), np.float32)
+    objp[:, :2] = np.mgrid[0 : pattern[0], 0 : pattern[1]].T.reshape(-1, 2)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+    obj, img, size = [], [], None
+    for k, f in enumerate(files):
+        if keep is not None and k not in keep:
+            continue
+        gray = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        ok, corners = cv2.findChessboardCorners(gray, pattern, None)
+        assert ok, f"OpenCV finds no {pattern} chessboard in {f}"
+        corners = cv2.cornerSubPix(gray, corners, (11, 11), (-1, -1), crit)
+        obj.append(objp)
+        img.append(corners)
+        size = gray.shape[::-1]
+    rms, K, dist, _, _, std, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None)
+    std = std.ravel()
+    return {
+        "rms_px": float(rms),
+        "fx": float(K[0, 0]),
+        "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+        "std": {"fx": float(std[0]), "fy": float(std[1]), "cx": float(std[2]), "cy": float(std[3])},
+        "per_view_rms_px": per_view.ravel().astype(float).tolist(),
+        "dist": dist.ravel().tolist(),
+    }
