@@ -1,6 +1,6 @@
 """CAN load cells: a python-can bus, frames decoded by cantools from a DBC, counts -> newtons.
 
-The DBC (default ``data_samples/loadcell.dbc``) describes an 8-channel amplifier: signals named
+The DBC (default ``daq/loadcell.dbc``, also at ``data_samples/loadcell.dbc``) describes an 8-channel amplifier: signals named
 ``Ch<k>_Counts`` (raw counts), ``Ch<k>_Saturated`` / ``Ch<k>_Slack`` / ``Ch<k>_Fault`` (status bits)
 and one ``Counter`` per frame (rolling sample counter shared by the frames of one sample).  Any DBC
 following that naming works; the frames of one sample are the messages that carry a used channel.
@@ -52,8 +52,9 @@ from .source import (
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DBC = Path(__file__).resolve().parents[1] / "data_samples" / "loadcell.dbc"
-"""The DBC shipped in ``data_samples/`` (resolved relative to the source tree)."""
+DEFAULT_DBC = Path(__file__).resolve().parent / "loadcell.dbc"
+"""The DBC shipped inside the package (``daq/loadcell.dbc``, package data of ``cdpr.daq``;
+``data_samples/loadcell.dbc`` links to it), so it is found in a wheel install too."""
 
 _CH_RE = re.compile(r"^Ch(\d+)_(Counts|Saturated|Slack|Fault)$")
 CHANNEL_STATUS_SATURATED = 1
