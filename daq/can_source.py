@@ -1,6 +1,6 @@
 """CAN load cells: a python-can bus, frames decoded by cantools from a DBC, counts -> newtons.
 
-The DBC (default ``daq/loadcell.dbc``, also at ``data_samples/loadcell.dbc``) describes an 8-channel amplifier: signals named
+The DBC (default ``data_samples/loadcell.dbc``) describes an 8-channel amplifier: signals named
 ``Ch<k>_Counts`` (raw counts), ``Ch<k>_Saturated`` / ``Ch<k>_Slack`` / ``Ch<k>_Fault`` (status bits)
 and one ``Counter`` per frame (rolling sample counter shared by the frames of one sample).  Any DBC
 following that naming works; the frames of one sample are the messages that carry a used channel.
@@ -543,9 +543,16 @@ class CanLoadCellSource(Source):
             raise ConfigError(origin, f"{prefix}.interface", "expected a python-can interface name")
         try:
             bitrate = int(bitrate)
+        except (TypeError, ValueError, OverflowError):
+            raise ConfigError(
+                origin, f"{prefix}.bitrate", f"expected an integer (bit/s), got {bitrate!r}"
+            ) from None
+        try:
             rate_hz = float(rate_hz)
         except (TypeError, ValueError):
-            raise ConfigError(origin, f"{prefix}.bitrate", "expected numbers") from None
+            raise ConfigError(
+                origin, f"{prefix}.rate_hz", f"expected a number (Hz), got {rate_hz!r}"
+            ) from None
         self.interface = interface
         self.channel = str(channel)
         self.bitrate = bitrate

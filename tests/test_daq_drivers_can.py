@@ -243,7 +243,7 @@ def test_slcan_across_processes_matches_truth(tmp_path: Path) -> None:
         assert proc.stdout.readline().strip() == f"READY {link}"
         import tomllib
 
-        from cdpr.analysis.rig import rig_from_mapping
+        from cdpr.daq.schema import rig_from_mapping
         from cdpr.daq.virtual_rig import VirtualRig, load_schedule
 
         rig = rig_from_mapping(tomllib.loads(_RIG.read_text()), str(_RIG))
@@ -406,8 +406,8 @@ def test_python_can_logger_reads_the_emulated_adapter(tmp_path: Path) -> None:
     import signal
     import tomllib
 
-    from cdpr.analysis.rig import rig_from_mapping
     from cdpr.analysis.tension import METHODS
+    from cdpr.daq.schema import rig_from_mapping
     from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
 
     rig = rig_from_mapping(tomllib.loads(_RIG.read_text()), str(_RIG))
