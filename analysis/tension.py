@@ -191,19 +191,9 @@ def sigma_min_unit_rows(A: ArrayLike) -> FloatArray:
     return np.linalg.svd(As, compute_uv=False)[..., -1]
 
 
-def _sigma_floor(L_diag: FloatArray, n: int) -> FloatArray:
-    """A lower bound of sigma_min(A') from the Cholesky diagonal (n, C) of ``G = A' A'^T``:
-    ``lambda_min >= det G / (tr G / (n - 1))^(n - 1)`` (AM-GM on the other eigenvalues) with
-    ``tr G <= n`` for unit rows."""
-    det = np.prod(L_diag * L_diag, axis=0)
-    if n == 1:
-        return np.sqrt(det)
-    return np.sqrt(det / (n / (n - 1)) ** (n - 1))
-
-
 def _rank_ok(As: FloatArray, floor: FloatArray) -> BoolArray:
     """Per pose: sigma_min(As) >= RANK_TOL for As (n, m, C) (unit rows); the SVD runs only for the
-    poses whose cheap lower bound ``floor`` (C,) does not already clear the test."""
+    poses whose lower bound ``floor`` (C,) of sigma_min does not already clear the test."""
     ok = floor >= 4.0 * RANK_TOL
     unsure = np.flatnonzero(~ok)
     if unsure.size:
@@ -283,10 +273,8 @@ class _Factor:
         G = np.einsum("imc,jmc->ijc", self.As, self.As)
         L = np.zeros((n, n, C))
         inv_diag = np.empty((n, C))
-        pivots = np.empty((n, C))
         for j in range(n):
             p = G[j, j] - np.einsum("kc,kc->c", L[j, :j], L[j, :j]) if j else G[0, 0]
-            pivots[j] = np.maximum(p, 0.0)
             d = np.sqrt(np.maximum(p, PIVOT_TOL))
             L[j, j] = d
             inv_diag[j] = 1.0 / d
@@ -297,9 +285,12 @@ class _Factor:
                 L[j + 1 :, j] = v * inv_diag[j]
         self.L = L
         self.inv_diag = inv_diag
-        self.floor = _sigma_floor(np.sqrt(pivots), n)  # sigma_min(A') >= floor
-        self.ok = _rank_ok(self.As, self.floor)
         self.n = n
+        # sigma_min(A')^2 = lambda_min(G) >= 1 / trace(G^-1) = 1 / |L^-1|_F^2 >= lambda_min / n:
+        # a lower bound within sqrt(n) of sigma_min, from one triangular solve
+        Linv = self.forward(np.broadcast_to(np.eye(n)[:, :, None], (n, n, C)))
+        self.floor = 1.0 / np.sqrt(np.einsum("ijc,ijc->c", Linv, Linv))
+        self.ok = _rank_ok(self.As, self.floor)
 
     def subset(self, idx: NDArray[np.intp]) -> _Factor:
         """The factor of the poses ``idx`` of the chunk."""
