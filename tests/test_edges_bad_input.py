@@ -8,6 +8,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import can
 import pytest
 
 from cdpr.pipelines.cli import main
@@ -237,3 +238,58 @@ def test_bad_rate_hz_is_reported_under_its_own_key(tmp_path, capsys, value, prob
     )  # fmt: skip
     assert "bitrate" not in line
     assert not runs.exists()
+
+
+# --- defects in files other engineers own this round: the lead drops each marker after merging ---
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="cdpr import (storage's parser rewrite): a DBC whose frame ids match no frame of the "
+    "log gives a run without tensions and exit 0",
+)
+def test_import_with_a_dbc_matching_no_frame(tmp_path, capsys):
+    log = tmp_path / "run.log"
+    writer = can.Logger(str(log))
+    for k in range(3):
+        for fid in (0x181, 0x281, 0x381, 0x481):
+            msg = can.Message(arbitration_id=fid, data=bytes(8), is_extended_id=False, timestamp=k)
+            writer.on_message_received(msg)
+    writer.stop()
+    dbc = tmp_path / "other.dbc"
+    text = (ROOT / "daq" / "loadcell.dbc").read_text()
+    for old, new in (("385", "1385"), ("641", "1641"), ("897", "1897"), ("1153", "1999")):
+        text = text.replace(f"BO_ {old} ", f"BO_ {new} ")
+    dbc.write_text(text)
+    out = tmp_path / "run.mcap"
+    argv = [
+        "import",
+        "--can-log",
+        str(log),
+        "--dbc",
+        str(dbc),
+        "--rig",
+        str(RIG),
+        "--out",
+        str(out),
+    ]
+    cli_error(capsys, argv, str(dbc))
+    assert not out.exists()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="pipelines/vision_config.py (vision's file): load_board ignores unknown keys; the lead "
+    "moves it onto cdpr.daq.schema",
+)
+def test_board_file_with_an_unknown_key(tmp_path):
+    from cdpr.analysis.errors import ConfigError
+    from cdpr.pipelines.vision_config import load_board
+
+    board = tmp_path / "board.toml"
+    text = (ROOT / "data_samples" / "board_charuco.toml").read_text()
+    board.write_text(
+        text.replace("legacy_pattern = false", "legacy_pattern = false\nsquare_mm = 30")
+    )
+    with pytest.raises(ConfigError, match=r"board\.square_mm"):
+        load_board(board)
