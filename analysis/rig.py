@@ -1,8 +1,9 @@
 """The rig model: cable anchors, platform attachment points, mass properties and cable limits.
 
-A :class:`Rig` is frozen and validated on construction.  :func:`rig_from_mapping` builds one from the
-nested mapping a rig file (TOML) parses to, naming the source and key of any problem;
-:func:`rig_to_mapping` is its inverse.  Reading and writing files is the pipelines' job.
+A :class:`Rig` is frozen and validated on construction (its invariants).  The rig file's schema
+(keys, types, plausible ranges) and ``rig_from_mapping`` live in :mod:`cdpr.daq.schema`, which
+names the file and key of any problem; :func:`rig_to_mapping` is its inverse.  Reading and writing
+files is not this module's job.
 
 Rig file layout (all SI)::
 
@@ -42,17 +43,6 @@ from .conventions import GRAVITY_O_MPS2
 from .errors import ConfigError
 
 FloatArray = NDArray[np.float64]
-
-_TOP_KEYS = {"rig", "platform", "cables", "assumptions"}
-_RIG_KEYS = {
-    "name",
-    "description",
-    "gravity_O_mps2",
-    "reference_position_O_m",
-    "reference_euler_rad",
-}
-_PLATFORM_KEYS = {"mass_kg", "com_P_m", "inertia_P_kgm2"}
-_CABLE_KEYS = {"name", "anchor_O_m", "attach_P_m", "t_min_N", "t_max_N"}
 
 
 def _frozen(a: Any, shape: tuple[int, ...]) -> FloatArray:
@@ -200,88 +190,9 @@ class Rig:
         }
 
 
-def _section(
-    data: Mapping[str, Any], key: str, source: str, allowed: set[str]
-) -> Mapping[str, Any]:
-    sec = data.get(key, {})
-    if not isinstance(sec, Mapping):
-        raise ConfigError(source, key, "expected a table")
-    unknown = sorted(set(sec) - allowed)
-    if unknown:
-        raise ConfigError(
-            source, f"{key}.{unknown[0]}", f"unknown key (allowed: {sorted(allowed)})"
-        )
-    return sec
-
-
-def _num(source: str, key: str, value: Any) -> FloatArray:
-    """``value`` as a float array, or a :class:`ConfigError` naming ``source`` and ``key``."""
-    try:
-        return np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ConfigError(source, key, f"expected numbers, got {value!r}") from None
-
-
-def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
-    """Build a validated :class:`Rig` from a parsed rig file.
-
-    Raises :class:`~cdpr.analysis.errors.ConfigError` naming ``source``, the key and the problem.
-    """
-    unknown = sorted(set(data) - _TOP_KEYS)
-    if unknown:
-        raise ConfigError(source, unknown[0], f"unknown key (allowed: {sorted(_TOP_KEYS)})")
-    rig = _section(data, "rig", source, _RIG_KEYS)
-    plat = _section(data, "platform", source, _PLATFORM_KEYS)
-    if "mass_kg" not in plat:
-        raise ConfigError(source, "platform.mass_kg", "missing")
-    cables = data.get("cables")
-    if not isinstance(cables, list) or not cables:
-        raise ConfigError(source, "cables", "expected a non-empty array of [[cables]] tables")
-    for i, c in enumerate(cables):
-        if not isinstance(c, Mapping):
-            raise ConfigError(source, f"cables[{i}]", "expected a table")
-        unknown = sorted(set(c) - _CABLE_KEYS)
-        if unknown:
-            raise ConfigError(source, f"cables[{i}].{unknown[0]}", "unknown key")
-        for k in ("anchor_O_m", "attach_P_m", "t_min_N", "t_max_N"):
-            if k not in c:
-                raise ConfigError(source, f"cables[{i}].{k}", "missing")
-        for k in ("anchor_O_m", "attach_P_m"):
-            v = c[k]
-            if not isinstance(v, list | tuple) or len(v) != 3:
-                raise ConfigError(source, f"cables[{i}].{k}", f"expected 3 numbers, got {v!r}")
-    assumptions = data.get("assumptions", {})
-    if not isinstance(assumptions, Mapping):
-        raise ConfigError(source, "assumptions", "expected a table of text")
-    return Rig(
-        name=str(rig.get("name", "rig")),
-        description=str(rig.get("description", "")),
-        cable_names=tuple(str(c.get("name", f"c{i + 1}")) for i, c in enumerate(cables)),
-        anchors_O_m=_num(source, "cables.anchor_O_m", [c["anchor_O_m"] for c in cables]),
-        attach_P_m=_num(source, "cables.attach_P_m", [c["attach_P_m"] for c in cables]),
-        mass_kg=plat["mass_kg"],
-        com_P_m=_num(source, "platform.com_P_m", plat.get("com_P_m", [0.0, 0.0, 0.0])),
-        inertia_P_kgm2=_num(
-            source, "platform.inertia_P_kgm2", plat.get("inertia_P_kgm2", np.zeros((3, 3)))
-        ),
-        t_min_N=_num(source, "cables.t_min_N", [c["t_min_N"] for c in cables]),
-        t_max_N=_num(source, "cables.t_max_N", [c["t_max_N"] for c in cables]),
-        gravity_O_mps2=_num(
-            source, "rig.gravity_O_mps2", rig.get("gravity_O_mps2", GRAVITY_O_MPS2)
-        ),
-        reference_position_O_m=_num(
-            source, "rig.reference_position_O_m", rig.get("reference_position_O_m", np.zeros(3))
-        ),
-        reference_euler_rad=_num(
-            source, "rig.reference_euler_rad", rig.get("reference_euler_rad", np.zeros(3))
-        ),
-        assumptions={str(k): str(v) for k, v in assumptions.items()},
-        source=source,
-    )
-
-
 def rig_to_mapping(rig: Rig) -> dict[str, Any]:
-    """The inverse of :func:`rig_from_mapping`: a nested dict ready to be written as TOML."""
+    """The inverse of :func:`cdpr.daq.schema.rig_from_mapping`: a nested dict ready to be written
+    as TOML."""
     out: dict[str, Any] = {
         "rig": {
             "name": rig.name,

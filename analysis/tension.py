@@ -28,8 +28,11 @@ Objectives (named, because they differ):
   m = n + 2 a fast path (elimination in a pivot order shared by the batch, one line of the
   polygon with a KKT or emptiness certificate) handles the poses it can certify.
 
-Rank-deficient (or numerically singular, see :data:`PIVOT_TOL`) structure matrices do not raise:
-the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``.
+Rank-deficient (or numerically singular, see :data:`RANK_TOL`) structure matrices do not raise:
+the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``, by every method,
+with a per-pose test (the same verdict alone and in any batch).  ``exact`` solves the poses close
+to that limit from the SVD of ``A'`` (:data:`SVD_BELOW`), so its answers stay within 1e-6 N of the
+optimum down to it.
 """
 
 from __future__ import annotations
@@ -96,9 +99,22 @@ FEASIBILITY_TOL_N = 1e-6
 CHUNK = 5000
 """Poses per chunk: bounds the working memory (well under 1 KiB per pose) and keeps it in cache."""
 
-PIVOT_TOL = 1e-12
-"""Smallest Cholesky pivot of ``A' A'^T`` (``A'``: A with unit-norm rows, so the diagonal is 1)
-accepted; below it (``cond(A') > ~1e6``) the pose is flagged rank deficient."""
+RANK_TOL = 1e-5
+"""The rank test, the same for every method and every batch: a pose is flagged
+``STATUS_RANK_DEFICIENT`` when the smallest singular value of ``A'`` (A with unit-norm rows) is
+below this (``cond(A') > ~1e5``).  Decided per pose: a cheap determinant bound clears the well
+conditioned poses, the others get their singular values (LAPACK SVD), so the verdict never depends
+on the other poses of the batch.  Above it ``exact`` is within 1e-6 N of the optimum (measured in
+docs/tension.md: 2e-7 N at sigma_min 1.3e-5); at 1e-6 the error would reach ~4e-6 N."""
+
+PIVOT_TOL = RANK_TOL**2
+"""``RANK_TOL**2``: the scale of the smallest eigenvalue of ``A' A'^T`` (``A'``: A with unit-norm
+rows, so the diagonal is 1) below which a pose is rank deficient."""
+
+SVD_BELOW = 1e-3
+"""``exact``: poses whose ``sigma_min(A')`` is not certified above this are solved from the SVD of
+``A'`` (error ~ eps |T| / sigma_min) instead of the normal equations (error ~ eps |T| / sigma_min^2),
+which keeps the answer within 1e-6 N of the optimum down to :data:`RANK_TOL`."""
 
 _REL_TOL = 1e-12  # exact: constraints relaxed by this times (1 + max t_max) when intersected
 _NULL_TOL = 1e-20  # |null-space row|^2 below which a cable does not move in the null space
@@ -130,15 +146,60 @@ def check_problem(
     w = check_trailing(w, "w", (n,))
     t_min = check_trailing(t_min_N, "t_min_N", (m,))
     t_max = check_trailing(t_max_N, "t_max_N", (m,))
+    lead = _lead_shape(
+        ("A", A.shape[:-2]),
+        ("w", w.shape[:-1]),
+        ("t_min_N", t_min.shape[:-1]),
+        ("t_max_N", t_max.shape[:-1]),
+    )
     if np.any(t_min >= t_max):
         raise InputError("t_min_N, t_max_N: expected t_min_N < t_max_N for every cable")
-    lead = np.broadcast_shapes(A.shape[:-2], w.shape[:-1], t_min.shape[:-1], t_max.shape[:-1])
     return (
         np.broadcast_to(A, lead + (n, m)),
         np.broadcast_to(w, lead + (n,)),
         np.broadcast_to(t_min, lead + (m,)),
         np.broadcast_to(t_max, lead + (m,)),
     )
+
+
+def _lead_shape(*named: tuple[str, tuple[int, ...]]) -> tuple[int, ...]:
+    """The common batch shape of the arguments, or :class:`InputError` naming the one that does
+    not match (numpy's broadcasting error names neither argument)."""
+    lead: tuple[int, ...] = ()
+    owner = named[0][0]
+    for name, shape in named:
+        try:
+            new = np.broadcast_shapes(lead, shape)
+        except ValueError:
+            raise InputError(
+                f"{name}: batch shape {shape} does not match the batch shape {lead} of {owner} "
+                "(expected equal batch sizes, or 1 to share one value)"
+            ) from None
+        if new != lead:
+            lead, owner = new, name
+    return lead
+
+
+def sigma_min_unit_rows(A: ArrayLike) -> FloatArray:
+    """Smallest singular value of A (..., n, m) with its rows scaled to unit norm (zero rows
+    stay zero), the quantity the rank test compares with :data:`RANK_TOL`."""
+    A = np.asarray(A, dtype=np.float64)
+    rn = np.linalg.norm(A, axis=-1, keepdims=True)
+    As = np.divide(A, rn, out=np.zeros_like(A), where=rn > 0)
+    if As.size == 0:
+        return np.zeros(A.shape[:-2])
+    return np.linalg.svd(As, compute_uv=False)[..., -1]
+
+
+def _rank_ok(As: FloatArray, floor: FloatArray) -> BoolArray:
+    """Per pose: sigma_min(As) >= RANK_TOL for As (n, m, C) (unit rows); the SVD runs only for the
+    poses whose lower bound ``floor`` (C,) of sigma_min does not already clear the test."""
+    ok = floor >= 4.0 * RANK_TOL
+    unsure = np.flatnonzero(~ok)
+    if unsure.size:
+        sv = np.linalg.svd(np.moveaxis(_take(As, unsure), -1, 0), compute_uv=False)
+        ok[unsure] = sv[:, -1] >= RANK_TOL
+    return ok
 
 
 def _check_finite_A(A: FloatArray) -> None:
@@ -212,10 +273,8 @@ class _Factor:
         G = np.einsum("imc,jmc->ijc", self.As, self.As)
         L = np.zeros((n, n, C))
         inv_diag = np.empty((n, C))
-        ok = np.ones(C, dtype=bool)
         for j in range(n):
             p = G[j, j] - np.einsum("kc,kc->c", L[j, :j], L[j, :j]) if j else G[0, 0]
-            ok &= p > PIVOT_TOL
             d = np.sqrt(np.maximum(p, PIVOT_TOL))
             L[j, j] = d
             inv_diag[j] = 1.0 / d
@@ -226,15 +285,19 @@ class _Factor:
                 L[j + 1 :, j] = v * inv_diag[j]
         self.L = L
         self.inv_diag = inv_diag
-        self.ok = ok
         self.n = n
+        # sigma_min(A')^2 = lambda_min(G) >= 1 / trace(G^-1) = 1 / |L^-1|_F^2 >= lambda_min / n:
+        # a lower bound within sqrt(n) of sigma_min, from one triangular solve
+        Linv = self.forward(np.broadcast_to(np.eye(n)[:, :, None], (n, n, C)))
+        self.floor = 1.0 / np.sqrt(np.einsum("ijc,ijc->c", Linv, Linv))
+        self.ok = _rank_ok(self.As, self.floor)
 
     def subset(self, idx: NDArray[np.intp]) -> _Factor:
         """The factor of the poses ``idx`` of the chunk."""
         sub = object.__new__(_Factor)
         sub.rs, sub.As, sub.n = _take(self.rs, idx), _take(self.As, idx), self.n
         sub.L, sub.inv_diag = _take(self.L, idx), _take(self.inv_diag, idx)
-        sub.ok = self.ok[idx]
+        sub.ok, sub.floor = self.ok[idx], self.floor[idx]
         return sub
 
     def forward(self, r: FloatArray) -> FloatArray:
@@ -580,15 +643,17 @@ def _exact_kernel(
     lo: FloatArray,
     hi: FloatArray,
     ref: FloatArray,
-    refine: bool = False,
 ) -> tuple[FloatArray, IntArray]:
     n, m, C = At.shape
     r = m - n
     f = _Factor(At)
     ref = np.broadcast_to(ref, (m, C))
     Tp = ref + f.pinv(w - _apply(At, ref))
-    if refine:
-        Tp += f.pinv(w - _apply(At, Tp))  # one step of iterative refinement
+    # ill-conditioned (not rank-deficient) poses: T_p and the null space from the SVD of A'
+    weak = np.flatnonzero(f.ok & (f.floor < SVD_BELOW))
+    n_svd: FloatArray | None = None
+    if weak.size:
+        Tp[:, weak], n_svd = _svd_solve(f, weak, _take(w, weak), _take(At, weak), _take(ref, weak))
     lo_ = lo - Tp
     hi_ = hi - Tp
     tol = _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
@@ -607,6 +672,13 @@ def _exact_kernel(
     else:
         sub = f
     N = _null_space(sub, r)
+    if n_svd is not None:
+        where = np.full(C, -1)
+        where[weak] = np.arange(weak.size)
+        pos = where[idx]
+        use = np.flatnonzero(pos >= 0)
+        for j in range(r):
+            N[j][:, use] = n_svd[j][:, pos[use]]
     lo_k, hi_k, tol_k = _take(lo_, idx), _take(hi_, idx), tol[idx]
     if r == 1:
         lam, found = _interval(N[0], lo_k, hi_k, tol_k)
@@ -618,6 +690,23 @@ def _exact_kernel(
         T[:, idx] += N[0] * lam1 + N[1] * lam2
     status[idx[~found]] = STATUS_INFEASIBLE
     return T, status
+
+
+def _svd_solve(
+    f: _Factor, k: NDArray[np.intp], w: FloatArray, At: FloatArray, ref: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """``T_p = T_ref + A^+ (w - A T_ref)`` (m, K) and an orthonormal null-space basis (r, m, K)
+    of the poses ``k`` of the factor's chunk from the SVD ``A' = U S V^T`` (w, At, ref: those
+    poses).  Error ~ eps |T| / sigma_min, against eps |T| / sigma_min^2 for the normal equations."""
+    n = f.n
+    As = np.moveaxis(_take(f.As, k), -1, 0)  # (K, n, m)
+    U, sv, Vt = np.linalg.svd(As, full_matrices=True)
+    rs = _take(f.rs, k)
+    Tp = ref.copy()
+    for _ in range(2):  # the solve and one step of iterative refinement
+        rhs = np.einsum("kji,jk->ik", U, rs * (w - _apply(At, Tp))) / sv.T
+        Tp += np.einsum("kim,ik->mk", Vt[:, :n], rhs)
+    return Tp, np.moveaxis(Vt[:, n:], 0, -1)
 
 
 # Fast path for m = n + 2 (the paper's rigs), used by :func:`exact`.  Per chunk: Gaussian
@@ -1036,6 +1125,7 @@ def _penalty_kernel(
                 break
         converged[k] = False
     status = np.where(converged, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
+    status[~_Factor(At).ok] = STATUS_RANK_DEFICIENT  # the shared per-pose rank test
     return np.ascontiguousarray(T.T), status
 
 

@@ -53,6 +53,10 @@ def fit_load_cell(load_N: ArrayLike, counts: ArrayLike) -> LoadCellFit:
         raise InputError(f"load_N and counts: expected the same length, got {y.size} and {x.size}")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         raise InputError("load_N, counts: expected finite numbers")
+    if np.ptp(x) == 0:
+        raise InputError(
+            f"counts: stuck at {x[0]:g} for every load (a dead or disconnected channel)"
+        )
     if np.unique(y).size < 3:
         raise InputError(f"load_N: expected at least 3 distinct loads, got {np.unique(y).size}")
     X = np.stack([x, np.ones_like(x)], axis=1)

@@ -31,13 +31,14 @@ axes**, order ``[Fx, Fy, Fz, Mx, My, Mz]`` (N, N m), so the cables carry ``A T =
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from pydantic import Field
 
-from cdpr.analysis.errors import ConfigError
+from .schema import Schema, Vec3_m, parse
 
 FloatArray = NDArray[np.float64]
 
@@ -152,36 +153,44 @@ class AeroModel:
         return d
 
 
+_Length = Annotated[float, Field(gt=0.0, le=100.0)]
+_Coefficient = Annotated[float, Field(ge=-1e3, le=1e3)]
+
+
+class AeroSection(Schema):
+    """Schema of a schedule's ``[aero]`` table: every :class:`AeroModel` field, each optional,
+    with plausible ranges (a reference length of 1e300 m or a negative pressure is refused)."""
+
+    c_ref_m: _Length | None = None
+    b_ref_m: _Length | None = None
+    s_ref_m2: Annotated[float, Field(gt=0.0, le=1e4)] | None = None
+    length_m: _Length | None = None
+    fuselage_diameter_m: _Length | None = None
+    CL0: _Coefficient | None = None
+    CL_alpha: _Coefficient | None = None
+    CD0: _Coefficient | None = None
+    k_induced: _Coefficient | None = None
+    CY_beta: _Coefficient | None = None
+    Cl_beta: _Coefficient | None = None
+    Cm0: _Coefficient | None = None
+    Cm_alpha: _Coefficient | None = None
+    Cn_beta: _Coefficient | None = None
+    mrp_P_m: Vec3_m | None = None
+    static_pressure_Pa: Annotated[float, Field(gt=0.0, le=1e7)] | None = None
+    temperature_K: Annotated[float, Field(gt=0.0, le=1e4)] | None = None
+
+
 def aero_from_mapping(data: Mapping[str, Any] | None, source: str, key: str = "aero") -> AeroModel:
-    """An :class:`AeroModel` with the defaults overridden by ``data`` (a schedule's ``[aero]``).
+    """An :class:`AeroModel` with the defaults overridden by ``data`` (a schedule's ``[aero]``),
+    validated by :class:`AeroSection` (errors name ``source`` and ``<key>.<field>``).
 
     ``s_ref_m2`` defaults to ``b_ref_m * c_ref_m`` when only those are given.
     """
     if not data:
         return AeroModel()
-    names = {f.name for f in fields(AeroModel)}
-    kw: dict[str, Any] = {}
-    for k, v in data.items():
-        if k not in names:
-            raise ConfigError(source, f"{key}.{k}", f"unknown key (allowed: {sorted(names)})")
-        if k == "mrp_P_m":
-            try:
-                vv = tuple(float(x) for x in v)
-            except (TypeError, ValueError):
-                raise ConfigError(source, f"{key}.{k}", "expected 3 numbers") from None
-            if len(vv) != 3:
-                raise ConfigError(source, f"{key}.{k}", "expected 3 numbers")
-            kw[k] = vv
-            continue
-        try:
-            kw[k] = float(v)
-        except (TypeError, ValueError):
-            raise ConfigError(source, f"{key}.{k}", f"expected a number, got {v!r}") from None
-        if not np.isfinite(kw[k]):
-            raise ConfigError(source, f"{key}.{k}", "expected a finite number")
+    kw: dict[str, Any] = parse(AeroSection, data, source, prefix=key).model_dump(exclude_none=True)
+    if "mrp_P_m" in kw:
+        kw["mrp_P_m"] = tuple(kw["mrp_P_m"])
     if "s_ref_m2" not in kw and ("b_ref_m" in kw or "c_ref_m" in kw):
         kw["s_ref_m2"] = kw.get("b_ref_m", AeroModel.b_ref_m) * kw.get("c_ref_m", AeroModel.c_ref_m)
-    for k in ("c_ref_m", "b_ref_m", "s_ref_m2", "static_pressure_Pa", "temperature_K"):
-        if k in kw and kw[k] <= 0:
-            raise ConfigError(source, f"{key}.{k}", "must be > 0")
     return AeroModel(**kw)

@@ -53,8 +53,9 @@ from .source import (
 
 log = logging.getLogger(__name__)
 
-DEFAULT_DBC = Path(__file__).resolve().parents[1] / "data_samples" / "loadcell.dbc"
-"""The DBC shipped in ``data_samples/`` (resolved relative to the source tree)."""
+DEFAULT_DBC = Path(__file__).resolve().parent / "loadcell.dbc"
+"""The DBC shipped inside the package (``daq/loadcell.dbc``, package data of ``cdpr.daq``;
+``data_samples/loadcell.dbc`` links to it), so it is found in a wheel install too."""
 
 _CH_RE = re.compile(r"^Ch(\d+)_(Counts|Saturated|Slack|Fault)$")
 CHANNEL_STATUS_SATURATED = 1
@@ -521,9 +522,16 @@ class CanLoadCellSource(Source):
             raise ConfigError(origin, f"{prefix}.interface", "expected a python-can interface name")
         try:
             bitrate = int(bitrate)
+        except (TypeError, ValueError, OverflowError):
+            raise ConfigError(
+                origin, f"{prefix}.bitrate", f"expected an integer (bit/s), got {bitrate!r}"
+            ) from None
+        try:
             rate_hz = float(rate_hz)
         except (TypeError, ValueError):
-            raise ConfigError(origin, f"{prefix}.bitrate", "expected numbers") from None
+            raise ConfigError(
+                origin, f"{prefix}.rate_hz", f"expected a number (Hz), got {rate_hz!r}"
+            ) from None
         self.interface = interface
         self.channel = str(channel)
         self.bitrate = bitrate

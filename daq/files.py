@@ -7,6 +7,7 @@ Shared by the drivers' tools (:mod:`cdpr.daq.virtual_rig`) and every pipeline
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import tomllib
@@ -20,18 +21,60 @@ import tomli_w
 from cdpr.analysis.errors import ConfigError
 
 
-def load_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Parse a TOML file; a missing file or a syntax error becomes a :class:`ConfigError`."""
+def read_text(path: str | os.PathLike[str]) -> str:
+    """A whole file as UTF-8 text; missing, unreadable or not UTF-8 becomes a
+    :class:`ConfigError` naming the file (and the line of the first bad byte)."""
     p = Path(path)
     try:
-        with p.open("rb") as fh:
-            return tomllib.load(fh)
+        raw = p.read_bytes()
     except FileNotFoundError:
         raise ConfigError(str(p), "", "file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(p), "", f"invalid TOML: {exc}") from None
+    except IsADirectoryError:
+        raise ConfigError(str(p), "", "cannot read: is a folder, expected a file") from None
     except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
+        raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(
+            str(p),
+            f"line {line}",
+            f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})",
+        ) from None
+
+
+def one_line(text: object) -> str:
+    """``text`` with every run of whitespace (newlines included) collapsed to one space."""
+    return " ".join(str(text).split())
+
+
+def load_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Parse a TOML file; a missing or unreadable file, bytes that are not UTF-8 or a syntax
+    error becomes a :class:`ConfigError` naming the file."""
+    text = read_text(path)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(Path(path)), "", f"invalid TOML: {one_line(exc)}") from None
+
+
+def load_json(path: str | os.PathLike[str]) -> Any:
+    """Parse a JSON file with the same errors as :func:`load_toml` (line and column of a syntax
+    error; NaN and Infinity, which JSON does not have, are refused)."""
+
+    def no_constants(name: str) -> Any:
+        raise ValueError(f"{name} is not a JSON value")
+
+    text = read_text(path)
+    try:
+        return json.loads(text, parse_constant=no_constants)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(
+            str(Path(path)), f"line {exc.lineno}, column {exc.colno}", f"invalid JSON: {exc.msg}"
+        ) from None
+    except (ValueError, RecursionError) as exc:
+        raise ConfigError(str(Path(path)), "", f"invalid JSON: {one_line(exc)}") from None
 
 
 @contextmanager

@@ -92,8 +92,10 @@ def check_frame_budget(
     """
     if bitrate <= 0:
         raise ConfigError(origin, f"{key_prefix}.bitrate", f"must be > 0 bit/s, got {bitrate}")
-    if rate_hz <= 0:
-        raise ConfigError(origin, f"{key_prefix}.rate_hz", f"must be > 0 Hz, got {rate_hz}")
+    if not (0 < rate_hz < math.inf):
+        raise ConfigError(
+            origin, f"{key_prefix}.rate_hz", f"must be a finite number > 0 Hz, got {rate_hz}"
+        )
     if not 0 < max_load <= 1:
         raise ConfigError(
             origin, f"{key_prefix}.max_bus_load", f"must be in (0, 1], got {max_load}"
@@ -104,8 +106,8 @@ def check_frame_budget(
         raise ConfigError(
             origin,
             f"{key_prefix}.rate_hz",
-            f"{rate_hz:g} Hz x {frames_per_sample} frames/sample = {b.frames_per_s:.0f} frames/s "
-            f"needs {b.bits_per_s / 1e3:.0f} kbit/s worst case ({100 * b.load:.0f} % of "
+            f"{rate_hz:g} Hz x {frames_per_sample} frames/sample = {b.frames_per_s:.6g} frames/s "
+            f"needs {b.bits_per_s / 1e3:.6g} kbit/s worst case ({100 * b.load:.3g} % of "
             f"{bitrate / 1e3:.0f} kbit/s, limit {100 * max_load:.0f} %): at most {math.floor(cap)} Hz fits",
         )
     return b

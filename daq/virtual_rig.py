@@ -1147,7 +1147,7 @@ class RigRun:
 # command line (two-process runs)
 # --------------------------------------------------------------------------------------------
 def _load_rig(path: str) -> Rig:
-    from cdpr.analysis.rig import rig_from_mapping
+    from .schema import rig_from_mapping
 
     return rig_from_mapping(load_toml(path), source=str(Path(path)))
 

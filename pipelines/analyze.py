@@ -40,11 +40,12 @@ from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import CdprError, ConfigError
 from cdpr.analysis.kinematics import structure_matrix
-from cdpr.analysis.rig import Rig, rig_from_mapping
+from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_quaternion, rotation_from_euler
 from cdpr.analysis.tension import distribute
 from cdpr.analysis.uncertainty import wrench_covariance
 from cdpr.analysis.wrench import wrench_absolute, wrench_tare
+from cdpr.daq.schema import rig_from_mapping
 
 from . import __version__
 from .config import file_sha256

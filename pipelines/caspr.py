@@ -34,6 +34,7 @@ import numpy as np
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_rotation
+from cdpr.daq.schema import rig_from_mapping
 
 DEFAULT_T_MIN_N = 0.0
 """Lower tension limit (N) for a cable whose model gives none."""
@@ -329,19 +330,29 @@ def import_caspr(
         )
     else:
         assumptions["tension_limits"] = "force_min/force_max of every cable from the cable model"
-    return Rig(
-        name=re.sub(r"\s+", "-", body.name.strip()) or "caspr",
-        description=f"Imported from {source_note}",
-        cable_names=tuple(names),
-        anchors_O_m=np.array(anchors, dtype=np.float64),
-        attach_P_m=np.array(attach, dtype=np.float64),
-        mass_kg=body.mass_kg,
-        com_P_m=body.com_m,
-        inertia_P_kgm2=body.inertia_P_kgm2,
-        t_min_N=np.array(tmin),
-        t_max_N=np.array(tmax),
-        reference_position_O_m=body.position_m,
-        reference_euler_rad=body.euler_zyx_rad,
-        assumptions=assumptions,
-        source=str(cpath),
-    )
+    # through the rig file's schema: the same keys, types and plausible ranges as a rig file
+    mapping = {
+        "rig": {
+            "name": re.sub(r"\s+", "-", body.name.strip()) or "caspr",
+            "description": f"Imported from {source_note}",
+            "reference_position_O_m": np.asarray(body.position_m, dtype=float).tolist(),
+            "reference_euler_rad": np.asarray(body.euler_zyx_rad, dtype=float).tolist(),
+        },
+        "platform": {
+            "mass_kg": float(body.mass_kg),
+            "com_P_m": np.asarray(body.com_m, dtype=float).tolist(),
+            "inertia_P_kgm2": np.asarray(body.inertia_P_kgm2, dtype=float).tolist(),
+        },
+        "cables": [
+            {
+                "name": names[i],
+                "anchor_O_m": np.asarray(anchors[i], dtype=float).tolist(),
+                "attach_P_m": np.asarray(attach[i], dtype=float).tolist(),
+                "t_min_N": float(tmin[i]),
+                "t_max_N": float(tmax[i]),
+            }
+            for i in range(len(names))
+        ],
+        "assumptions": assumptions,
+    }
+    return rig_from_mapping(mapping, source=str(cpath))

@@ -14,6 +14,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 from collections.abc import Sequence
 
 from cdpr.analysis.errors import CdprError
@@ -43,9 +44,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
-    except CdprError as exc:
-        print(f"cdpr {args.command}: error: {exc}", file=sys.stderr)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("default")
+            code = int(args.func(args) or 0)
+        for w in caught:  # a library's warning (numpy, pandas): one line each, after the command
+            text = " ".join(str(w.message).split())
+            print(f"cdpr {args.command}: warning: {w.category.__name__}: {text}", file=sys.stderr)
+        return code
+    except CdprError as exc:  # one line, whatever the message holds
+        print(f"cdpr {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except OSError as exc:  # an unwritable output folder, a full disk, ...: one line, no traceback
         where = f"{exc.filename}: " if exc.filename is not None else ""

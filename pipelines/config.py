@@ -6,8 +6,13 @@ column) and the problem; the CLI turns that into one line and exit code 2.
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
 import os
+import re
+import tomllib
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,14 +21,20 @@ import numpy as np
 import pandas as pd
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.rig import Rig, rig_from_mapping, rig_to_mapping
-from cdpr.daq.files import atomic_output, load_toml  # defined there, used by every pipeline
+from cdpr.analysis.rig import Rig, rig_to_mapping
+from cdpr.daq.files import atomic_output as atomic_output  # defined there, used by every pipeline
+from cdpr.daq.files import load_json as load_json
+from cdpr.daq.files import load_toml as load_toml
+from cdpr.daq.files import one_line, read_text
 from cdpr.daq.files import toml_inline_arrays as _toml_inline_arrays
+from cdpr.daq.schema import load_rig as load_rig  # the rig file's schema
 
-
-def load_rig(path: str | os.PathLike[str]) -> Rig:
-    """Load and validate a rig file (layout in :mod:`cdpr.analysis.rig`)."""
-    return rig_from_mapping(load_toml(path), source=str(path))
+PLAUSIBLE_POSITION_M = 1e3
+"""Largest ``|x|, |y|, |z|`` (m) a pose table may hold: beyond it a value is a typo (1e300)."""
+PLAUSIBLE_ANGLE_RAD = 1e2
+"""Largest ``|roll|, |pitch|, |yaw|`` (rad) a pose table may hold (unwrapped angles allowed)."""
+PLAUSIBLE_LOAD_N = 1e7
+"""Largest force (N), moment (N m) or tension (N) a wrench or tension table may hold."""
 
 
 def rig_toml(rig: Rig, header: str = "") -> str:
@@ -44,24 +55,42 @@ def file_sha256(path: str | os.PathLike[str]) -> str:
 
 
 def read_table(
-    path: str | os.PathLike[str], required: Sequence[str], what: str = "table"
+    path: str | os.PathLike[str],
+    required: Sequence[str],
+    what: str = "table",
+    max_abs: Mapping[str, tuple[float, str]] | None = None,
 ) -> pd.DataFrame:
     """Read a CSV file and check that ``required`` columns exist and hold finite numbers.
 
     Lines starting with ``#`` are comments.  Errors name the file, the row (1-based data row, as a
-    spreadsheet shows it counting the header as row 1) and the column.
+    spreadsheet shows it counting the header as row 1) and the column, or the line of the file for
+    its structure: bytes that are not UTF-8, a column named twice in the header, a row with more
+    fields than the header (never read as an index column).  ``max_abs`` maps a column to the
+    largest plausible ``|value|`` and its unit: a value beyond it (1e300 m) is refused.
     """
     p = Path(path)
-    try:
-        df = pd.read_csv(p, comment="#", skipinitialspace=True)
-    except FileNotFoundError:
-        raise ConfigError(str(p), "", "file not found") from None
-    except pd.errors.EmptyDataError:
-        raise ConfigError(str(p), "", f"empty file, expected a {what} with a header row") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise ConfigError(str(p), "", f"cannot parse CSV: {exc}") from None
-    except OSError as exc:  # a folder, no permission, ...
-        raise ConfigError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
+    text = read_text(p)
+    header_line = _check_header(p, text, what)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            df = pd.read_csv(io.StringIO(text), comment="#", skipinitialspace=True, index_col=False)
+        except pd.errors.EmptyDataError:
+            raise ConfigError(
+                str(p), "", f"empty file, expected a {what} with a header row"
+            ) from None
+        except pd.errors.ParserError as exc:
+            msg = one_line(exc)
+            m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", msg)
+            if m:
+                raise ConfigError(
+                    str(p),
+                    f"line {m[2]}",
+                    f"{m[3]} fields, the header (line {header_line}) has {m[1]}",
+                ) from None
+            raise ConfigError(str(p), "", f"cannot parse CSV: {msg}") from None
+    if any(issubclass(w.category, pd.errors.ParserWarning) for w in caught):
+        _too_many_fields(p, text, header_line)  # pandas would drop the extra fields
     df.columns = [str(c).strip() for c in df.columns]
     missing = [c for c in required if c not in df.columns]
     if missing:
@@ -70,7 +99,8 @@ def read_table(
         raise ConfigError(str(p), "", f"no data rows in the {what}")
     for c in required:
         col = pd.to_numeric(df[c], errors="coerce")
-        bad = ~np.isfinite(col.to_numpy(dtype=np.float64))
+        values = col.to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(values)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ConfigError(
@@ -78,8 +108,51 @@ def read_table(
                 f"row {i + 2}, column {c}",
                 f"expected a finite number, got {_cell_text(df[c].iloc[i])}",
             )
+        if max_abs and c in max_abs:
+            limit, unit = max_abs[c]
+            far = np.flatnonzero(np.abs(values) > limit)
+            if far.size:
+                i = int(far[0])
+                raise ConfigError(
+                    str(p),
+                    f"row {i + 2}, column {c}",
+                    f"absurd value {values[i]:g} (expected |value| <= {limit:g} {unit})",
+                )
         df[c] = col
     return df
+
+
+def _check_header(p: Path, text: str, what: str) -> int:
+    """The header's line number; a column named twice (pandas would rename it) is an error."""
+    for k, line in enumerate(text.splitlines(), start=1):
+        if line.strip() and not line.lstrip().startswith("#"):
+            names = [n.strip() for n in next(csv.reader([line]))]
+            seen: set[str] = set()
+            for name in names:
+                if name in seen:
+                    raise ConfigError(
+                        str(p), f"line {k}, column {name}", "named twice in the header"
+                    )
+                seen.add(name)
+            return k
+    raise ConfigError(str(p), "", f"empty file, expected a {what} with a header row")
+
+
+def _too_many_fields(p: Path, text: str, header_line: int) -> None:
+    """Raise for the first data line with more fields than the header (error path only)."""
+    lines = text.splitlines()
+    n = len(next(csv.reader([lines[header_line - 1]])))
+    for k in range(header_line, len(lines)):
+        line = lines[k]
+        if line.strip() and not line.lstrip().startswith("#"):
+            fields = len(next(csv.reader([line.split("#", 1)[0]])))
+            if fields > n:
+                raise ConfigError(
+                    str(p),
+                    f"line {k + 1}",
+                    f"{fields} fields, the header (line {header_line}) has {n}",
+                )
+    raise ConfigError(str(p), "", "rows do not match the header")  # pragma: no cover
 
 
 def _cell_text(value: Any) -> str:
@@ -111,7 +184,9 @@ def read_poses(path: str | os.PathLike[str]) -> tuple[pd.DataFrame, np.ndarray]:
     """
     from cdpr.analysis.conventions import POSE_COLUMNS
 
-    df = read_table(path, POSE_COLUMNS, "pose table")
+    limits = {c: (PLAUSIBLE_POSITION_M, "m") for c in POSE_COLUMNS[:3]}
+    limits |= {c: (PLAUSIBLE_ANGLE_RAD, "rad") for c in POSE_COLUMNS[3:]}
+    df = read_table(path, POSE_COLUMNS, "pose table", limits)
     return df, df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64)
 
 
@@ -122,7 +197,8 @@ def read_wrenches(path: str | os.PathLike[str], n_rows: int) -> np.ndarray:
     """
     from cdpr.analysis.conventions import WRENCH_COLUMNS
 
-    df = read_table(path, WRENCH_COLUMNS, "wrench table")
+    limits = {c: (PLAUSIBLE_LOAD_N, "N or N m") for c in WRENCH_COLUMNS}
+    df = read_table(path, WRENCH_COLUMNS, "wrench table", limits)
     w = df[list(WRENCH_COLUMNS)].to_numpy(dtype=np.float64)
     if len(w) == 1:
         return np.repeat(w, n_rows, axis=0)
@@ -136,7 +212,7 @@ def read_wrenches(path: str | os.PathLike[str], n_rows: int) -> np.ndarray:
 def read_tensions(path: str | os.PathLike[str], rig: Rig, n_rows: int | None = None) -> np.ndarray:
     """Read a tension CSV with one ``T_<cable>_N`` column per cable of ``rig``, (n, m) in N."""
     cols = tension_columns(rig)
-    df = read_table(path, cols, "tension table")
+    df = read_table(path, cols, "tension table", {c: (PLAUSIBLE_LOAD_N, "N") for c in cols})
     extra = [c for c in df.columns if c.startswith("T_") and c.endswith("_N") and c not in cols]
     if extra:
         raise ConfigError(

@@ -383,6 +383,23 @@ def _require_holdable(
         )
 
 
+def _require_loaded_holdable(grid: pd.DataFrame, o: StudyOptions, source: str) -> None:
+    """The report compares optima at the largest cubic force: some non-singular configuration
+    must hold it (per method and direction), else a one-line error naming ``cubic.forces_N``."""
+    Fmax = max(o.cubic.forces_N)
+    for method in o.cubic.methods:
+        for d in ("x", "y"):
+            g = grid[(grid.method == method) & (grid.direction == d) & (grid.force_N == Fmax)]
+            if not ((g.singular == 0) & (g.feasible == 1)).any():
+                raise ConfigError(
+                    source,
+                    "cubic.forces_N",
+                    f"no configuration of the cubic k grid holds the largest load, {Fmax:g} N "
+                    f"along {d} ({method}), within [{o.cubic.t_min_N:g}, {o.cubic.t_max_N:g}] N; "
+                    "lower the force or widen the tension limits",
+                )
+
+
 def run_cubic(o: StudyOptions, progress: Progress = _no_progress, source: str = "options") -> dict:
     """The cubic-rig studies: the 960-case k grid (Figs. 6-7), Z (Figs. 8-9), deflection (10-11)."""
     c = o.cubic
@@ -1220,6 +1237,7 @@ def run_study(
     t0 = time.perf_counter()
     out = Path(out_dir)
     cub = run_cubic(o, progress, source)
+    _require_loaded_holdable(cub["grid"], o, source)
     flat = run_flat(o, progress, source)
     scan = singular_scan(o)
     meta = {"version": f"cdpr {version}".strip()}

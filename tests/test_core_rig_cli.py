@@ -12,8 +12,9 @@ import pandas as pd
 import pytest
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.rig import rig_from_mapping, rig_to_mapping
+from cdpr.analysis.rig import rig_to_mapping
 from cdpr.analysis.rigs import cubic_rig, flat_rig, paper_rigs
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.pipelines.cli import main
 from cdpr.pipelines.config import load_rig, rig_toml
 

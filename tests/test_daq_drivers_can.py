@@ -243,7 +243,7 @@ def test_slcan_across_processes_matches_truth(tmp_path: Path) -> None:
         assert proc.stdout.readline().strip() == f"READY {link}"
         import tomllib
 
-        from cdpr.analysis.rig import rig_from_mapping
+        from cdpr.daq.schema import rig_from_mapping
         from cdpr.daq.virtual_rig import VirtualRig, load_schedule
 
         rig = rig_from_mapping(tomllib.loads(_RIG.read_text()), str(_RIG))
@@ -367,6 +367,38 @@ def test_error_frame_flood_reopens_bus() -> None:
     assert [r.values["raw_k1_counts"] for r in rd if r.stream == "tensions"] == [7]
 
 
+def _default_sigint() -> None:
+    """In a child before exec: SIGINT back to its default, so that Python installs its
+    KeyboardInterrupt handler even when this process runs with SIGINT ignored (no job control)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _wait_drained(link: Path, proc: subprocess.Popen, timeout_s: float) -> None:
+    """Readiness, not a sleep: wait until the pty holds no unread byte for the reader ``proc``
+    (FIONREAD on the slave side) and ``proc`` sleeps waiting for more (state ``S`` in
+    /proc/<pid>/stat: python-can returns frames it has buffered before it blocks), three polls in
+    a row."""
+    import fcntl
+    import struct
+    import termios
+
+    fd = os.open(os.path.realpath(link), os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        end = time.monotonic() + timeout_s
+        quiet = 0
+        while quiet < 3:
+            assert time.monotonic() < end, "the logger did not drain the pty"
+            assert proc.poll() is None, proc.communicate()
+            pending = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0]
+            state = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            quiet = quiet + 1 if pending == 0 and state == "S" else 0
+            time.sleep(0.02)
+    finally:
+        os.close(fd)
+
+
 def test_python_can_logger_reads_the_emulated_adapter(tmp_path: Path) -> None:
     """An independent reader: python-can's own `can.logger` CLI, in another process, records the
     virtual rig's emulated slcan adapter to a candump log; the frames are exactly the rig's, and the
@@ -374,8 +406,8 @@ def test_python_can_logger_reads_the_emulated_adapter(tmp_path: Path) -> None:
     import signal
     import tomllib
 
-    from cdpr.analysis.rig import rig_from_mapping
     from cdpr.analysis.tension import METHODS
+    from cdpr.daq.schema import rig_from_mapping
     from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
 
     rig = rig_from_mapping(tomllib.loads(_RIG.read_text()), str(_RIG))
@@ -386,21 +418,24 @@ def test_python_can_logger_reads_the_emulated_adapter(tmp_path: Path) -> None:
     vr = VirtualRig(rig, schedule_from_mapping(data, "s.toml", rig))
     link, log = tmp_path / "can0", tmp_path / "out.log"
     env = {k: v for k, v in os.environ.items() if not k.startswith("CAN_")}
-    run = vr.start("slcan", link=link, wait_reader_s=20.0)
+    run = vr.start("slcan", link=link, wait_reader_s=120.0)
     logger = subprocess.Popen(
         [sys.executable, "-m", "can.logger", "-i", "slcan", "-c", str(link), "-b", "1000000",
          "--sleep-after-open=0", "-f", str(log)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path,
+        preexec_fn=_default_sigint,
     )  # fmt: skip
     try:
-        assert run.wait(30.0)
-        time.sleep(0.5)  # the logger drains the pty
+        assert run.wait(120.0)  # the rig waited for the logger's "O", then sent every frame
+        _wait_drained(link, logger, timeout_s=120.0)
         logger.send_signal(signal.SIGINT)
-        logger.wait(10)
+        logger.wait(60)
     finally:
         run.stop()
         if logger.poll() is None:
             logger.kill()
+    out, err = logger.communicate()
+    assert logger.returncode == 0, err
     ids, frames = vr.can_frames()
     got = list(can.LogReader(str(log)))
     assert len(got) == 4 * vr.n_samples == 180

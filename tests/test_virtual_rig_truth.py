@@ -14,8 +14,9 @@ import pytest
 
 import cdpr.daq.drivers  # noqa: F401
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.rig import Rig, rig_from_mapping
+from cdpr.analysis.rig import Rig
 from cdpr.daq.aero_model import AeroModel
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.daq.source import STATUS_SATURATED, STATUS_SENSOR_FAULT, STATUS_SLACK, create_source
 from cdpr.daq.virtual_rig import VirtualRig, load_schedule, schedule_from_mapping
 

@@ -55,7 +55,12 @@ def run_loadcells(args: argparse.Namespace) -> int:
     from .. import __version__
     from ..config import atomic_output, file_sha256, load_rig, read_table
 
-    df = read_table(args.points, ["load_N", "counts"], "load-cell calibration table")
+    df = read_table(
+        args.points,
+        ["load_N", "counts"],
+        "load-cell calibration table",
+        {"load_N": (1e7, "N"), "counts": (1e15, "counts")},
+    )
     if "channel" not in df.columns:
         raise ConfigError(args.points, "column channel", "missing (the cable name of each point)")
     df["channel"] = df["channel"].astype(str).str.strip()

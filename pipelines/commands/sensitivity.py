@@ -10,6 +10,14 @@ platform anywhere in a sweep, is a one-line error naming the option (exit 2).
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from cdpr.analysis.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -63,15 +71,36 @@ def run(args: argparse.Namespace) -> int:
     if args.no_flat_grid:
         opts.flat.full_grid = False
     validate_options(opts, source)
-    if args.no_progress:
-        summary = run_study(opts, args.out, source=source, version=__version__)
-    else:
-        summary = _with_progress(opts, args.out, source, __version__, run_study)
+    with _staged_folder(args.out) as stage:  # nothing lands in --out unless the study succeeds
+        if args.no_progress:
+            summary = run_study(opts, stage, source=source, version=__version__)
+        else:
+            summary = _with_progress(opts, stage, source, __version__, run_study)
+        summary["report"] = str(Path(args.out) / Path(summary["report"]).name)
     print(
         f"cdpr sensitivity: {len(summary['files'])} files in {args.out} "
         f"({summary['elapsed_s']:.1f} s); report: {summary['report']}"
     )
     return 0
+
+
+@contextmanager
+def _staged_folder(out: str) -> Iterator[Path]:
+    """A temporary folder beside ``out``; on success its files move into ``out`` (created if
+    needed; same-named files of an earlier run replaced), on any failure it is removed."""
+    dest = Path(out)
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".part", dir=dest.parent))
+    except OSError as exc:
+        raise ConfigError(str(dest), "", f"cannot write: {exc.strerror or exc}") from None
+    try:
+        yield stage
+        dest.mkdir(exist_ok=True)
+        for f in sorted(stage.iterdir()):
+            os.replace(f, dest / f.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _with_progress(opts, out, source, version, run_study):  # type: ignore[no-untyped-def]

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.kinematics import cable_vectors, structure_matrix
     from cdpr.analysis.rotations import rotation_from_euler
-    from cdpr.analysis.tension import distribute
+    from cdpr.analysis.tension import RANK_TOL, distribute, sigma_min_unit_rows
 
     from .. import __version__
     from ..config import (
@@ -67,12 +67,15 @@ def run(args: argparse.Namespace) -> int:
             src, f"row {i + 2}", f"cable {rig.cable_names[j]} has zero length at this pose"
         )
     A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, poses[:, :3], R)
-    sv = np.linalg.svd(A, compute_uv=False)
-    rank_bad = np.flatnonzero(sv[:, -1] < 1e-9 * sv[:, 0])
+    sigma = sigma_min_unit_rows(A)  # the solvers' own rank test, pose by pose
+    rank_bad = np.flatnonzero(sigma < RANK_TOL)
     if rank_bad.size:
         i = int(rank_bad[0])
         raise ConfigError(
-            src, f"row {i + 2}", "structure matrix loses rank at this pose (singular)"
+            src,
+            f"row {i + 2}",
+            f"structure matrix loses rank at this pose (sigma_min of A with unit rows "
+            f"{sigma[i]:.2g} < {RANK_TOL:g}; {rank_bad.size} such poses)",
         )
     G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
     W = read_wrenches(args.wrench, len(poses)) if args.wrench else np.zeros_like(G)

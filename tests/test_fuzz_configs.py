@@ -1,0 +1,79 @@
+"""Property-based fuzzing (hypothesis) of the TOML and CSV readers through ``cdpr``: rig files,
+sensitivity configs, pose / wrench / load-cell tables.  Each example mutates a valid file (a value
+replaced by an absurd one, bytes flipped or inserted, truncation, lines dropped or duplicated) and
+checks the contract of ``tests/_fuzz_contract.py``."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from _fuzz_contract import EXAMPLES, FUZZ, check_cli, mutated
+from hypothesis import given, settings
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG_TEXT = (ROOT / "data_samples" / "flat_optimum.toml").read_text()
+POSES = "# poses\nx_m,y_m,z_m,roll_rad,pitch_rad,yaw_rad,label\n" + "".join(
+    f"{0.5 + 0.001 * k},0.0,0.335,0.0,{0.01 * k},0.0,p{k}\n" for k in range(5)
+)
+WRENCH = "fx_N,fy_N,fz_N,mx_Nm,my_Nm,mz_Nm\n1.0,0.5,-2.0,0.01,0.02,0.0\n"
+POINTS = "channel,load_N,counts\n" + "".join(
+    f"{c},{load},{1000 + 20 * load + i}\n" for i, c in enumerate("ab") for load in (0, 50, 100, 150)
+)
+SENS = "[cubic]\nforces_N = [19.041, 32.183]\nmass_kg = 5.0\n[flat]\nfull_grid = false\nmass_kg = 0.64\n"
+
+
+def _folder() -> Path:
+    return Path(tempfile.mkdtemp(prefix="fuzz-"))
+
+
+@FUZZ
+@given(data=mutated(RIG_TEXT, "="))
+def test_fuzz_rig_toml(capsys, data):
+    d = _folder()
+    rig = d / "rig.toml"
+    rig.write_bytes(data)
+    (d / "existing.csv").write_text("keep me\n")
+    check_cli(capsys, ["rig", "show", str(rig)], d, rig, [])
+    out = d / "t.csv"
+    check_cli(capsys, ["solve", "--rig", str(rig), "--out", str(out)], d, rig, [out])
+
+
+@FUZZ
+@given(data=mutated(SENS, "="))
+def test_fuzz_sensitivity_config(capsys, data):
+    d = _folder()
+    cfg = d / "s.toml"
+    cfg.write_bytes(data)
+    check_cli(capsys, ["sensitivity", "--config", str(cfg), "--print-config"], d, cfg, [])
+
+
+@FUZZ
+@given(data=mutated(POSES, ","))
+def test_fuzz_pose_table(capsys, data):
+    d = _folder()
+    poses, out = d / "p.csv", d / "t.csv"
+    poses.write_bytes(data)
+    rig = str(ROOT / "data_samples" / "flat_optimum.toml")
+    check_cli(
+        capsys, ["solve", "--rig", rig, "--poses", str(poses), "--out", str(out)], d, poses, [out]
+    )
+
+
+@FUZZ
+@given(data=mutated(WRENCH, ","))
+def test_fuzz_wrench_table(capsys, data):
+    d = _folder()
+    w, out = d / "w.csv", d / "t.csv"
+    w.write_bytes(data)
+    rig = str(ROOT / "data_samples" / "flat_optimum.toml")
+    check_cli(capsys, ["solve", "--rig", rig, "--wrench", str(w), "--out", str(out)], d, w, [out])
+
+
+@settings(FUZZ, max_examples=max(10, EXAMPLES // 3))  # each example fits every channel: slower
+@given(data=mutated(POINTS, ","))
+def test_fuzz_loadcell_points(capsys, data):
+    d = _folder()
+    pts, out = d / "points.csv", d / "cal.toml"
+    pts.write_bytes(data)
+    check_cli(capsys, ["calibrate", "loadcells", str(pts), "--out", str(out)], d, pts, [out])
