@@ -189,3 +189,33 @@ def test_info_flags_are_not_warnings_and_detected_points_are_said(tmp_path: Path
     w = report_content("x", t, [], {}).warnings
     assert w[0] == f"1 point(s) flagged: {df.loc[5, 'point']} [no_tare]"
     assert w[1].startswith("13 point(s) found by steady-point detection")
+
+
+def test_run_page_has_the_run_tensions_from_the_run_file(tmp_path: Path) -> None:
+    from cdpr.daq.mcap_io import McapRunWriter
+    from cdpr.daq.source import FieldDescription, Reading, StreamDescription
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    names = [f"c{i}" for i in range(8)]
+    w = McapRunWriter(runs / "run_a.mcap", flush_interval_s=1.0)
+    w.add_stream("tensions", StreamDescription({f"T_{n}_N": FieldDescription("N") for n in names}))
+    t0 = 1_700_000_000_000_000_000
+    for k in range(3000):  # longer than the plot's 2000 bins: drawn as an envelope
+        vals = {
+            f"T_{n}_N": 100.0 + 10.0 * (i // 2) + 0.1 * np.sin(k / 50) for i, n in enumerate(names)
+        }
+        w.write(Reading("tensions", t0 + k * 5_000_000, vals))
+    w.finish()
+    df = _points("run_a.mcap")
+    df["start_ns"] = t0 + np.arange(len(df)) * 10**9
+    df["stop_ns"] = df["start_ns"] + 5 * 10**8
+    (tmp_path / "analysis" / "a").mkdir(parents=True)
+    df.to_csv(tmp_path / "analysis" / "a" / "points.csv", index=False)
+    out = tmp_path / "out"
+    argv = ["campaign", str(tmp_path / "analysis"), "--runs", str(runs), "--out", str(out)]
+    assert main(argv) == 0
+    page = (out / "run_run_a.html").read_text()
+    assert page.count("src='data:image/png;base64,") == 4 and "Cable tensions" in page
+    img = cv2.imread(str(out / "plots" / "run_a" / "tensions.png"))
+    assert img is not None and img.shape[1] > 900
