@@ -10,12 +10,13 @@ import shutil
 import subprocess
 from pathlib import Path
 
-import cv2
 import h5py
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.colors import rgb_to_hsv
 
+from cdpr.calibration.cv import read_image, to_gray
 from cdpr.pipelines.cli import main
 from cdpr.pipelines.report import REQUIRED_COLUMNS, campaign_table, envelope, spread_labels
 
@@ -138,7 +139,7 @@ def _screenshot(page: Path, png: Path, tmp: Path) -> np.ndarray:
     ]  # fmt: skip
     env = {**os.environ, "HOME": str(tmp)}
     subprocess.run(cmd, capture_output=True, timeout=120, env=env, check=False)
-    img = cv2.imread(str(png))
+    img = read_image(png, gray=False)  # BGR, through the project's OpenCV adapter
     assert img is not None, "no screenshot written"
     return img
 
@@ -162,14 +163,13 @@ def test_cli_reports_flags_and_renders_in_chromium(
     assert (out / "run_run_a.html").is_file() and (out / "run_run_b.md").is_file()
 
     img = _screenshot(out / "campaign.html", tmp_path / "shot.png", tmp_path)
-    gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    assert gray.std() > 20  # not blank
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
-    coloured = (hsv[..., 1] > 80) & (hsv[..., 2] > 60)  # plot lines and markers (viridis)
+    assert to_gray(img).std() > 20  # not blank
+    hsv = rgb_to_hsv(img[..., ::-1] / 255.0)  # hue, saturation, value in [0, 1]
+    h, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    coloured = (sat > 0.31) & (val > 0.24)  # plot lines and markers (viridis)
     rows = np.flatnonzero(coloured.any(axis=1))
     assert coloured.sum() > 2000 and rows.size > 300  # plots drawn, over several hundred rows
-    h, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    red = ((h < 8) | (h > 170)) & (sat > 120) & (val > 60)
+    red = ((h < 0.045) | (h > 0.945)) & (sat > 0.47) & (val > 0.24)
     assert red.sum() > 50  # the flag warning and the flagged marker are red
 
 
@@ -217,5 +217,5 @@ def test_run_page_has_the_run_tensions_from_the_run_file(tmp_path: Path) -> None
     assert main(argv) == 0
     page = (out / "run_run_a.html").read_text()
     assert page.count("src='data:image/png;base64,") == 4 and "Cable tensions" in page
-    img = cv2.imread(str(out / "plots" / "run_a" / "tensions.png"))
+    img = read_image(out / "plots" / "run_a" / "tensions.png", gray=False)
     assert img is not None and img.shape[1] > 900
