@@ -222,11 +222,13 @@ def test_virtual_rig_runs_the_matrix(tmp_path: Path) -> None:
     assert np.all(t["wrench_aero_O"][k_wg] == 0.0)
 
 
-def test_simulate_campaign_records_test_point_events(tmp_path: Path) -> None:
+@pytest.mark.parametrize("transport", ["virtual", "slcan"])
+def test_simulate_campaign_records_test_point_events(tmp_path: Path, transport: str) -> None:
+    # slcan: the rig runs in a second process; the events follow its start time
     out = tmp_path / "runs"
     res = subprocess.run(
         [sys.executable, "-m", "cdpr.pipelines.cli", "simulate", "--campaign",
-         str(_small(tmp_path)), "--out", str(out), "--quiet"],
+         str(_small(tmp_path)), "--out", str(out), "--quiet", "--transport", transport],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
