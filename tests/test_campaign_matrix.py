@@ -248,9 +248,10 @@ def test_simulate_campaign_records_test_point_events(tmp_path: Path, transport: 
     t_ev = np.array([t for t, _ in ev])
     np.testing.assert_array_equal(np.diff(t_ev), [5e8, 2e8, 6e8, 2e8, 4e8])  # schedule times
     t_T = np.array([t for top, t, _ in msgs if top == "/tensions"])
-    # the tension samples of the wind-on point fall inside its events (reception lag allowed)
+    # the wind-on point's tension samples fall inside its events: 120 at 200 Hz, +-50 % for the
+    # reception times of a starved recorder (a pty delivers in bursts on a loaded machine)
     n_on = int(np.sum((t_T >= t_ev[2]) & (t_T < t_ev[3])))
-    assert 0.6 * 200 * 0.8 <= n_on <= 0.6 * 200 * 1.2
+    assert 60 <= n_on <= 180, n_on
 
 
 @pytest.mark.parametrize(
