@@ -272,3 +272,17 @@ def test_virtual_rig_errors_name_the_matrix_key(tmp_path: Path, extra: str, key:
     with pytest.raises(ConfigError) as ei:
         schedule_from_matrix(load_test_matrix(f), rig)
     assert ei.value.source == str(f) and ei.value.key == key
+
+
+def test_faults_from_the_command_line_join_the_matrix_schedule(tmp_path: Path) -> None:
+    from cdpr.pipelines.campaign import schedule_from_matrix
+
+    m = load_test_matrix(_small(tmp_path))
+    rig = rig_from_mapping(load_toml(RIG), str(RIG))
+    fault = {"kind": "slack", "start_s": 0.8, "duration_s": 0.2, "cable": 2}
+    sch = schedule_from_matrix(m, rig, [fault])
+    assert [(f.kind, f.start_s, f.cable) for f in sch.faults] == [("slack", 0.8, 2)]
+    bad = {"kind": "slack", "start_s": 99.0, "duration_s": 0.2, "cable": 2}
+    with pytest.raises(ConfigError) as ei:
+        schedule_from_matrix(m, rig, [bad])
+    assert ei.value.key == "virtual_rig.faults[0].start_s" and "after the end" in ei.value.problem
