@@ -285,4 +285,5 @@ def test_faults_from_the_command_line_join_the_matrix_schedule(tmp_path: Path) -
     bad = {"kind": "slack", "start_s": 99.0, "duration_s": 0.2, "cable": 2}
     with pytest.raises(ConfigError) as ei:
         schedule_from_matrix(m, rig, [bad])
-    assert ei.value.key == "virtual_rig.faults[0].start_s" and "after the end" in ei.value.problem
+    assert (ei.value.source, ei.value.key) == ("--fault", "#1.start_s")
+    assert "after the end" in ei.value.problem
