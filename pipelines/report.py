@@ -132,21 +132,21 @@ def campaign_table(
         raise ConfigError("<campaign>", "points.csv", "no per-point tables given")
     frames, inputs = [], []
     for p in paths:
-        df = read_points(p)
+        df = read_points(p).copy()  # one block per dtype (the CSV had many columns)
         sha = file_sha256(p)
-        df["points_file"] = str(p)
-        df["points_sha256"] = sha
-        frames.append(df)
+        frames.append(df.assign(points_file=str(p), points_sha256=sha))
         inputs.append((str(p), sha))
     df = pd.concat(frames, ignore_index=True)
-    df["aoa_deg"] = np.degrees(df["aoa_rad"].to_numpy())
-    df["sideslip_deg"] = np.degrees(df["sideslip_rad"].to_numpy())
-    df["is_repeat"] = df["repeat_of"] != ""
+    df = df.assign(
+        aoa_deg=np.degrees(df["aoa_rad"].to_numpy()),
+        sideslip_deg=np.degrees(df["sideslip_rad"].to_numpy()),
+        is_repeat=df["repeat_of"] != "",
+    )
     missing: list[str] = []
     if matrix_labels is not None:
         order = {lab: i for i, lab in enumerate(matrix_labels)}
         missing = [lab for lab in matrix_labels if lab not in set(df["point"])]
-        df["matrix_index"] = df["point"].map(order).astype("float64")
+        df = df.assign(matrix_index=df["point"].map(order).astype("float64"))
         df = df.sort_values(["matrix_index", "start_ns"], kind="stable", na_position="last")
         df = df.reset_index(drop=True)
     return CampaignTable(df, inputs, missing, info_flags)
@@ -167,11 +167,11 @@ def write_campaign_table(table: CampaignTable, out_dir: str | os.PathLike[str]) 
         g = f.create_group("points")
         for c in table.df.columns:
             col = table.df[c]
-            if col.dtype == object:
-                g.create_dataset(c, data=col.astype(str).to_numpy(dtype=object),
-                                 dtype=h5py.string_dtype())  # fmt: skip
-            else:
+            if pd.api.types.is_bool_dtype(col) or pd.api.types.is_numeric_dtype(col):
                 g.create_dataset(c, data=col.to_numpy())
+            else:  # text (object or pandas' string dtype): UTF-8 strings, NaN as ""
+                text = col.astype(object).where(col.notna(), "").astype(str)
+                g.create_dataset(c, data=text.to_numpy(dtype=object), dtype=h5py.string_dtype())
         g.attrs["columns"] = list(map(str, table.df.columns))
         f.attrs["inputs"] = [f"{p} sha256={s}" for p, s in table.inputs]
         f.attrs["missing_points"] = list(table.missing_points)
@@ -340,7 +340,8 @@ def tension_figure(
         for j in range(T.shape[1]):
             c = colors(j % 10)
             if long:
-                ax.fill_between(tc, lo[:, j], hi[:, j], color=c, alpha=0.5, lw=0)
+                ax.fill_between(tc, lo[:, j], hi[:, j], color=c, alpha=0.35, lw=0)
+                ax.plot(tc, 0.5 * (lo[:, j] + hi[:, j]), color=c, lw=0.9)
             else:
                 ax.plot(tc, lo[:, j], color=c, lw=0.8)
         for lab, a, b in windows:
@@ -403,7 +404,8 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def _html_table(df: pd.DataFrame, flag_col: str | None = "flags") -> str:
+def _html_table(df: pd.DataFrame, flag_col: str | None) -> str:
+    """An HTML table; rows with a non-empty ``flag_col`` are highlighted."""
     head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
     rows = []
     for _, r in df.iterrows():
@@ -472,7 +474,8 @@ def report_content(
             + ", ".join(f"{r.point} ({int(r.n_masked)})" for r in masked.itertuples())
         )
     cols = [c for c in SUMMARY_COLUMNS if c in df.columns]
-    return ReportContent(title, warnings, df[cols], figures, dict(provenance), truth_table(df))
+    shown = df[cols].assign(warnings=table.warning_words())
+    return ReportContent(title, warnings, shown, figures, dict(provenance), truth_table(df))
 
 
 def html_report(rc: ReportContent) -> str:
@@ -498,7 +501,7 @@ def html_report(rc: ReportContent) -> str:
         parts.append("<h2>Recovered minus true wrench (virtual rig truth)</h2>")
         parts.append(_html_table(rc.truth, None))
     parts.append("<h2>Test points</h2>")
-    parts.append(_html_table(rc.table))
+    parts.append(_html_table(rc.table, "warnings"))
     parts.append("<h2>Provenance</h2><ul>")
     parts += [
         f"<li>{html.escape(k)}: <code>{html.escape(v)}</code></li>"

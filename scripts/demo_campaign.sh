@@ -12,7 +12,10 @@ C="$OUT/campaign"
 rm -rf "$C"   # the demo's own folder: a fresh rehearsal each time
 
 "$CDPR" simulate --campaign "$MATRIX" --out "$C/runs" --quiet
-rc=0; "$CDPR" analyze "$C/runs" --out "$C/analysis" || rc=$?
+# the model geometry of the matrix's [model] table (analyze flags it geometry_from_options)
+rc=0
+"$CDPR" analyze "$C/runs" --out "$C/analysis" --area-m2 0.014646 --span-m 0.2441 --chord-m 0.060 \
+    || rc=$?
 [ "$rc" -le 1 ] || exit "$rc"
 if ! ls "$C"/analysis/*/points.csv >/dev/null 2>&1; then
     # analyze writes the per-point table from the reduction core on (issue 8, section 4)

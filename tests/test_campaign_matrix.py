@@ -17,7 +17,7 @@ from mcap.reader import make_reader
 
 from cdpr.analysis.aero import attitude_from_flow_angles, flow_angles
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.rig import rig_from_mapping
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.daq.aero_model import AeroModel
 from cdpr.daq.files import load_toml
 from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
@@ -222,11 +222,13 @@ def test_virtual_rig_runs_the_matrix(tmp_path: Path) -> None:
     assert np.all(t["wrench_aero_O"][k_wg] == 0.0)
 
 
-def test_simulate_campaign_records_test_point_events(tmp_path: Path) -> None:
+@pytest.mark.parametrize("transport", ["virtual", "slcan"])
+def test_simulate_campaign_records_test_point_events(tmp_path: Path, transport: str) -> None:
+    # slcan: the rig runs in a second process; the events follow its start time
     out = tmp_path / "runs"
     res = subprocess.run(
         [sys.executable, "-m", "cdpr.pipelines.cli", "simulate", "--campaign",
-         str(_small(tmp_path)), "--out", str(out), "--quiet"],
+         str(_small(tmp_path)), "--out", str(out), "--quiet", "--transport", transport],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
@@ -246,9 +248,10 @@ def test_simulate_campaign_records_test_point_events(tmp_path: Path) -> None:
     t_ev = np.array([t for t, _ in ev])
     np.testing.assert_array_equal(np.diff(t_ev), [5e8, 2e8, 6e8, 2e8, 4e8])  # schedule times
     t_T = np.array([t for top, t, _ in msgs if top == "/tensions"])
-    # the tension samples of the wind-on point fall inside its events (reception lag allowed)
+    # the wind-on point's tension samples fall inside its events: 120 at 200 Hz, +-50 % for the
+    # reception times of a starved recorder (a pty delivers in bursts on a loaded machine)
     n_on = int(np.sum((t_T >= t_ev[2]) & (t_T < t_ev[3])))
-    assert 0.6 * 200 * 0.8 <= n_on <= 0.6 * 200 * 1.2
+    assert 60 <= n_on <= 180, n_on
 
 
 @pytest.mark.parametrize(
@@ -269,3 +272,18 @@ def test_virtual_rig_errors_name_the_matrix_key(tmp_path: Path, extra: str, key:
     with pytest.raises(ConfigError) as ei:
         schedule_from_matrix(load_test_matrix(f), rig)
     assert ei.value.source == str(f) and ei.value.key == key
+
+
+def test_faults_from_the_command_line_join_the_matrix_schedule(tmp_path: Path) -> None:
+    from cdpr.pipelines.campaign import schedule_from_matrix
+
+    m = load_test_matrix(_small(tmp_path))
+    rig = rig_from_mapping(load_toml(RIG), str(RIG))
+    fault = {"kind": "slack", "start_s": 0.8, "duration_s": 0.2, "cable": 2}
+    sch = schedule_from_matrix(m, rig, [fault])
+    assert [(f.kind, f.start_s, f.cable) for f in sch.faults] == [("slack", 0.8, 2)]
+    bad = {"kind": "slack", "start_s": 99.0, "duration_s": 0.2, "cable": 2}
+    with pytest.raises(ConfigError) as ei:
+        schedule_from_matrix(m, rig, [bad])
+    assert (ei.value.source, ei.value.key) == ("--fault", "#1.start_s")
+    assert "after the end" in ei.value.problem

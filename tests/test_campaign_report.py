@@ -10,12 +10,13 @@ import shutil
 import subprocess
 from pathlib import Path
 
-import cv2
 import h5py
 import numpy as np
 import pandas as pd
 import pytest
+from matplotlib.colors import rgb_to_hsv
 
+from cdpr.calibration.cv import read_image, to_gray
 from cdpr.pipelines.cli import main
 from cdpr.pipelines.report import REQUIRED_COLUMNS, campaign_table, envelope, spread_labels
 
@@ -138,7 +139,7 @@ def _screenshot(page: Path, png: Path, tmp: Path) -> np.ndarray:
     ]  # fmt: skip
     env = {**os.environ, "HOME": str(tmp)}
     subprocess.run(cmd, capture_output=True, timeout=120, env=env, check=False)
-    img = cv2.imread(str(png))
+    img = read_image(png, gray=False)  # BGR, through the project's OpenCV adapter
     assert img is not None, "no screenshot written"
     return img
 
@@ -162,14 +163,13 @@ def test_cli_reports_flags_and_renders_in_chromium(
     assert (out / "run_run_a.html").is_file() and (out / "run_run_b.md").is_file()
 
     img = _screenshot(out / "campaign.html", tmp_path / "shot.png", tmp_path)
-    gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    assert gray.std() > 20  # not blank
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
-    coloured = (hsv[..., 1] > 80) & (hsv[..., 2] > 60)  # plot lines and markers (viridis)
+    assert to_gray(img).std() > 20  # not blank
+    hsv = rgb_to_hsv(img[..., ::-1] / 255.0)  # hue, saturation, value in [0, 1]
+    h, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    coloured = (sat > 0.31) & (val > 0.24)  # plot lines and markers (viridis)
     rows = np.flatnonzero(coloured.any(axis=1))
     assert coloured.sum() > 2000 and rows.size > 300  # plots drawn, over several hundred rows
-    h, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-    red = ((h < 8) | (h > 170)) & (sat > 120) & (val > 60)
+    red = ((h < 0.045) | (h > 0.945)) & (sat > 0.47) & (val > 0.24)
     assert red.sum() > 50  # the flag warning and the flagged marker are red
 
 
@@ -189,3 +189,54 @@ def test_info_flags_are_not_warnings_and_detected_points_are_said(tmp_path: Path
     w = report_content("x", t, [], {}).warnings
     assert w[0] == f"1 point(s) flagged: {df.loc[5, 'point']} [no_tare]"
     assert w[1].startswith("13 point(s) found by steady-point detection")
+
+
+def test_run_page_has_the_run_tensions_from_the_run_file(tmp_path: Path) -> None:
+    from cdpr.daq.mcap_io import McapRunWriter
+    from cdpr.daq.source import FieldDescription, Reading, StreamDescription
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    names = [f"c{i}" for i in range(8)]
+    w = McapRunWriter(runs / "run_a.mcap", flush_interval_s=1.0)
+    w.add_stream("tensions", StreamDescription({f"T_{n}_N": FieldDescription("N") for n in names}))
+    t0 = 1_700_000_000_000_000_000
+    for k in range(3000):  # longer than the plot's 2000 bins: drawn as an envelope
+        vals = {
+            f"T_{n}_N": 100.0 + 10.0 * (i // 2) + 0.1 * np.sin(k / 50) for i, n in enumerate(names)
+        }
+        w.write(Reading("tensions", t0 + k * 5_000_000, vals))
+    w.finish()
+    df = _points("run_a.mcap")
+    df["start_ns"] = t0 + np.arange(len(df)) * 10**9
+    df["stop_ns"] = df["start_ns"] + 5 * 10**8
+    (tmp_path / "analysis" / "a").mkdir(parents=True)
+    df.to_csv(tmp_path / "analysis" / "a" / "points.csv", index=False)
+    out = tmp_path / "out"
+    argv = ["campaign", str(tmp_path / "analysis"), "--runs", str(runs), "--out", str(out)]
+    assert main(argv) == 0
+    page = (out / "run_run_a.html").read_text()
+    assert page.count("src='data:image/png;base64,") == 4 and "Cable tensions" in page
+    img = read_image(out / "plots" / "run_a" / "tensions.png", gray=False)
+    assert img is not None and img.shape[1] > 900
+
+
+def test_a_sideslip_sweep_gets_the_lateral_plot(tmp_path: Path) -> None:
+    from cdpr.pipelines.report import sweep_figures
+
+    df = _points("r")
+    on = df.index[df["kind"] == "wind_on"][:4]  # four points at 17.27 m/s become a sideslip sweep
+    df.loc[on, "target_aoa_deg"] = 0.0
+    df.loc[on, "aoa_rad"] = 0.0
+    df.loc[on, "target_sideslip_deg"] = [-4.0, 0.0, 4.0, 8.0]
+    df.loc[on, "sideslip_rad"] = np.radians([-4.0, 0.0, 4.0, 8.0])
+    for c, slope in (("CY", -0.6), ("Cl", -0.08), ("Cn", 0.1)):
+        df[c] = np.nan
+        df.loc[on, c] = slope * df.loc[on, "sideslip_rad"]
+        df[f"sd_{c}"] = 0.002
+    p = tmp_path / "points.csv"
+    df.to_csv(p, index=False)
+    figs = sweep_figures(campaign_table([p]), tmp_path / "plots")
+    assert [f.name for f in figs][-1] == "lateral_sideslip.png"
+    img = read_image(tmp_path / "plots" / "lateral_sideslip.png", gray=True)
+    assert img is not None and img.shape[0] > img.shape[1]  # three panels stacked

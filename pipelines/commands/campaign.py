@@ -52,6 +52,7 @@ def _points_files(args: argparse.Namespace) -> list[Path]:
 def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
     """(t_ns, tensions (n, m), cable names) of a run file's ``/tensions`` stream, or None."""
     import numpy as np
+    import pandas as pd
 
     from cdpr.daq.mcap_io import read_run
 
@@ -60,7 +61,8 @@ def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
         return None
     names = [k[2:-2] for k in msgs[0][1] if k.startswith("T_") and k.endswith("_N")]
     t = np.fromiter((t for t, _ in msgs), dtype=np.int64, count=len(msgs))
-    T = np.array([[b.get(f"T_{n}_N", np.nan) for n in names] for _, b in msgs], dtype=np.float64)
+    cols = [f"T_{n}_N" for n in names]
+    T = pd.DataFrame.from_records([b for _, b in msgs], columns=cols).to_numpy(dtype=np.float64)
     return t, T, names
 
 
