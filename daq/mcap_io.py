@@ -806,44 +806,61 @@ class McapRunWriter:
         return n
 
     def _write_frame_batch(self, batch: Any) -> int:
-        import numpy as np
-
         stream = batch.stream
         msgs = batch.messages
         n = len(msgs)
         if n:
-            cid = self._channels.get(stream)
-            if cid is None:
-                cid = self.add_stream(stream, None)
+            if stream not in self._channels:
+                self.add_stream(stream, None)
             encode_frames = self._frame_encoders.get(stream)
             if encode_frames is None:  # another codec for this stream: one reading at a time
                 return self.write_many(list(batch))
-            rec = encode_frames(msgs)
-            t_ns = np.array(batch.t_ns, dtype=np.int64)
-            k0 = self.counts[stream]
-            w = self._writer
-            if len(rec.bodies) == n:
-                w.add_messages(cid, t_ns, rec.bodies, k0)
-            else:
-                # runs of formatted frames, the others (error frames, other lengths) one by one
-                encode = self._codecs[stream]
-                bad = np.flatnonzero(~rec.ok).tolist()
-                a = j = 0
-                for i in [*bad, n]:
-                    if i > a:
-                        w.add_messages(cid, t_ns[a:i], rec.bodies[j : j + i - a], k0 + a)
-                        j += i - a
-                    if i < n:
-                        r = batch.frame_reading(i)
-                        body = encode(r)
-                        data = body if type(body) is bytes else encode_json(body)
-                        w.add_message(cid, r.t_ns, data, r.t_ns, k0 + i)
-                    a = i + 1
-            self.counts[stream] = k0 + n
+            self.write_records(stream, batch.t_ns[:n], encode_frames(msgs), batch.frame_reading)
         others = batch.others
         if others:
             self.write_many([r for _, r in others])
         return n + len(others)
+
+    def write_records(
+        self,
+        stream: str,
+        t_ns: Any,
+        records: FrameRecords,
+        reading_of: Callable[[int], Reading],
+    ) -> int:
+        """Write ``len(t_ns)`` messages of ``stream`` in order: those with ``records.ok`` from the
+        preformatted ``records.bodies`` (a codec's ``encode_frames``), the others encoded one by one
+        from ``reading_of(i)``.  Returns how many."""
+        import numpy as np
+
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        n = len(t_ns)
+        if not n:
+            return 0
+        cid = self._channels.get(stream)
+        if cid is None:
+            cid = self.add_stream(stream, None)
+        k0 = self.counts[stream]
+        w = self._writer
+        if len(records.bodies) == n:
+            w.add_messages(cid, t_ns, records.bodies, k0)
+        else:
+            # runs of formatted frames, the others (error frames, other lengths) one by one
+            encode = self._codecs[stream]
+            bad = np.flatnonzero(~np.asarray(records.ok)).tolist()
+            a = j = 0
+            for i in [*bad, n]:
+                if i > a:
+                    w.add_messages(cid, t_ns[a:i], records.bodies[j : j + i - a], k0 + a)
+                    j += i - a
+                if i < n:
+                    r = reading_of(i)
+                    body = encode(r)
+                    data = body if type(body) is bytes else encode_json(body)
+                    w.add_message(cid, r.t_ns, data, r.t_ns, k0 + i)
+                a = i + 1
+        self.counts[stream] = k0 + n
+        return n
 
     def maybe_flush(self) -> bool:
         """Close the open chunk and fsync if it is older than the flush interval."""
