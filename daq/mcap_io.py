@@ -862,6 +862,19 @@ class McapRunWriter:
         self.counts[stream] = k0 + n
         return n
 
+    def write_bodies(self, stream: str, t_ns: Any, bodies: list[bytes]) -> int:
+        """Write preformatted JSON message bodies of a registered stream (same layout as its
+        codec's), log times ``t_ns`` (int ns), in order; returns how many."""
+        cid = self._channels[stream]
+        add = self._writer.add_message
+        k = self.counts[stream]
+        for t, body in zip(t_ns, bodies, strict=True):
+            add(cid, t, body, t, k)
+            k += 1
+        n = k - self.counts[stream]
+        self.counts[stream] = k
+        return n
+
     def maybe_flush(self) -> bool:
         """Close the open chunk and fsync if it is older than the flush interval."""
         if time.monotonic_ns() - self._last_flush_ns >= self.flush_interval_ns:

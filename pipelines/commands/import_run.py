@@ -285,16 +285,57 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
             lambda i, c=cols, t=t_ns: can_raw.raw_reading(c.message(i), int(t[i])),
         )
         if dec is not None:
-            lc = np.flatnonzero(np.isin(cols.arbitration_id, fids) & ((fl & ERROR) == 0))
-            for i in lc.tolist():
-                lost0 = dec.lost
-                emit(dec.decode(cols.message(i), int(t_ns[i])))
-                src.stats.lost += dec.lost - lost0
+            lc = np.flatnonzero(
+                np.isin(cols.arbitration_id, fids) & ((fl & (ERROR | REMOTE | EXTENDED)) == 0)
+            )
+            _decode_frames(w, dec, src, cols, lc, t_ns, t_bus, emit, stats)
         stats["frames"] += n
     if dec is not None:
         emit(dec.flush(), at_end=True)
     progress.done()
     return first_ns, stats
+
+
+def _decode_frames(
+    w: Any, dec: Any, src: Any, cols: Any, lc: Any, t_ns: Any, t_bus: Any, emit: Any, stats: Any
+) -> None:
+    """Decode the load-cell frames ``lc`` (indexes into ``cols``): whole samples at once with
+    ``dec.decode_block`` where the frames are regular, the others frame by frame with
+    ``dec.decode`` (the same decoder state throughout)."""
+    import numpy as np
+
+    i, n_lc = 0, len(lc)
+    nf = len(dec.frame_ids)
+    while i < n_lc:
+        if dec._pending_counter is None and stats["samples"] > 0:
+            sel = lc[i : i + 65536]
+            lost0 = dec.lost
+            m, s = dec.decode_block(
+                cols.arbitration_id[sel], np.zeros(len(sel), bool), cols.data[sel],
+                cols.length[sel], t_ns[sel], t_bus[sel],
+            )  # fmt: skip
+            if m:
+                src.stats.lost += dec.lost - lost0
+                _write_samples(w, s)
+                stats["samples"] += len(s["t_ns"])
+                i += m
+                continue
+        for j in lc[i : i + nf].tolist():  # at least a sample's frames, one by one
+            lost0 = dec.lost
+            emit(dec.decode(cols.message(j), int(t_ns[j])))
+            src.stats.lost += dec.lost - lost0
+        i += nf
+
+
+def _write_samples(w: Any, s: dict[str, Any]) -> None:
+    """``tensions`` samples given as columns, as the stream's codec writes them (the reading's
+    values in order, then ``status``; floats as ``repr``)."""
+    keys = [k for k in s if k not in ("t_ns", "status")] + ["status"]
+    fmt = "{" + ",".join(
+        f'"{k}":%r' if s[k].dtype.kind == "f" else f'"{k}":%d' for k in keys
+    ) + "}"  # fmt: skip
+    rows = zip(*[s[k].tolist() for k in keys], strict=True)
+    w.write_bodies("tensions", s["t_ns"].tolist(), [(fmt % r).encode() for r in rows])
 
 
 class _Progress:
