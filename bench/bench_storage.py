@@ -97,6 +97,8 @@ def _mcap_json_read(path: Path) -> int:
 def run() -> dict[str, dict]:
     from cdpr.daq.run_reader import open_run
     from cdpr.pipelines.cli import main
+    from cdpr.pipelines.commands import import_run  # noqa: F401  (imports not timed)
+    from cdpr.pipelines.config import load_rig  # noqa: F401
 
     out: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as d:
@@ -142,12 +144,95 @@ def run() -> dict[str, dict]:
             "peer_value": n_peer / peer_s,
             "context": f"{N_SAMPLES} samples of 8 cells (27 fields), per-sample JSON, zstd",
         }
+        out.update(_storage_options(tmp, run_path))
         out["storage_json_bytes_per_sample"] = {
             "value": run_path.stat().st_size / N_SAMPLES,
             "unit": "B/sample",
             "context": "file bytes per tension sample (8 cells, 27 fields) with zstd chunks",
         }
     return out
+
+
+def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
+    """The storage options measured on the same samples as ``json_run``: binary blocks (one MCAP
+    message of 100 samples: int64 times + float64/int64 columns, as raw little-endian arrays; the
+    ``mcap`` package's own ``Writer``), read back with ``numpy.frombuffer``; and the ``mcap``
+    package's ``Writer`` writing the JSON messages (the writer option)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from cdpr.daq.run_reader import open_run
+
+    with open_run(json_run) as r:
+        df = r.table("/tensions")
+    cols = [c for c in df.columns if c != "t_ns"]
+    arr = np.empty((len(df), len(cols) + 1), np.float64)
+    block = tmp / "blocks.mcap"
+    with block.open("wb") as fh:
+        w = Writer(fh, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema("cdpr.tensions_block", "", b"")
+        cid = w.register_channel("/tensions_block", "cdpr.block.v0", sid)
+        t = df["t_ns"].to_numpy(np.int64)
+        vals = df[cols].to_numpy(np.float64)
+        for a in range(0, len(df), 100):
+            body = t[a : a + 100].tobytes() + np.ascontiguousarray(vals[a : a + 100]).tobytes()
+            w.add_message(cid, int(t[a]), body, int(t[a]))
+        w.finish()
+    tt = time.perf_counter()
+    parts = []
+    with block.open("rb") as fh:
+        for _, _, m in make_reader(fh).iter_messages():
+            k = len(m.data) // (8 * (len(cols) + 1))
+            parts.append(np.frombuffer(m.data, np.float64, offset=8 * k).reshape(k, len(cols)))
+    got = np.concatenate(parts)
+    block_s = time.perf_counter() - tt
+    assert got.shape == (len(df), len(cols)) and arr.shape[0] == len(df)
+
+    # the mcap package's Writer on the JSON messages (what a Writer subclass would cost)
+    with json_run.open("rb") as fh:
+        msgs = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages()]
+    tt = time.perf_counter()
+    with (tmp / "w_mcap.mcap").open("wb") as fh:
+        w = Writer(fh, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema("s", "jsonschema", b"{}")
+        cid = w.register_channel("/tensions", "json", sid)
+        for k, (ts, data) in enumerate(msgs):
+            w.add_message(cid, ts, data, ts, k)
+        w.finish()
+    mcap_w_s = time.perf_counter() - tt
+    from cdpr.daq.mcap_io import _ChunkedWriter
+
+    tt = time.perf_counter()
+    with (tmp / "w_cdpr.mcap").open("wb") as fh:
+        cw = _ChunkedWriter(fh, 256 * 1024, "zstd")
+        cw.start("", "bench")
+        sid = cw.register_schema("s", "jsonschema", b"{}")
+        cid = cw.register_channel("/tensions", "json", sid, {})
+        for k, (ts, data) in enumerate(msgs):
+            cw.add_message(cid, ts, data, ts, k)
+        cw.finish()
+    cdpr_w_s = time.perf_counter() - tt
+    n = len(df)
+    return {
+        "storage_block_bytes_per_sample": {
+            "value": block.stat().st_size / n,
+            "unit": "B/sample",
+            "context": "binary blocks of 100 samples (same 27 fields), zstd",
+        },
+        "storage_block_read_rows": {
+            "value": n / block_s,
+            "unit": "rows/s",
+            "context": "binary blocks read with the mcap reader + numpy.frombuffer",
+        },
+        "storage_writer_messages": {
+            "value": n / cdpr_w_s,
+            "unit": "messages/s",
+            "peer": "mcap package Writer.add_message, same messages and chunking",
+            "peer_value": n / mcap_w_s,
+        },
+    }
 
 
 if __name__ == "__main__":

@@ -306,8 +306,9 @@ def _decode_frames(
 
     i, n_lc = 0, len(lc)
     nf = len(dec.frame_ids)
+    by_frame = 0  # frames to decode one by one before trying a block again
     while i < n_lc:
-        if dec._pending_counter is None and stats["samples"] > 0:
+        if not by_frame and dec._pending_counter is None and stats["samples"] > 0:
             sel = lc[i : i + 65536]
             lost0 = dec.lost
             m, s = dec.decode_block(
@@ -320,11 +321,13 @@ def _decode_frames(
                 stats["samples"] += len(s["t_ns"])
                 i += m
                 continue
-        for j in lc[i : i + nf].tolist():  # at least a sample's frames, one by one
-            lost0 = dec.lost
-            emit(dec.decode(cols.message(j), int(t_ns[j])))
-            src.stats.lost += dec.lost - lost0
-        i += nf
+            by_frame = nf  # an irregular sample: at least its frames one by one
+        j = int(lc[i])
+        lost0 = dec.lost
+        emit(dec.decode(cols.message(j), int(t_ns[j])))
+        src.stats.lost += dec.lost - lost0
+        i += 1
+        by_frame = max(0, by_frame - 1)
 
 
 def _write_samples(w: Any, s: dict[str, Any]) -> None:
