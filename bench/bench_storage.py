@@ -50,7 +50,7 @@ def write_candump(path: Path, n_samples: int, seed: int = 0) -> int:
 
 def write_tension_run(path: Path, n_samples: int) -> None:
     """A run of ``n_samples`` tension samples of 8 cells with the recorder's fields."""
-    from cdpr.daq.mcap_io import McapRunWriter
+    from cdpr.daq.mcap_writer import McapRunWriter
     from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
     cables = [f"c{i}" for i in range(1, 9)]
@@ -202,7 +202,7 @@ def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
             w.add_message(cid, ts, data, ts, k)
         w.finish()
     mcap_w_s = time.perf_counter() - tt
-    from cdpr.daq.mcap_io import _ChunkedWriter
+    from cdpr.daq.mcap_writer import _ChunkedWriter
 
     tt = time.perf_counter()
     with (tmp / "w_cdpr.mcap").open("wb") as fh:

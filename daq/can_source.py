@@ -38,7 +38,7 @@ from cdpr.analysis.errors import ConfigError
 
 from . import can_raw
 from .loadcell import Calibration, calibration_from_settings, check_frame_budget
-from .mcap_io import register_stream_codec
+from .mcap_writer import register_stream_codec
 from .source import (
     STATUS_GAP,
     STATUS_SATURATED,
@@ -457,7 +457,7 @@ class CanFrameBatch(Sequence[Reading]):
     It is a sequence of :class:`Reading` like any source's batch: indexing or iterating turns a
     frame into its ``can_raw`` reading (:func:`raw_reading`) only when it is looked at.  The
     recorder's writer does not look: it formats the frames of a batch directly into MCAP records
-    (:meth:`cdpr.daq.mcap_io.McapRunWriter.write_many`), which saves building a ``Reading`` and a
+    (:meth:`cdpr.daq.mcap_writer.McapRunWriter.write_many`), which saves building a ``Reading`` and a
     dict per frame on a busy bus.
 
     stream: stream name of the frames (``can_raw``, or ``<source>/can_raw`` once renamed).
@@ -467,7 +467,7 @@ class CanFrameBatch(Sequence[Reading]):
 
     __slots__ = ("stream", "messages", "t_ns", "others", "_pos")
 
-    #: marker for the MCAP writer's fast path (duck-typed: mcap_io does not import python-can)
+    #: marker for the recorder (the writer dispatches on the registered batch type instead)
     can_frames = True
 
     def __init__(

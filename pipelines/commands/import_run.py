@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.conventions import POSE_COLUMNS
     from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.rotations import quaternion_from_euler
-    from cdpr.daq.mcap_io import McapRunWriter
+    from cdpr.daq.mcap_writer import McapRunWriter
     from cdpr.daq.recorder import Attachment
     from cdpr.daq.replay import CanReplaySource
     from cdpr.daq.runs import run_metadata
