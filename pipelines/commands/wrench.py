@@ -252,8 +252,8 @@ def run(args: argparse.Namespace) -> int:
         except InputError as exc:
             flag = "--mrp-P-m" if "mrp_P_m" in str(exc) else "--nose-P/--up-P"
             raise ConfigError("command line", flag, str(exc)) from None
-        out["alpha_rad"] = res.alpha_rad
-        out["beta_rad"] = res.beta_rad
+        out["aoa_rad"] = res.aoa_rad
+        out["sideslip_rad"] = res.sideslip_rad
         for name in COEFFICIENT_NAMES:
             out[name] = getattr(res, name)
         cov_c = K @ cov.total @ np.swapaxes(K, -1, -2)
