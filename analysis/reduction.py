@@ -233,9 +233,9 @@ def _minus_AT(rig: Rig, poses: FloatArray, T: FloatArray) -> FloatArray:
 
 def _load_and_pose_terms(
     rig: Rig, p: Points, idx: NDArray[np.int64], theta: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """For points ``idx``: ``y = -A T - B theta`` (k, 6), its covariance from the load cells and
-    from the pose (each (k, 6, 6)), linearised at the measured values."""
+    from the pose (each (k, 6, 6)), linearised at the measured values, and ``J = dy/dq``."""
     q = p["pose"][idx]
     T = p["tension_N"][idx]
     A = p["A"][idx]
@@ -249,7 +249,7 @@ def _load_and_pose_terms(
 
     J = pose_jacobian(fun, q) if len(idx) else np.zeros((0, 6, 6))
     c_pose = _sandwich(J, p["pose_cov"][idx])
-    return y, c_load, c_pose
+    return y, c_load, c_pose, J
 
 
 @stage("weight_model")
@@ -260,6 +260,7 @@ def weight_model_stage(
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
     model: WeightModel | None = None,
+    fit: bool = True,
 ) -> Points:
     """Fit the weight model from the wind-off points (``tare`` and ``zero`` with finite data), or
     take ``model`` (e.g. from a separate tare run).  Prior: the rig file's mass and centre of mass
@@ -267,12 +268,14 @@ def weight_model_stage(
     weight stage flags every wind-on point ``no_tare``."""
     if model is not None:
         return _with(p, meta={"weight_model": model, "_note": "weight model given"})
+    if not fit:
+        return _with(p, meta={"weight_model": None, "_note": "not fitted (settings)"})
     off = np.isin(p["kind"], WIND_OFF_KINDS) & np.isfinite(p["tension_N"]).all(axis=1)
     off &= np.isfinite(p["pose"]).all(axis=1)
     idx = np.flatnonzero(off)
     if idx.size == 0:
         return _with(p, meta={"weight_model": None, "_note": "no wind-off point: no weight model"})
-    y, c_load, c_pose = _load_and_pose_terms(rig, p, idx, np.zeros(4))
+    y, c_load, c_pose, _ = _load_and_pose_terms(rig, p, idx, np.zeros(4))
     wm = fit_weight(
         p["pose"][idx],
         y,
@@ -303,6 +306,7 @@ def weight_tare(
     allow_nominal_weight: bool = False,
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
+    tare_shares_pose: bool = False,
 ) -> Points:
     """Remove the weight: ``W = -A(q) T - G(q)``.
 
@@ -314,7 +318,9 @@ def weight_tare(
     then the rig file's mass (flag ``weight_nominal``, its prior spread in σ).
 
     σ terms: ``load_cells`` (both points), ``pose`` (both points' pose covariances through
-    ``dW/dq``), ``weight_model`` (theta's covariance through ``B(q_i) - B(q_j)`` or ``B(q_i)``).
+    ``dW/dq``, independent measurements; with ``tare_shares_pose`` the tare was taken at the very
+    same measured pose, as in ``cdpr wrench --tare``, and the one pose error acts through
+    ``J_i - J_j``), ``weight_model`` (theta's covariance through ``B(q_i) - B(q_j)`` or ``B(q_i)``).
     """
     s = p.n
     wm: WeightModel | None = p.meta.get("weight_model")
@@ -342,8 +348,10 @@ def weight_tare(
     c_pose = np.zeros((s, 6, 6))
     c_wm = np.zeros((s, 6, 6))
     idx = np.flatnonzero(finite)
-    y, cl, cp = _load_and_pose_terms(rig, p, idx, theta)
+    y, cl, cp, Jy = _load_and_pose_terms(rig, p, idx, theta)
     W[idx], c_load[idx], c_pose[idx] = y, cl, cp
+    J = np.zeros((s, 6, 6))
+    J[idx] = Jy
     B = weight_basis(q, rig.gravity_O_mps2)
     c_wm[idx] = _sandwich(B[idx], np.broadcast_to(theta_cov, (len(idx), 4, 4)))
     # tare where one matches: subtract the tare's own residual (its weight, measured)
@@ -352,7 +360,10 @@ def weight_tare(
     if j.size:
         W[has] = W[has] - W[j]
         c_load[has] = c_load[has] + c_load[j]
-        c_pose[has] = c_pose[has] + c_pose[j]
+        if tare_shares_pose:  # one pose measurement for both: its error acts through J_i - J_j
+            c_pose[has] = _sandwich(J[has] - J[j], p["pose_cov"][has])
+        else:
+            c_pose[has] = c_pose[has] + c_pose[j]
         dB = B[has] - B[j]
         c_wm[has] = _sandwich(dB, np.broadcast_to(theta_cov, (j.size, 4, 4)))
     model_used = finite & ~has & ~off & (wm is not None)
@@ -366,7 +377,10 @@ def weight_tare(
         for name in wm.weak:
             flags[f"weight_model_prior_{name}"] = model_used | (has & (wm is not None))
     if wm is None:
-        flags["pose_diff_nominal_weight"] = has
+        dq = np.zeros(s, bool)
+        if j.size:
+            dq[has] = np.any(p["pose"][has] != p["pose"][j], axis=1)
+        flags["pose_diff_nominal_weight"] = dq
         if allow_nominal_weight:
             flags["weight_nominal"] = no_tare
         else:
@@ -383,6 +397,25 @@ def weight_tare(
         flag=flags,
         replace_terms=True,
     )
+
+
+@stage("subtract_wrench")
+def subtract_wrench(
+    p: Points, *, what: str, wrench_N: ArrayLike, cov: ArrayLike | None = None
+) -> Points:
+    """Subtract a known per-point wrench (s, 6) at P in {O} (e.g. the inertia wrench ``M qdd + C``
+    of a moving platform, ``what = "inertia"``), with its covariance (s, 6, 6) as the σ term
+    ``what`` when given."""
+    w = np.asarray(wrench_N, dtype=np.float64)
+    if w.shape != (p.n, 6):
+        raise InputError(f"wrench_N: expected ({p.n}, 6), got {w.shape}")
+    terms = {}
+    if cov is not None:
+        c = np.asarray(cov, dtype=np.float64)
+        if c.shape != (p.n, 6, 6):
+            raise InputError(f"cov: expected ({p.n}, 6, 6), got {c.shape}")
+        terms[what] = c
+    return _with(p, arrays={"wrench_N": p["wrench_N"] - w}, terms=terms, meta={"_note": what})
 
 
 @stage("balance_interaction")

@@ -5,7 +5,8 @@ order of DESIGN.md; :func:`reduce_points` runs them; :func:`points_table` turns 
 per-point table (one row per test point, columns documented in docs/analysis.md).  ``cdpr analyze``,
 ``cdpr wrench`` and the live view call these.
 
-Slots for later stages (zero drift, cable/platform windage, wall corrections): pass them in
+Slots for later stages (zero drift, cable/platform windage, inertia of a moving platform, wall
+corrections): pass them in
 ``extra`` under the slot's name; each is a :data:`cdpr.analysis.reduction.Stage` (points in, points
 out) that adds its correction to ``wrench_N`` and its σ term to ``cov_terms``, flags the points it
 cannot treat and is logged by the ``@stage`` decorator.
@@ -40,7 +41,7 @@ from cdpr.analysis.reduction import (
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.weight import WeightModel
 
-SLOTS: tuple[str, ...] = ("zero_drift", "windage", "wall_corrections")
+SLOTS: tuple[str, ...] = ("zero_drift", "windage", "inertia", "wall_corrections")
 """Names of the slots later stages plug into (see the module docstring)."""
 
 
@@ -56,6 +57,9 @@ class ReduceSettings:
     allow_nominal_weight: reduce points without tare or weight model with the rig file's mass
         (flagged ``weight_nominal``); off by default.
     wind_off_mps: below this a point has no coefficients.
+    fit_weight_model: fit the weight model from the wind-off points (``cdpr wrench`` pairs each row
+        with its own tare and does not); tare_shares_pose: the tare row is at the same measured
+        pose (one pose error for both, see :func:`cdpr.analysis.reduction.weight_tare`).
     """
 
     method: str = "exact"
@@ -66,6 +70,8 @@ class ReduceSettings:
     prior_com_sd_m: float = 0.01
     allow_nominal_weight: bool = False
     wind_off_mps: float = 1.0
+    fit_weight_model: bool = True
+    tare_shares_pose: bool = False
 
 
 def reduction_stages(
@@ -91,6 +97,7 @@ def reduction_stages(
             prior_mass_rel_sd=s.prior_mass_rel_sd,
             prior_com_sd_m=s.prior_com_sd_m,
             model=weight_model,
+            fit=s.fit_weight_model,
         )
     )
     stages.append(
@@ -102,9 +109,11 @@ def reduction_stages(
             allow_nominal_weight=s.allow_nominal_weight,
             prior_mass_rel_sd=s.prior_mass_rel_sd,
             prior_com_sd_m=s.prior_com_sd_m,
+            tare_shares_pose=s.tare_shares_pose,
         )
     )
     stages += extra.get("windage", ())
+    stages += extra.get("inertia", ())
     stages.append(functools.partial(balance_interaction, interaction=interaction))
     if geometry is not None:
         stages.append(functools.partial(axes_and_moments, geometry=geometry))
