@@ -32,6 +32,7 @@ import pandas as pd
 
 from cdpr.analysis.aero import ModelGeometry, air_density, transfer_moment
 from cdpr.analysis.balance import (
+    MASK_NAMES,
     SteadyRule,
     interpolate_at,
     points_from_events,
@@ -53,7 +54,7 @@ PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),)
 
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
-     "weight_model_prior_com_y", "weight_model_prior_mass"}
+     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -438,6 +439,11 @@ def _warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]
         lines.append("no model geometry given: no coefficients (flag no_geometry)")
     if "check_fail" in words:
         lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"no_airspeed"} | set(MASK_NAMES.values())
+    rest = [w for w in words if w not in said]
+    if rest:
+        lines.append(f"other flags: {', '.join(rest)} (see the flags column)")
     return lines
 
 
