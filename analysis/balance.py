@@ -128,18 +128,6 @@ class SteadyRule:
     wind_off_mps: float = 1.0
 
 
-def _window_sums(x: FloatArray, ok: NDArray[np.bool_], w: int) -> tuple[FloatArray, FloatArray]:
-    """Sums and counts of the usable samples over ``[i - w, i)`` for i in 0..n (n+1 rows).
-
-    Masked samples contribute zero (no NaN ever enters the cumulative sum)."""
-    xz = np.where(ok[:, None], x, 0.0)
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(xz, axis=0)])
-    k = np.concatenate([[0.0], np.cumsum(ok.astype(np.float64))])
-    idx = np.arange(c.shape[0])
-    lo = np.maximum(idx - w, 0)
-    return c - c[lo], k - k[lo]
-
-
 def steady_points(
     t_ns: ArrayLike,
     airspeed_mps: ArrayLike | None,
@@ -158,7 +146,8 @@ def steady_points(
     transitions, however many, only fill the tail).  A sample is in a transition when
     ``|D| > max(k_sigma * sigma, floor)`` in any channel (for the airspeed also ``speed_rel`` times
     the speed: tunnel noise grows with it); the maximal stretches outside transitions, less
-    ``trim_s`` at both ends, are the points.
+    ``trim_s`` at both ends, are the points.  The windows run over the usable samples only, so a
+    masked stretch (saturated cell, NaN) inside a steady point neither splits it nor biases it.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     n = t.shape[0]
@@ -184,43 +173,41 @@ def steady_points(
         return []
     if np.any(np.diff(t) <= 0):
         raise InputError("t_ns: expected strictly increasing times")
-    dt = float(np.median(np.diff(t)))
+    # work on the usable samples only: a masked stretch neither splits a point nor enters a mean;
+    # a change of level across it still shows in the windows on either side
+    idx = np.flatnonzero(ok)
+    xc = x[idx]
+    nc = idx.size
+    dt = float(np.median(np.diff(t[idx])))
     w = max(2, int(round(rule.window_s * 1e9 / dt)))
-    med = np.nanmedian(np.where(ok[:, None], x, np.nan), axis=0)
+    med = np.median(xc, axis=0)
     v_med = float(med[0]) if airspeed_mps is not None else 0.0
-    x = x - med
-    s, k = _window_sums(x, ok, w)  # row i: the w samples before i
-    prev_s, prev_k = s[:n], k[:n]
-    # the window after i is [i, i + w): the row of sums ending at i + w (none near the end)
-    nxt_s = np.zeros_like(prev_s)
-    nxt_k = np.zeros_like(prev_k)
-    m = min(n, n + 1 - w)
-    if m > 0:
-        nxt_s[:m] = s[w : w + m]
-        nxt_k[:m] = k[w : w + m]
-    half = w / 2
-    both = (prev_k >= half) & (nxt_k >= half)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        D = nxt_s / nxt_k[:, None] - prev_s / prev_k[:, None]
-    D[~both] = 0.0
-    if not both.any():
+    xc = xc - med
+    c = np.concatenate([np.zeros((1, xc.shape[1])), np.cumsum(xc, axis=0)])
+    if nc < 2 * w:
         return []
+    # at usable sample i: mean of [i, i + w) minus mean of [i - w, i), for w <= i <= nc - w
+    i = np.arange(w, nc - w + 1)
+    D = ((c[i + w] - c[i]) - (c[i] - c[i - w])) / w
     # the 10 % quantile of |D| over the run: |N(0, sigma)| has its 10 % quantile at 0.1257 sigma;
     # robust while at least ~ a fifth of the run is steady (transitions inflate only the tail)
-    sigma = np.quantile(np.abs(D[both]), 0.1, axis=0) / 0.1257
-    band = np.maximum(rule.k_sigma * sigma, np.asarray(floors))
+    sigma = np.quantile(np.abs(D), 0.1, axis=0) / 0.1257
+    band = np.broadcast_to(np.maximum(rule.k_sigma * sigma, np.asarray(floors)), D.shape).copy()
     if airspeed_mps is not None:  # tunnel noise grows with speed: a relative floor as well
-        v_level = np.abs(np.where(both, (nxt_s[:, 0] / np.maximum(nxt_k, 1)), 0.0) + v_med)
-        band = np.broadcast_to(band, D.shape).copy()
+        v_level = np.abs((c[i + w, 0] - c[i, 0]) / w + v_med)
         band[:, 0] = np.maximum(band[:, 0], rule.speed_rel * v_level)
-    # a transition at sample i spreads over (i - w, i + w): the windows see it there.  Where a
-    # window is missing inside the run (long masked stretches) steadiness is unknown: not steady.
-    steady = both & ~(np.abs(D) > band).any(axis=1)
-    # the first and last w samples have one window only: they share the verdict of the first /
-    # last sample where both windows exist (that pair of windows covers them)
-    have = np.flatnonzero(both)
-    steady[: have[0]] = steady[have[0]]
-    steady[have[-1] + 1 :] = steady[have[-1]]
+    # a transition at sample i spreads over (i - w, i + w): the windows see it there.  The first
+    # and last w samples have one window only: they share the verdict of the nearest pair.
+    sc = np.empty(nc, bool)
+    sc[w : nc - w + 1] = ~(np.abs(D) > band).any(axis=1)
+    sc[:w] = sc[w]
+    sc[nc - w + 1 :] = sc[nc - w]
+    # back to all samples: a masked sample is steady when the usable samples on both sides are
+    pos = np.cumsum(ok) - 1  # index into idx of the last usable sample at or before each sample
+    prev_ok = np.where(pos >= 0, sc[np.maximum(pos, 0)], False)
+    nxt = np.minimum(pos + (~ok), nc - 1)  # first usable sample at or after
+    next_ok = sc[np.maximum(nxt, 0)]
+    steady = np.where(ok, sc[np.maximum(pos, 0)], prev_ok & next_ok & (pos >= 0))
     edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(np.int8), [0]])))
     starts, stops = edges[0::2], edges[1::2]
     trim = int(rule.trim_s * 1e9)
