@@ -565,7 +565,8 @@ def points_from_samples(
     point flagged ``pose_cov_nominal``; with neither, an error.
 
     Tension covariance: the squared standard errors of the per-cable means (independent cables).
-    Flags: ``masked`` plus the mask words, ``no_samples`` (nothing usable), ``no_pose``.
+    Flags: ``masked`` plus the mask words, ``no_samples`` (nothing usable), ``no_pose``,
+    ``pose_flagged`` (some camera frames in the point dropped), ``pose_cov_nominal``.
     Returns the points and a dict of extra per-point columns (counts, start/stop times).
     """
     from .balance import mask_words, point_stats
@@ -641,6 +642,8 @@ def points_from_samples(
             w.append("no_samples")
         if ps.n_used[i] == 0:
             w.append("no_pose")
+        elif ps.n_masked[i]:
+            w.append("pose_flagged")
         if nominal[i]:
             w.append("pose_cov_nominal")
         words.append(";".join(w))

@@ -255,10 +255,9 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
             label = str(b.get("point", ""))
             phase = b.get("phase")
             if phase == "start":
-                if label in opened:
-                    t0, b0 = opened.pop(label)
-                    pts.append((t0, t, b0, "no_end_event"))
-                opened[label] = (t, b)
+                for t0, b0 in opened.values():  # a point never ended closes here
+                    pts.append((t0, t - 1, b0, "no_end_event"))
+                opened = {label: (t, b)}
             elif phase == "end" and label in opened:
                 t0, b0 = opened.pop(label)
                 pts.append((t0, t, b0, ""))
@@ -616,8 +615,13 @@ def _options_json(opts: AnalyzeOptions) -> Any:
 
 def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]:
     """Analyse one run and write its folder atomically; returns the summary."""
-    run = load_run(path)
-    df, red = analyze_arrays(run, opts)
+    try:
+        run = load_run(path)
+        df, red = analyze_arrays(run, opts)
+    except ConfigError:
+        raise
+    except CdprError as exc:  # name the file in the one line
+        raise ConfigError(str(path), "", str(exc)) from None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     final = out / run.path.name.removesuffix(".mcap")
