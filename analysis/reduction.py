@@ -43,6 +43,7 @@ from .aero import (
     transfer_moment,
     wind_from_body,
 )
+from .balance_model import apply_balance_model
 from .errors import InputError
 from .kinematics import structure_matrix
 from .rig import Rig
@@ -419,19 +420,29 @@ def subtract_wrench(
 
 
 @stage("balance_interaction")
-def balance_interaction(p: Points, *, interaction: ArrayLike | None = None) -> Points:
-    """Apply the 6x6 interaction matrix ``K`` of ``cdpr calibrate balance``: ``W <- K W`` and every
-    σ term ``K C K^T``.  Without one, the wrench passes unchanged and the log says so."""
-    if interaction is None:
+def balance_interaction(
+    p: Points, *, interaction: ArrayLike | None = None, second_order: Any = None
+) -> Points:
+    """Apply the balance calibration of ``cdpr calibrate balance``: the 6x6 interaction matrix
+    ``W <- K W``, or, when given, the second-order model ``second_order = (K1, K2)``:
+    ``W <- K1 W + K2 q(W)`` (:mod:`cdpr.analysis.balance_model`); every σ term is carried through
+    the (linearised) map ``J C J^T``.  Without either, the wrench passes unchanged and the log
+    says so."""
+    if interaction is None and second_order is None:
         return _with(p, meta={"_note": "no balance calibration given: not applied"})
-    K = np.asarray(interaction, dtype=np.float64)
+    if second_order is not None:
+        K1, K2 = second_order
+        note = "second-order balance model applied"
+    else:
+        K1, K2 = interaction, None
+        note = "interaction matrix applied"
+    K = np.asarray(K1, dtype=np.float64)
     if K.shape != (6, 6) or not np.all(np.isfinite(K)):
         raise InputError(f"interaction: expected a finite (6, 6) matrix, got {K.shape}")
-    W = np.einsum("ij,sj->si", K, p["wrench_N"])
-    terms = {k: _sandwich(K, v) for k, v in p.cov_terms.items()}
-    return _with(
-        p, arrays={"wrench_N": W}, terms=terms, meta={"_note": "interaction matrix applied"}
-    )
+    W, J = apply_balance_model(p["wrench_N"], K, K2)
+    W[~np.isfinite(p["wrench_N"]).all(axis=1)] = np.nan
+    terms = {k: _sandwich(J, v) for k, v in p.cov_terms.items()}
+    return _with(p, arrays={"wrench_N": W}, terms=terms, meta={"_note": note})
 
 
 @stage("axes_and_moments")

@@ -295,9 +295,11 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
     )
 
 
-def _interaction(path: str | None) -> Any:
+def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
+    """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
+    model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
     if path is None:
-        return None
+        return None, None
     try:
         doc = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -307,7 +309,18 @@ def _interaction(path: str | None) -> Any:
         raise ConfigError(
             path, "interaction_matrix", f"expected a finite 6x6 matrix, got {K.shape}"
         )
-    return K
+    so = doc.get("second_order")
+    if so is None:
+        return K, None
+    K1 = np.asarray(so.get("K1", []), dtype=np.float64)
+    K2 = np.asarray(so.get("K2", []), dtype=np.float64)
+    if K1.shape != (6, 6) or K2.shape != (6, 21):
+        raise ConfigError(
+            path, "second_order", f"expected K1 (6, 6), K2 (6, 21), got {K1.shape}, {K2.shape}"
+        )
+    if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(K2))):
+        raise ConfigError(path, "second_order", "expected finite values")
+    return K, (K1, K2)
 
 
 def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[str, Any]]:
@@ -346,9 +359,8 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
         run_words.append("no_airspeed")
     words = [";".join(filter(None, [f, *run_words])) for f in plan.flags]
     pts = flags_from_masks(pts, words=words)
-    stages = reduction_stages(
-        rig, opts.geometry, opts.reduce, interaction=_interaction(opts.balance_file)
-    )
+    K, second = read_balance_calibration(opts.balance_file)
+    stages = reduction_stages(rig, opts.geometry, opts.reduce, interaction=K, second_order=second)
     out = reduce_points(pts, stages)
     if opts.geometry is None:
         on = np.isin(out["kind"], ("wind_on", "unknown"))

@@ -80,6 +80,7 @@ def reduction_stages(
     settings: ReduceSettings = ReduceSettings(),
     interaction: Any = None,
     weight_model: WeightModel | None = None,
+    second_order: Any = None,
     extra: Mapping[str, Sequence[Stage]] | None = None,
 ) -> list[Stage]:
     """The ordered stages with their settings bound."""
@@ -114,7 +115,9 @@ def reduction_stages(
     )
     stages += extra.get("windage", ())
     stages += extra.get("inertia", ())
-    stages.append(functools.partial(balance_interaction, interaction=interaction))
+    stages.append(
+        functools.partial(balance_interaction, interaction=interaction, second_order=second_order)
+    )
     if geometry is not None:
         stages.append(functools.partial(axes_and_moments, geometry=geometry))
         stages += extra.get("wall_corrections", ())

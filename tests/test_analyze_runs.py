@@ -160,3 +160,33 @@ def test_no_events_and_no_tunnel_reports_no_wind_on_wrench(
     assert (df.source == "detected").all() and len(df) == 25
     assert df[list(WRENCH_COLUMNS)].isna().all().all()  # NaN, never 0
     assert df["flags"].str.contains("no_tare").all()
+
+
+def test_balance_calibration_with_second_order_is_applied(
+    sweep: Sweep, tmp_path: Path, capsys
+) -> None:
+    run = tmp_path / "sweep.mcap"
+    write_run(run, sweep)
+    assert main(["analyze", str(run), "--out", str(tmp_path / "plain"), *GEO]) == 0
+    c = 0.01
+    K2 = np.zeros((6, 21))
+    K2[2, 2] = c  # index 2 of the upper triangle is Fx * Fz: Fz' = Fz + c Fx Fz
+    doc = {
+        "interaction_matrix": np.eye(6).tolist(),
+        "second_order": {"K1": np.eye(6).tolist(), "K2": K2.tolist()},
+    }
+    bal = tmp_path / "balance.json"
+    bal.write_text(json.dumps(doc))
+    args = ["analyze", str(run), "--out", str(tmp_path / "cal"), "--balance", str(bal), *GEO]
+    assert main(args) == 0
+    plain = pd.read_csv(tmp_path / "plain" / "sweep" / "points.csv")
+    cal = pd.read_csv(tmp_path / "cal" / "sweep" / "points.csv")
+    on = plain.kind == "wind_on"
+    np.testing.assert_allclose(
+        cal.fz_N[on], plain.fz_N[on] + c * plain.fx_N[on] * plain.fz_N[on], rtol=1e-9
+    )
+    np.testing.assert_allclose(cal.fx_N[on], plain.fx_N[on], rtol=1e-12)
+    summary = json.loads((tmp_path / "cal" / "sweep" / "summary.json").read_text())
+    notes = {s["stage"]: s["note"] for s in summary["reduction"]["stages"]}
+    assert notes["balance_interaction"] == "second-order balance model applied"
+    assert summary["balance_file"].startswith(str(bal))
