@@ -170,7 +170,7 @@ def _plain(v: Any) -> Any:
     return repr(v)
 
 
-def _with(
+def with_updates(
     p: Points,
     arrays: Mapping[str, NDArray[Any]] | None = None,
     terms: Mapping[str, FloatArray] | None = None,
@@ -178,6 +178,9 @@ def _with(
     meta: Mapping[str, Any] | None = None,
     replace_terms: bool = False,
 ) -> Points:
+    """A new :class:`Points` with ``arrays`` added or replaced, σ ``terms`` added (or, with
+    ``replace_terms``, replacing all), the word of each ``flag`` mask (s,) appended to those points,
+    and ``meta`` merged (``"_note"``: a sentence for the stage log).  What a stage returns."""
     a = dict(p.arrays)
     a.update(arrays or {})
     t = dict(terms or {}) if replace_terms else {**p.cov_terms, **(terms or {})}
@@ -211,7 +214,7 @@ def flags_from_masks(p: Points, *, words: list[str] | None = None) -> Points:
     for i, text in enumerate(w):
         for word in filter(None, text.split(";")):
             flags.setdefault(word, np.zeros(p.n, bool))[i] = True
-    return _with(p, flag=flags)
+    return with_updates(p, flag=flags)
 
 
 @stage("structure_matrix")
@@ -221,7 +224,7 @@ def structure_matrix_stage(p: Points, *, rig: Rig) -> Points:
     if q.shape[0] and p["tension_N"].shape[1] != rig.n_cables:
         raise InputError(f"tension_N: expected {rig.n_cables} cables for rig {rig.name!r}")
     A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, q[:, :3], rotation_from_euler(q[:, 3:]))
-    return _with(p, arrays={"A": A})
+    return with_updates(p, arrays={"A": A})
 
 
 def _minus_AT(rig: Rig, poses: FloatArray, T: FloatArray) -> FloatArray:
@@ -268,14 +271,16 @@ def weight_model_stage(
     with ``prior_mass_rel_sd`` and ``prior_com_sd_m``.  With no wind-off point and no model the
     weight stage flags every wind-on point ``no_tare``."""
     if model is not None:
-        return _with(p, meta={"weight_model": model, "_note": "weight model given"})
+        return with_updates(p, meta={"weight_model": model, "_note": "weight model given"})
     if not fit:
-        return _with(p, meta={"weight_model": None, "_note": "not fitted (settings)"})
+        return with_updates(p, meta={"weight_model": None, "_note": "not fitted (settings)"})
     off = np.isin(p["kind"], WIND_OFF_KINDS) & np.isfinite(p["tension_N"]).all(axis=1)
     off &= np.isfinite(p["pose"]).all(axis=1)
     idx = np.flatnonzero(off)
     if idx.size == 0:
-        return _with(p, meta={"weight_model": None, "_note": "no wind-off point: no weight model"})
+        return with_updates(
+            p, meta={"weight_model": None, "_note": "no wind-off point: no weight model"}
+        )
     y, c_load, c_pose, _ = _load_and_pose_terms(rig, p, idx, np.zeros(4))
     wm = fit_weight(
         p["pose"][idx],
@@ -294,7 +299,7 @@ def weight_model_stage(
         f"{np.round(sd * 1e3, 3).tolist()} mm; chi2/dof {wm.chi2_per_dof:.3g}"
         + (f"; left to the prior: {', '.join(wm.weak)}" if wm.weak else "")
     )
-    return _with(p, meta={"weight_model": wm, "_note": note})
+    return with_updates(p, meta={"weight_model": wm, "_note": note})
 
 
 @stage("weight_tare")
@@ -391,7 +396,7 @@ def weight_tare(
     # wind-off points keep their residual against the weight model (a check), NaN without one
     if wm is None:
         W[off] = np.nan
-    return _with(
+    return with_updates(
         p,
         arrays={"wrench_N": W, "tare_index": tare.astype(np.int64)},
         terms={"load_cells": c_load, "pose": c_pose, "weight_model": c_wm},
@@ -416,7 +421,9 @@ def subtract_wrench(
         if c.shape != (p.n, 6, 6):
             raise InputError(f"cov: expected ({p.n}, 6, 6), got {c.shape}")
         terms[what] = c
-    return _with(p, arrays={"wrench_N": p["wrench_N"] - w}, terms=terms, meta={"_note": what})
+    return with_updates(
+        p, arrays={"wrench_N": p["wrench_N"] - w}, terms=terms, meta={"_note": what}
+    )
 
 
 @stage("balance_interaction")
@@ -429,7 +436,7 @@ def balance_interaction(
     the (linearised) map ``J C J^T``.  Without either, the wrench passes unchanged and the log
     says so."""
     if interaction is None and second_order is None:
-        return _with(p, meta={"_note": "no balance calibration given: not applied"})
+        return with_updates(p, meta={"_note": "no balance calibration given: not applied"})
     if second_order is not None:
         K1, K2 = second_order
         note = "second-order balance model applied"
@@ -442,7 +449,7 @@ def balance_interaction(
     W, J = apply_balance_model(p["wrench_N"], K, K2)
     W[~np.isfinite(p["wrench_N"]).all(axis=1)] = np.nan
     terms = {k: _sandwich(J, v) for k, v in p.cov_terms.items()}
-    return _with(p, arrays={"wrench_N": W}, terms=terms, meta={"_note": note})
+    return with_updates(p, arrays={"wrench_N": W}, terms=terms, meta={"_note": note})
 
 
 @stage("axes_and_moments")
@@ -478,7 +485,7 @@ def axes_and_moments(p: Points, *, geometry: ModelGeometry) -> Points:
         "wrench_mrp_cov": _sandwich(T, p.wrench_cov),
     }
     flags = {"geometry_from_options": np.full(p.n, geometry.source == "options")}
-    return _with(p, arrays=arrays, flag=flags)
+    return with_updates(p, arrays=arrays, flag=flags)
 
 
 COEFFICIENTS: tuple[str, ...] = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
@@ -513,7 +520,7 @@ def coefficients(p: Points, *, geometry: ModelGeometry, wind_off_mps: float = 1.
             out[c][use] = C[:, k]
             out[f"sd_{c}"][use] = sd[:, k]
     flags = {"no_airspeed": (p["kind"] == "wind_on") & ~okv}
-    return _with(p, arrays={"q_Pa": q, **out}, flag=flags)
+    return with_updates(p, arrays={"q_Pa": q, **out}, flag=flags)
 
 
 @stage("tension_check")
@@ -533,7 +540,7 @@ def tension_check(p: Points, *, rig: Rig, method: str = "exact", limit_N: float 
         exp = distribute(method, p["A"][ok], -(G + W[ok]), rig.t_min_N, rig.t_max_N)
         dT[ok] = p["tension_N"][ok] - exp.tensions_N
     mx = np.where(ok, np.abs(np.nan_to_num(dT)).max(axis=1) if p.n else 0.0, np.nan)
-    return _with(
+    return with_updates(
         p,
         arrays={"check_dT_N": dT, "check_max_abs_dT_N": mx},
         flag={"check_fail": ok & (mx > limit_N)},

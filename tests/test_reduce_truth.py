@@ -232,3 +232,44 @@ def test_weight_fit_recovers_an_exact_polar() -> None:
     assert wm.mass_kg == pytest.approx(mass, rel=1e-6)
     np.testing.assert_allclose(wm.com_P_m, com, atol=1e-6)
     assert wm.weak == ()
+
+
+def test_a_later_stage_plugs_into_its_slot_and_is_logged() -> None:
+    """The protocol the corrections module will use: a plain function on points, wrapped by
+    @stage, bound with its settings, handed in under a slot name."""
+    import functools
+
+    from cdpr.analysis.errors import InputError
+    from cdpr.analysis.reduction import Points, stage, with_updates
+
+    @stage("windage_model")
+    def windage(p: Points, *, drag_N: float, sd_N: float) -> Points:
+        W = p["wrench_N"].copy()
+        on = p["kind"] == "wind_on"
+        W[on, 0] -= drag_N
+        cov = np.zeros((p.n, 6, 6))
+        cov[on, 0, 0] = sd_N**2
+        return with_updates(p, arrays={"wrench_N": W}, terms={"windage": cov}, flag={"windage": on})
+
+    sw = alpha_sweep(9)
+    plain, _ = _reduce(sw)
+    bits = sample_mask(sw.tensions_N)
+    ranges = points_from_events(sw.t_ns, sw.start_ns, sw.stop_ns)
+    pts, _ = points_from_samples(
+        kind=sw.kind, ranges=ranges, t_ns=sw.t_ns, tensions_N=sw.tensions_N, mask_bits=bits,
+        airspeed_mps=sw.airspeed_mps, density_kgpm3=sw.density_kgpm3, pose_t_ns=sw.pose_t_ns,
+        poses=sw.poses, pose_cov=sw.pose_cov,
+    )  # fmt: skip
+    extra = {"windage": [functools.partial(windage, drag_N=0.2, sd_N=0.01)]}
+    out = reduce_points(pts, reduction_stages(RIG, GEOMETRY, extra=extra))
+    names = [s.name for s in out.steps]
+    assert names.index("weight_tare") < names.index("windage_model") < names.index("coefficients")
+    step = out.steps[names.index("windage_model")]
+    assert step.settings == {"drag_N": 0.2, "sd_N": 0.01} and step.flagged == 18
+    on = np.array(sw.kind) == "wind_on"
+    np.testing.assert_allclose(out["wrench_N"][on, 0], plain["wrench_N"][on, 0] - 0.2)
+    np.testing.assert_allclose(
+        out.wrench_cov[on, 0, 0], plain.wrench_cov[on, 0, 0] + 0.01**2, rtol=1e-12
+    )
+    with pytest.raises(InputError, match="unknown slot"):
+        reduction_stages(RIG, GEOMETRY, extra={"nowhere": []})
