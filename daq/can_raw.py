@@ -9,7 +9,7 @@ interface's channel as python-can gives it: a string such as ``"can0"``, an inte
 ``is_rx`` (0/1: direction, 0 = transmitted by the logging node), ``t_bus_ns`` (the interface's
 timestamp, integer ns: ``round(timestamp * 1e9)``) and ``status`` (8 = error frame).
 
-The CAN driver registers the codec (:func:`register`): :func:`cdpr.daq.mcap_io.register_stream_codec`
+The CAN driver registers the codec (:func:`register`): :func:`cdpr.daq.mcap_writer.register_stream_codec`
 for the ``can_raw`` stream, and the driver's batch type for the writer's batch path, which formats a
 batch of frames at once with numpy (:func:`encode_can_frames`) instead of one reading at a time.
 """
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .mcap_io import FrameRecords, StreamCodec, register_frame_batch_type
+from .mcap_writer import FrameRecords, StreamCodec, register_frame_batch_type
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, StreamDescription
 
 #: the fields of a frame, in the order they are written

@@ -38,7 +38,7 @@ from cdpr.analysis.errors import ConfigError
 
 from . import can_raw
 from .loadcell import Calibration, calibration_from_settings, check_frame_budget
-from .mcap_io import register_stream_codec
+from .mcap_writer import register_stream_codec
 from .source import (
     STATUS_GAP,
     STATUS_SATURATED,
@@ -218,6 +218,146 @@ class LoadCellDecoder:
             out[name] = v
         return out
 
+    def decode_block(
+        self,
+        ids: Any,
+        extended: Any,
+        data: Any,
+        lengths: Any,
+        t_ns: Any,
+        t_bus_ns: Any,
+    ) -> tuple[int, dict[str, Any] | None]:
+        """Decode the regular start of a block of load-cell frames at once (the import's hot path).
+
+        Arguments are columns of the load-cell frames only (no error or remote frames): ids, the
+        extended flags, data (n, >= 8) uint8 with ``lengths``, log and bus times (int64 ns).  The
+        regular start is the longest run of whole samples, each the DBC's frames once with one
+        counter, taken when no sample is pending and every frame is of the fast-unpack kind; its
+        samples are what :meth:`decode` would give frame by frame (same values, counter
+        bookkeeping and lost count).  Returns how many frames were used and the samples as columns
+        (``t_ns``, ``status``, then the ``tensions`` fields in order), or ``(0, None)``: the caller
+        feeds the rest to :meth:`decode`."""
+        import numpy as np
+
+        nf = len(self.frame_ids)
+        n = len(ids)
+        cal = self.calibration
+        if (
+            self._pending_counter is not None
+            or n < nf
+            or type(cal) is not Calibration
+            or any(f not in self._fast for f in self.frame_ids)
+        ):
+            return 0, None
+        ids = np.asarray(ids, np.int64)
+        fids = np.asarray(self.frame_ids, np.int64)
+        lens_ok = np.asarray([self._msgs[f].length for f in self.frame_ids], np.int64)[
+            np.searchsorted(fids, np.clip(ids, fids[0], fids[-1]))
+        ]
+        regular = (
+            np.isin(ids, fids) & ~np.asarray(extended, bool) & (np.asarray(lengths) == lens_ok)
+        )
+        m = (n // nf) * nf
+        bad = np.flatnonzero(~regular[:m])
+        if bad.size:
+            m = (int(bad[0]) // nf) * nf
+        if m == 0:
+            return 0, None
+        d8 = np.zeros((m, 8), np.uint8)
+        d8[:, : min(8, data.shape[1])] = data[:m, :8]
+        word = d8.view("<u8").ravel()
+        ids_m = ids[:m]
+        # every first frame of an id is checked against cantools once (as decode does)
+        for fid in self.frame_ids:
+            if fid not in self._checked:
+                i = int(np.flatnonzero(ids_m == fid)[0])
+                raw = bytes(d8[i, : int(lengths[i])])
+                if self._msgs[fid].decode(raw, decode_choices=False, scaling=False) != (
+                    self._unpack(self._fast[fid], raw)
+                ):
+                    return 0, None
+                self._checked.add(fid)
+        grp = ids_m.reshape(-1, nf)
+        if not np.array_equal(np.sort(grp, axis=1), np.broadcast_to(fids, grp.shape)):
+            # the frames of a sample are not each id once: find the first such sample
+            ok = (np.sort(grp, axis=1) == fids).all(axis=1)
+            m = int(np.argmin(ok)) * nf if not ok.all() else m
+            if m == 0:
+                return 0, None
+            grp, word, ids_m = grp[: m // nf], word[:m], ids_m[:m]
+        k = m // nf
+        n_ch = self.n
+        counts = np.zeros((k, n_ch), np.int64)
+        ch_status = np.zeros((k, n_ch), np.int64)
+        counter = np.full(m, -1, np.int64)
+        for fid in self.frame_ids:
+            sel = ids_m == fid
+            w = word[sel]
+            sig: dict[str, Any] = {}
+            for name, start, mask, signed in self._fast[fid]:
+                v = ((w >> np.uint64(start)) & np.uint64(mask)).astype(np.int64)
+                if signed:
+                    v = np.where(v > mask >> 1, v - (mask + 1), v)
+                sig[name] = v
+            counter[sel] = sig.get("Counter", np.zeros(int(sel.sum()), np.int64))
+            rows = np.flatnonzero(sel) // nf
+            for ch, bit, sname in self._entries[fid]:
+                if not bit:
+                    counts[rows, ch] = sig[sname]
+                else:
+                    ch_status[rows, ch] |= np.where(sig[sname] != 0, bit, 0)
+        cgrp = counter.reshape(k, nf)
+        same = (cgrp == cgrp[:, :1]).all(axis=1)
+        if not same.all():
+            k = int(np.argmin(same))
+            if k == 0:
+                return 0, None
+            m = k * nf
+            counts, ch_status, cgrp = counts[:k], ch_status[:k], cgrp[:k]
+        c = cgrp[:, 0]
+        first = np.arange(k) * nf
+        ts = np.asarray(t_ns, np.int64)[:m][first]
+        tb = np.asarray(t_bus_ns, np.int64)[:m][first]
+        # counter bookkeeping, as _flush does one sample at a time
+        prev_c = np.concatenate([[self._last_counter if self._last_counter is not None else -1],
+                                 c[:-1]])  # fmt: skip
+        prev_t = np.concatenate([[self._last_t_ns], ts[:-1]])
+        step = (c - prev_c) % 256
+        step[step == 0] = 256
+        if self.rate_hz > 0:
+            expected = (ts - prev_t) * 1e-9 * self.rate_hz
+            wrap = expected - step > 128
+            step = np.where(wrap, step + 256 * np.round((expected - step) / 256).astype(np.int64),
+                            step)  # fmt: skip
+        if self._last_counter is None:
+            step[0] = 0
+            seq = c[0] + np.concatenate([[0], np.cumsum(step[1:])])
+            self.lost += int(np.sum(step[1:] - 1))
+        else:
+            seq = self._seq + np.cumsum(step)
+            self.lost += int(np.sum(step - 1))
+        self._last_counter = int(c[-1])
+        self._last_t_ns = int(ts[-1])
+        self._seq = int(seq[-1])
+        off = np.asarray(cal.offset_counts, np.float64)
+        gain = np.asarray(cal.gain_N_per_count, np.float64)
+        T = (counts.astype(np.float64) - off) * gain
+        any_status = np.bitwise_or.reduce(ch_status, axis=1)
+        status = np.zeros(k, np.int64)
+        for bit, sbit in _STATUS_TO_SOURCE:
+            status |= np.where(any_status & bit, sbit, 0)
+        cols: dict[str, Any] = {"t_ns": ts, "status": status}
+        for j, key in enumerate(self._keys_T):
+            cols[key] = T[:, j]
+        for j, key in enumerate(self._keys_raw):
+            cols[key] = counts[:, j]
+        for j, key in enumerate(self._keys_status):
+            cols[key] = ch_status[:, j]
+        cols["counter"] = c
+        cols["seq"] = seq
+        cols["t_bus_ns"] = tb
+        return m, cols
+
     def flush(self) -> list[Reading]:
         """Emit a pending incomplete sample (at close)."""
         return [self._flush()] if self._pending_counter is not None else []
@@ -318,7 +458,7 @@ class CanFrameBatch(Sequence[Reading]):
     It is a sequence of :class:`Reading` like any source's batch: indexing or iterating turns a
     frame into its ``can_raw`` reading (:func:`raw_reading`) only when it is looked at.  The
     recorder's writer does not look: it formats the frames of a batch directly into MCAP records
-    (:meth:`cdpr.daq.mcap_io.McapRunWriter.write_many`), which saves building a ``Reading`` and a
+    (:meth:`cdpr.daq.mcap_writer.McapRunWriter.write_many`), which saves building a ``Reading`` and a
     dict per frame on a busy bus.
 
     stream: stream name of the frames (``can_raw``, or ``<source>/can_raw`` once renamed).
@@ -328,7 +468,7 @@ class CanFrameBatch(Sequence[Reading]):
 
     __slots__ = ("stream", "messages", "t_ns", "others", "_pos")
 
-    #: marker for the MCAP writer's fast path (duck-typed: mcap_io does not import python-can)
+    #: marker for the recorder (the writer dispatches on the registered batch type instead)
     can_frames = True
 
     def __init__(

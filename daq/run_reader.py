@@ -118,8 +118,8 @@ class Run:
         summary = None
         try:
             summary = SeekingReader(self._fh).get_summary()
-        except (McapError, struct.error, ValueError, EOFError):
-            summary = None
+        except (McapError, struct.error, ValueError, EOFError, OSError):
+            summary = None  # too short for a footer, or a bad one: recovery reads what is there
         if summary is None or (
             summary.statistics and summary.statistics.message_count and not summary.chunk_indexes
         ):
@@ -651,7 +651,10 @@ def _rows_frame(rows: list[dict[str, Any]], schema: str) -> Any:
         flat_rows.append(out)
     df = pd.DataFrame.from_records(flat_rows)
     for c in df.columns:
-        if c in _NULLABLE_TEXT:  # a null here is a value (a frame without a channel)
+        if c in _NULLABLE_TEXT:  # values as recorded (a channel is a name, a number or null)
+            col = np.empty(len(flat_rows), object)
+            col[:] = [r.get(c) for r in flat_rows]
+            df[c] = pd.Series(col, dtype=object, index=df.index)
             continue
         if df[c].dtype == object and df[c].map(lambda x: x is None).all():
             df[c] = np.nan

@@ -1,16 +1,18 @@
-"""Batch post-processing of recorded runs (``cdpr analyze`` / ``make analyze``).
+"""Batch post-processing of recorded runs (``cdpr analyze`` / ``make analyze``) on the reduction core.
 
-For every run (an MCAP file written by the recorder): the embedded rig, the tension, tunnel and pose
-streams; steady segments (test points and wind-off tares, :mod:`cdpr.analysis.balance`); per segment
-the structure matrix at the measured pose, the recovered wrench (absolute method, and the tare method
-when a wind-off segment at the same pose exists) with its covariance, the aerodynamic coefficients,
-and the paper's check: the tensions the distribution method would command for that wrench against
-the measured ones.  When the virtual rig's truth file sits beside the run, the true wrench is
-compared too.  Runs are processed in parallel on a Dask cluster (local by default, or an address).
+For every run (an MCAP file written by the recorder): the embedded rig, the tension stream with its
+status bits and counter, the tunnel and pose streams (with the camera's per-frame covariance) and the
+test-point events; the test points (from the ``/events`` stream where the run has one, detected
+steady points otherwise, :mod:`cdpr.analysis.balance`); then the reduction core
+(:mod:`cdpr.pipelines.reduce`): weight model and weight tares, balance interaction matrix, wrench
+and σ, axes, moment transfer, coefficients, the tension check.  When the virtual rig's truth file
+sits beside the run, the true wrench is compared too.  Runs are processed in parallel on a Dask
+cluster (local by default, or an address).
 
 Outputs per run, in ``OUT/<run stem>/`` (written to a temporary folder, then renamed):
-``segments.csv``, ``summary.json`` (inputs with SHA-256, options, software version), ``report.md``,
-``tensions.png``, ``wrench.png``, ``check.png``.  ``OUT/index.md`` lists every run.
+``points.csv`` (the per-point table, docs/analysis.md), ``summary.json`` (inputs with SHA-256,
+options, stage log, weight model, warnings, software version), ``report.md``, ``tensions.png``,
+``wrench.png``, ``check.png``.  ``OUT/index.md`` lists every run.
 """
 
 from __future__ import annotations
@@ -28,63 +30,73 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cdpr.analysis.aero import aero_coefficients, air_density, dynamic_pressure
+from cdpr.analysis.aero import ModelGeometry, air_density, transfer_moment
 from cdpr.analysis.balance import (
-    SegmentRule,
+    MASK_NAMES,
+    SteadyRule,
     interpolate_at,
-    nearest_tare,
-    segment_stats,
-    steady_segments,
+    points_from_events,
+    sample_mask,
+    steady_points,
 )
 from cdpr.analysis.conventions import WRENCH_COLUMNS
-from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import CdprError, ConfigError
-from cdpr.analysis.kinematics import structure_matrix
+from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.rig import Rig
-from cdpr.analysis.rotations import euler_from_quaternion, rotation_from_euler
-from cdpr.analysis.tension import distribute
-from cdpr.analysis.uncertainty import wrench_covariance
-from cdpr.analysis.wrench import wrench_absolute, wrench_tare
+from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix, rotation_from_euler
+
 from cdpr.daq.schema import rig_from_mapping
 
 from . import __version__
 from .config import file_sha256
+from .freshness import fingerprint, is_current
+from .reduce import ReduceSettings, points_table, reduce_points, reduction_stages, steps_log
+
+PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
+"""The paper's camera precision (0.5 mm, 0.1 deg): the pose σ fallback, used only with a flag."""
+
+INFO_FLAGS: frozenset[str] = frozenset(
+    {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
+     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options"}
+)  # fmt: skip
+"""Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
 
 @dataclass(frozen=True)
 class AnalyzeOptions:
     """Settings of the analysis (all recorded in every summary).
 
-    method: tension distribution the controller used (for the expected tensions).
-    pose_sd: camera pose standard deviations (m, m, m, rad, rad, rad) -- the paper's 0.5 mm, 0.1 deg.
-    area_m2, span_m, chord_m: reference area, span and chord for the coefficients (SDM-like model).
-    check_limit_N: the pass mark of the measured-vs-simulated tension check (the paper's ~1 N).
+    geometry: the model's reference geometry (from the test matrix, or options: flagged); None:
+        no coefficients (flag ``no_geometry`` on wind-on points).
+    pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
+    balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
     """
 
-    method: str = "exact"
-    pose_sd: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
-    area_m2: float = 0.2441 * 0.060
-    span_m: float = 0.2441
-    chord_m: float = 0.060
-    check_limit_N: float = 1.0
-    rule: SegmentRule = field(default_factory=SegmentRule)
+    geometry: ModelGeometry | None = None
+    pose_sd_fallback: tuple[float, ...] = PAPER_POSE_SD
+    balance_file: str | None = None
+    rule: SteadyRule = field(default_factory=SteadyRule)
+    reduce: ReduceSettings = field(default_factory=ReduceSettings)
 
 
 @dataclass
 class RunData:
-    """The arrays of one run that the analysis needs."""
+    """The arrays of one run that the analysis needs (what ``open_run`` will hand over)."""
 
     path: Path
     rig: Rig
     t_ns: np.ndarray  # (n,) tension sample times
-    tensions_N: np.ndarray  # (n, m)
-    poses: np.ndarray  # (n, 6) interpolated at t_ns
+    tensions_N: np.ndarray  # (n, m), NaN where a frame was missing
+    mask_bits: np.ndarray  # (n,) sample_mask bits (status, counter gaps, NaN)
+    tunnel: tuple[np.ndarray, np.ndarray] | None  # airspeed, density on t_ns; None: no stream
+    pose_t_ns: np.ndarray  # (k,)
+    poses: np.ndarray  # (k, 6)
+    pose_cov: np.ndarray | None  # (k, 6, 6) in [position, Euler angles], or None
+    pose_bad: np.ndarray  # (k,) bool
     pose_source: str
-    airspeed_mps: np.ndarray  # (n,)
-    density_kgpm3: np.ndarray  # (n,)
+    events: list[tuple[int, dict[str, Any]]]
     truth: dict[str, np.ndarray] | None
-    camera_t_ns: np.ndarray | None = None  # (k,) camera pose times, when the pose is the camera's
-    camera_poses: np.ndarray | None = None  # (k, 6) camera poses
+    camera: bool = False
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -93,9 +105,17 @@ def _topic(run: Any, suffix: str) -> str | None:
     return hits[0] if hits else None
 
 
+def _column(df: pd.DataFrame, name: str, fill: float = np.nan) -> np.ndarray:
+    """Column ``name`` of ``df`` as float64 (``fill`` where the column is absent)."""
+    if name not in df:
+        return np.full(len(df), fill)
+    return pd.to_numeric(df[name], errors="coerce").to_numpy(np.float64)
+
+
 def load_run(path: str | os.PathLike[str]) -> RunData:
-    """Read a run file: rig attachment, tensions, tunnel conditions, pose (camera, else the truth
-    file beside the run, else the rig's reference pose)."""
+    """Read a run file through :func:`cdpr.daq.run_reader.open_run` (only the topics the analysis
+    needs): rig attachment, tensions with status, tunnel conditions, pose (camera with its
+    covariance, else the truth file beside the run, else the rig's reference pose), events."""
     from cdpr.daq.run_reader import open_run
 
     p = Path(path)
@@ -108,7 +128,6 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             rig = rig_from_mapping(tomllib.loads(rig_text), f"{p}:{rigs[0]}")
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}:{rigs[0]}", "", f"invalid TOML: {exc}") from None
-        cols = [f"T_{n}_N" for n in rig.cable_names]
         topic = _topic(run, "tensions")
         n_tens = run.streams[topic].count if topic else 0
         if topic is None or n_tens < 3:
@@ -116,48 +135,53 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
                 str(p), "/tensions", f"expected a tension stream, got {n_tens} messages"
             )
         tens = run.table(topic)
-        missing = [c for c in cols if c not in tens.columns]
-        if missing:
-            raise ConfigError(
-                str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}"
-            )
         tun_topic = _topic(run, "tunnel")
         tun = run.table(tun_topic) if tun_topic else None
         pose_topic = _topic(run, "pose")
         pose_df = run.table(pose_topic) if pose_topic else None
+        ev_topic = _topic(run, "events")
+        ev_df = run.table(ev_topic) if ev_topic else None
+    cols = [f"T_{n}_N" for n in rig.cable_names]
+    missing = [c for c in cols if c not in tens]
+    if missing:
+        raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
     t_ns = tens["t_ns"].to_numpy(np.int64)
-    T = tens[cols].to_numpy(dtype=np.float64)
+    T = np.column_stack([_column(tens, c) for c in cols])
+    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
+    st = np.column_stack([np.nan_to_num(_column(tens, c, 0.0)) for c in scols]).astype(np.int64)
+    seq = None
+    if "seq" in tens and tens["seq"].notna().all():
+        seq = tens["seq"].to_numpy()
+    del tens
     order = np.argsort(t_ns, kind="stable")
-    t_ns, T = t_ns[order], T[order]
+    t_ns, T, st = t_ns[order], T[order], st[order]
     keep = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, T = t_ns[keep], T[keep]
+    t_ns, T, st = t_ns[keep], T[keep], st[keep]
+    counter = None
+    if seq is not None:
+        counter = seq.astype(np.int64)[order][keep]
+    bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
 
+    tunnel = None
     if tun is not None and len(tun):
         tt = tun["t_ns"].to_numpy(np.int64)
-        nan = np.full(len(tun), np.nan)
-        v = interpolate_at(
-            t_ns,
-            tt,
-            tun["airspeed_mps"].fillna(0.0).to_numpy(np.float64)
-            if "airspeed_mps" in tun
-            else np.zeros(len(tun)),
-        )
-        rho_src = tun["density_kgpm3"].to_numpy(np.float64) if "density_kgpm3" in tun else nan
-        need = ~(rho_src > 0)
+        v = _column(tun, "airspeed_mps")
+        rho_src = _column(tun, "density_kgpm3")
+        need = ~np.isfinite(rho_src)
         if need.any():
-            if "static_pressure_Pa" not in tun or "temperature_K" not in tun:
-                raise ConfigError(
-                    str(p), tun_topic or "/tunnel",
-                    "no density_kgpm3, static_pressure_Pa or temperature_K for the air density",
-                )  # fmt: skip
-            rho_src = rho_src.copy()
-            rho_src[need] = air_density(
-                tun["static_pressure_Pa"].to_numpy(np.float64)[need],
-                tun["temperature_K"].to_numpy(np.float64)[need],
+            ps, tk = _column(tun, "static_pressure_Pa"), _column(tun, "temperature_K")
+            ok = need & (ps > 0) & (tk > 0)  # NaN compares False
+            rho_src[ok] = air_density(ps[ok], tk[ok])
+        good = np.isfinite(v)
+        if good.sum() >= 1:
+            vi = interpolate_at(t_ns, tt[good], v[good])
+            rg = np.isfinite(rho_src)
+            ri = (
+                interpolate_at(t_ns, tt[rg], rho_src[rg])
+                if rg.any()
+                else np.full(len(t_ns), np.nan)
             )
-        rho = interpolate_at(t_ns, tt, rho_src)
-    else:
-        v, rho = np.zeros(len(t_ns)), np.full(len(t_ns), 1.204)
+            tunnel = (vi, ri)
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -165,140 +189,299 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         with np.load(truth_path) as z:
             truth = {k: z[k] for k in z.files}
 
-    pose_msgs = pose_df is not None and len(pose_df) > 0
-    cam_t = cam_q = None
-    if pose_df is not None and pose_msgs:
+    events = _events(ev_df)
+    if pose_df is not None and len(pose_df):
         tp = pose_df["t_ns"].to_numpy(np.int64)
-        pos = pose_df[["x_m", "y_m", "z_m"]].to_numpy(np.float64)
-        quat = pose_df[["qw", "qx", "qy", "qz"]].to_numpy(np.float64)
-        good = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
-        if good.sum() >= 2:
-            q6 = np.concatenate([pos[good], euler_from_quaternion(quat[good])], axis=1)
-            poses, src = interpolate_at(t_ns, tp[good], q6), "camera (/pose stream)"
-            cam_t, cam_q = tp[good], q6
-        else:
-            pose_msgs = False
-    if not pose_msgs and truth is not None and "position_O_m" in truth:
+        pos = np.column_stack([_column(pose_df, c) for c in ("x_m", "y_m", "z_m")])
+        quat = np.column_stack([_column(pose_df, c) for c in ("qw", "qx", "qy", "qz")])
+        bad = ~(np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1))
+        bad |= np.nan_to_num(_column(pose_df, "status", 0.0)) != 0
+        eul = np.full((len(tp), 3), np.nan)
+        if (~bad).any():
+            eul[~bad] = euler_from_quaternion(quat[~bad])
+        poses = np.concatenate([pos, eul], axis=1)
+        pose_cov = None
+        ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
+        if all(c in pose_df for c in ccols):
+            C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
+            # a frame without any covariance value: none for the run; a partly missing one
+            # (NaN recorded as null) marks its frame bad
+            if np.isfinite(C).any(axis=(1, 2)).all():
+                # the camera reports [position, rotation vector in {O}]; Euler angles:
+                # dpsi = H^-1 dtheta
+                Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
+                J = np.zeros((len(tp), 6, 6))
+                J[:, :3, :3] = np.eye(3)
+                J[:, 3:, 3:] = Hinv
+                pose_cov = J @ C @ np.swapaxes(J, 1, 2)
+                bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
+        if (~bad).sum() >= 2:
+            src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
+            return RunData(
+                p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True
+            )
+    if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
-        poses = interpolate_at(t_ns, truth["t_ns"], q6)
         src = f"virtual-rig truth ({truth_path.name}); no camera stream in the run"
-    elif not pose_msgs:
-        ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
-        poses, src = np.tile(ref, (len(t_ns), 1)), "rig reference pose (no pose stream)"
-    return RunData(p, rig, t_ns, T, poses, src, v, rho, truth, cam_t, cam_q)
+        tp = np.asarray(truth["t_ns"], dtype=np.int64)
+        return RunData(
+            p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
+            events, truth,
+        )  # fmt: skip
+    ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
+    return RunData(
+        p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
+        np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth,
+    )  # fmt: skip
 
 
-def _diag_cov(sd: np.ndarray) -> np.ndarray:
-    """(n_seg, n) standard deviations -> (n_seg, n, n) diagonal covariances (independent cables)."""
-    return sd[..., None] * np.eye(sd.shape[-1]) * sd[:, None, :]
+def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:
+    """The ``test_point`` events as (t_ns, fields as recorded), sorted by time."""
+    if df is None or not len(df) or "name" not in df:
+        return []
+    rows = df[df["name"] == "test_point"]
+    out = []
+    for t, rec in zip(rows["t_ns"].tolist(), rows.to_dict("records"), strict=True):
+        rec.pop("t_ns", None)
+        out.append((int(t), {k: v for k, v in rec.items() if v is not None and v == v}))
+    return sorted(out, key=lambda e: e[0])
 
 
-def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
-    """One row per steady segment with the recovered wrench, its standard deviations, the
-    coefficients and the tension check."""
-    rig = run.rig
-    segs = steady_segments(run.t_ns, run.airspeed_mps, run.poses, opts.rule)
-    if not segs:
-        raise ConfigError(str(run.path), "/tensions", "no steady segment found (run too short?)")
-    st = segment_stats(run.t_ns, run.tensions_N, run.poses, run.airspeed_mps, segs)
-    s = len(segs)
-    rho = np.array([run.density_kgpm3[a:b].mean() for a, b in segs])
-    is_tare = st.airspeed_mps < opts.rule.wind_off_mps
-    tare_idx = nearest_tare(
-        st.pose_mean, is_tare, st.start_ns, opts.rule.position_tol_m, opts.rule.angle_tol_rad
-    )
-    R = rotation_from_euler(st.pose_mean[:, 3:])
-    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, st.pose_mean[:, :3], R)
-    G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
-    W_abs = wrench_absolute(A, st.tension_mean_N, G)
-    sem = st.tension_sd_N / np.sqrt(st.n)[:, None]
-    cov_abs = wrench_covariance(
-        rig,
-        st.pose_mean,
-        st.tension_mean_N,
-        _diag_cov(sem),
-        np.array(opts.pose_sd),
-    )
-    has_tare = tare_idx >= 0
-    T0 = np.where(has_tare[:, None], st.tension_mean_N[np.maximum(tare_idx, 0)], np.nan)
-    W_tare = np.where(
-        has_tare[:, None],
-        wrench_tare(A, tensions_wind_on_N=st.tension_mean_N, tensions_wind_off_N=np.nan_to_num(T0)),
-        np.nan,
-    )
-    sem0 = np.where(has_tare[:, None], sem[np.maximum(tare_idx, 0)], 0.0)
-    cov_tare = wrench_covariance(
-        rig,
-        st.pose_mean,
-        st.tension_mean_N,
-        _diag_cov(sem),
-        np.array(opts.pose_sd),
-        tare_tensions_N=np.nan_to_num(T0),
-        tare_tension_cov=_diag_cov(sem0),
-    )
-    W_best = np.where(has_tare[:, None], W_tare, W_abs)
-    # The paper's check: tensions the method commands for the recovered wrench vs the measured ones.
-    expected = distribute(opts.method, A, -(G + W_best), rig.t_min_N, rig.t_max_N)
-    err = st.tension_mean_N - expected.tensions_N
+@dataclass
+class PointPlan:
+    """The test points of a run: index ranges into the tension samples and what is known of each."""
 
-    rows: dict[str, Any] = {
-        "segment": np.arange(s),
-        "start_ns": st.start_ns,
-        "stop_ns": st.stop_ns,
-        "n_samples": st.n,
-        "airspeed_mps": st.airspeed_mps,
-        "density_kgpm3": rho,
-        "wind_off": is_tare.astype(int),
-        "tare_segment": tare_idx,
-    }
-    for k, c in enumerate(("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")):
-        rows[c] = st.pose_mean[:, k]
-    for k, name in enumerate(rig.cable_names):
-        rows[f"T_{name}_N"] = st.tension_mean_N[:, k]
-        rows[f"sd_T_{name}_N"] = st.tension_sd_N[:, k]
-        rows[f"dT_{name}_N"] = err[:, k]
-    for k, c in enumerate(WRENCH_COLUMNS):
-        rows[f"abs_{c}"] = W_abs[:, k]
-        rows[f"abs_sd_{c}"] = cov_abs.std[:, k]
-        rows[f"tare_{c}"] = W_tare[:, k]
-        rows[f"tare_sd_{c}"] = np.where(has_tare, cov_tare.std[:, k], np.nan)
-    rows["check_max_abs_dT_N"] = np.abs(err).max(axis=1)
-    rows["check_pass"] = (rows["check_max_abs_dT_N"] <= opts.check_limit_N).astype(int)
-    rows["expected_feasible"] = expected.feasible.astype(int)
-    wind_on = ~is_tare
-    coef = {
-        k: np.full(s, np.nan) for k in ("alpha_rad", "beta_rad", "CD", "CY", "CL", "Cl", "Cm", "Cn")
-    }
-    if wind_on.any():
-        qd = dynamic_pressure(rho[wind_on], st.airspeed_mps[wind_on])
-        res = aero_coefficients(
-            W_best[wind_on], R[wind_on], qd, opts.area_m2, opts.span_m, opts.chord_m
+    ranges: list[tuple[int, int]]
+    labels: list[str]
+    kind: list[str]
+    source: str  # "events" | "detected"
+    flags: list[str]
+    targets: dict[str, list[Any]]
+
+
+def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
+    """Test points from the ``/events`` stream when the run has one, else detected steady points."""
+    if run.events:
+        opened: dict[str, tuple[int, dict[str, Any]]] = {}
+        pts: list[tuple[int, int, dict[str, Any], str]] = []
+        for t, b in run.events:
+            label = str(b.get("point", ""))
+            phase = b.get("phase")
+            if phase == "start":
+                for t0, b0 in opened.values():  # a point never ended closes here
+                    pts.append((t0, t - 1, b0, "no_end_event"))
+                opened = {label: (t, b)}
+            elif phase == "end" and label in opened:
+                t0, b0 = opened.pop(label)
+                pts.append((t0, t, b0, ""))
+        for t0, b0 in opened.values():
+            pts.append((t0, int(run.t_ns[-1]), b0, "no_end_event"))
+        pts.sort(key=lambda x: x[0])
+        ranges = points_from_events(run.t_ns, [x[0] for x in pts], [x[1] for x in pts])
+        targets = {
+            k: [x[2].get(k, np.nan) for x in pts]
+            for k in ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps", "repeat_of")
+        }
+        return PointPlan(
+            ranges,
+            [str(x[2].get("point", "")) for x in pts],
+            [str(x[2].get("kind", "wind_on")) for x in pts],
+            "events",
+            [x[3] for x in pts],
+            targets,
         )
-        for k in coef:
-            coef[k][wind_on] = getattr(res, k)
-    rows.update(coef)
+    q = interpolate_at(run.t_ns, run.pose_t_ns[~run.pose_bad], run.poses[~run.pose_bad])
+    v = run.tunnel[0] if run.tunnel is not None else None
+    ranges = steady_points(run.t_ns, v, q, run.mask_bits == 0, rule)
+    if v is None:
+        kind = ["unknown"] * len(ranges)
+    else:
+        vm = np.array([np.nanmean(v[a:b]) for a, b in ranges])
+        kind = ["tare" if x < rule.wind_off_mps else "wind_on" for x in vm]
+    return PointPlan(
+        ranges,
+        [f"d{i:02d}" for i in range(len(ranges))],
+        kind,
+        "detected",
+        [""] * len(ranges),
+        {},
+    )
+
+
+def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
+    """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
+    model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
+    if path is None:
+        return None, None
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "", f"cannot read the balance calibration: {exc}") from None
+    K = np.asarray(doc.get("interaction_matrix", []), dtype=np.float64)
+    if K.shape != (6, 6) or not np.all(np.isfinite(K)):
+        raise ConfigError(
+            path, "interaction_matrix", f"expected a finite 6x6 matrix, got {K.shape}"
+        )
+    so = doc.get("second_order")
+    if so is None:
+        return K, None
+    K1 = np.asarray(so.get("K1", []), dtype=np.float64)
+    K2 = np.asarray(so.get("K2", []), dtype=np.float64)
+    if K1.shape != (6, 6) or K2.shape != (6, 21):
+        raise ConfigError(
+            path, "second_order", f"expected K1 (6, 6), K2 (6, 21), got {K1.shape}, {K2.shape}"
+        )
+    if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(K2))):
+        raise ConfigError(path, "second_order", "expected finite values")
+    return K, (K1, K2)
+
+
+def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The per-point table of one run and the summary parts of the reduction (stage log, weight
+    model, warnings)."""
+    rig = run.rig
+    plan = plan_points(run, opts.rule)
+    if not plan.ranges:
+        raise ConfigError(
+            str(run.path),
+            "/tensions",
+            f"no test point ({plan.source}): run too short or never steady?",
+        )
+    fallback = None if run.pose_cov is not None else np.array(opts.pose_sd_fallback)
+    airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
+    pts, extra = points_from_samples(
+        kind=plan.kind,
+        ranges=plan.ranges,
+        t_ns=run.t_ns,
+        tensions_N=run.tensions_N,
+        mask_bits=run.mask_bits,
+        airspeed_mps=airspeed,
+        density_kgpm3=density,
+        pose_t_ns=run.pose_t_ns,
+        poses=run.poses,
+        pose_cov=run.pose_cov,
+        pose_sd_fallback=fallback,
+        pose_bad=run.pose_bad,
+    )
+    from cdpr.analysis.reduction import flags_from_masks
+
+    run_words = []
+    if not run.camera:
+        run_words.append("pose_from_truth" if run.truth is not None else "no_pose_stream")
+    if run.tunnel is None:
+        run_words.append("no_airspeed")
+    words = [";".join(filter(None, [f, *run_words])) for f in plan.flags]
+    pts = flags_from_masks(pts, words=words)
+    K, second = read_balance_calibration(opts.balance_file)
+    stages = reduction_stages(rig, opts.geometry, opts.reduce, interaction=K, second_order=second)
+    out = reduce_points(pts, stages)
+    if opts.geometry is None:
+        on = np.isin(out["kind"], ("wind_on", "unknown"))
+        out = flags_from_masks(out, words=["no_geometry" if o else "" for o in on])
+    before = {"run": [run.path.name] * out.n}
+    after: dict[str, Any] = {
+        "source": [plan.source] * out.n,
+        "start_ns": extra["start_ns"],
+        "stop_ns": extra["stop_ns"],
+        "n_samples": extra["n_samples"],
+        "n_masked": extra["n_masked"],
+        "n_pose_frames": extra["n_pose_frames"],
+    }
+    for k, vals in plan.targets.items():
+        after[k] = vals
+    df = points_table(out, rig, plan.labels, before, after)
+    # order: identification first
+    first = [
+        "run",
+        "point",
+        "kind",
+        "source",
+        "start_ns",
+        "stop_ns",
+        "n_samples",
+        "n_masked",
+        "flags",
+    ]
+    df = df[first + [c for c in df.columns if c not in first]]
     if run.truth is not None and "wrench_aero_O" in run.truth:
-        mid = (st.start_ns + st.stop_ns) // 2
+        mid = (extra["start_ns"] + extra["stop_ns"]) // 2
         W_true = interpolate_at(mid, run.truth["t_ns"], run.truth["wrench_aero_O"])
+        mrp = np.zeros(3) if opts.geometry is None else np.asarray(opts.geometry.mrp_P_m)
+        R = rotation_from_euler(np.nan_to_num(out["pose"][:, 3:]))
+        W_true = transfer_moment(W_true, R @ mrp)
         for k, c in enumerate(WRENCH_COLUMNS):
-            rows[f"true_{c}"] = W_true[:, k]
-            rows[f"err_{c}"] = W_best[:, k] - W_true[:, k]
-    return pd.DataFrame(rows)
+            df[f"true_{c}"] = W_true[:, k]
+            df[f"err_{c}"] = df[c] - W_true[:, k]
+    flag_sets = [set(filter(None, f.split(";"))) for f in df["flags"]]
+    warn_words = sorted(set().union(*flag_sets) - INFO_FLAGS) if flag_sets else []
+    wm = out.meta.get("weight_model")
+    info: dict[str, Any] = {
+        "points": int(out.n),
+        "point_source": plan.source,
+        "warnings": warn_words,
+        "points_with_warnings": int(sum(bool(f - INFO_FLAGS) for f in flag_sets)),
+        "stages": steps_log(out),
+        "weight_model": None
+        if wm is None
+        else {
+            "mass_kg": wm.mass_kg,
+            "com_P_m": wm.com_P_m.tolist(),
+            "theta_cov": wm.theta_cov.tolist(),
+            "n_tares": wm.n_tares,
+            "chi2_per_dof": wm.chi2_per_dof,
+            "left_to_prior": list(wm.weak),
+        },
+        "lines": _warning_lines(run, plan, warn_words),
+    }
+    return df, info
+
+
+def _warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]:
+    """One sentence per run-level problem (the CLI and the report print them)."""
+    lines = []
+    if run.tunnel is None:
+        lines.append(
+            "no airspeed data in the run: no coefficient; "
+            + (
+                "points come from events"
+                if plan.source == "events"
+                else "wind-on and wind-off cannot be told apart, so no wrench is reported"
+            )
+        )
+    if "pose_cov_nominal" in words:
+        lines.append(
+            "the pose stream carries no covariance: pose σ from the configured constant "
+            "(flag pose_cov_nominal)"
+        )
+    if "no_pose_stream" in words:
+        lines.append("no pose stream: the rig's reference pose is used (flag no_pose_stream)")
+    if "no_tare" in words:
+        lines.append("wind-on points without a tare or weight model: no wrench (flag no_tare)")
+    if "masked" in words:
+        lines.append("samples masked (status bits, counter gaps, NaN): see n_masked and flags")
+    if "no_geometry" in words:
+        lines.append("no model geometry given: no coefficients (flag no_geometry)")
+    if "check_fail" in words:
+        lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"no_airspeed"} | set(MASK_NAMES.values())
+    rest = [w for w in words if w not in said]
+    if rest:
+        lines.append(f"other flags: {', '.join(rest)} (see the flags column)")
+    return lines
 
 
 def camera_pose_error(run: RunData) -> dict[str, float] | None:
     """RMS position (mm) and rotation (deg) error of the camera poses against the virtual rig's
     truth, when the run has both."""
-    if run.camera_t_ns is None or run.camera_poses is None or run.truth is None:
+    if not run.camera or run.truth is None or "position_O_m" not in run.truth:
         return None
-    if "position_O_m" not in run.truth:
-        return None
+    good = ~run.pose_bad
+    cam_t, cam_q = run.pose_t_ns[good], run.poses[good]
     q_true = np.concatenate([run.truth["position_O_m"], run.truth["euler_rad"]], axis=1)
-    tq = interpolate_at(run.camera_t_ns, run.truth["t_ns"], q_true)
-    pos_err = np.linalg.norm(run.camera_poses[:, :3] - tq[:, :3], axis=1)
-    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(
-        run.camera_poses[:, 3:]
-    )
+    tq = interpolate_at(cam_t, run.truth["t_ns"], q_true)
+    pos_err = np.linalg.norm(cam_q[:, :3] - tq[:, :3], axis=1)
+    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(cam_q[:, 3:])
     cos = np.clip((np.trace(R_rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     ang = np.degrees(np.arccos(cos))
     return {
@@ -311,94 +494,113 @@ def camera_pose_error(run: RunData) -> dict[str, float] | None:
 
 
 def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
-    from .plotting import png_figure
+    from .plotting import minmax_envelope, png_figure
 
     t0 = run.t_ns[0]
-    ts = (run.t_ns - t0) * 1e-9
+    # min/max envelope over 2000 bins (every spike stays visible), never every sample
+    ts, T_env = minmax_envelope((run.t_ns - t0) * 1e-9, run.tensions_N)
     with png_figure(folder / "tensions.png", 2, 1, (10, 6), sharex=True, height_ratios=[3, 1]) as (
         fig,
         axes,
     ):
         ax = axes[:, 0]
         for k, name in enumerate(run.rig.cable_names):
-            ax[0].plot(ts, run.tensions_N[:, k], lw=0.8, label=name)
+            ax[0].plot(ts, T_env[:, k], lw=0.8, label=name)
         for _, r in df.iterrows():
             for a in ax:
                 a.axvspan(
                     (r.start_ns - t0) * 1e-9,
                     (r.stop_ns - t0) * 1e-9,
-                    color="0.9" if r.wind_off else "#dde8f7",
+                    color="0.9" if r.kind in ("tare", "zero") else "#dde8f7",
                     zorder=0,
                 )
         ax[0].set_ylabel("tension (N)")
         ax[0].legend(fontsize=7, ncol=4, loc="upper left")
         ax[0].set_title(
-            f"{run.path.name}: tensions; shaded = steady segments (grey: wind-off tares)"
+            f"{run.path.name}: tensions; shaded = test points ({df['source'].iloc[0]}; grey: tares)"
         )
-        ax[1].plot(ts, run.airspeed_mps, color="k", lw=1)
+        if run.tunnel is not None:
+            ax[1].plot(ts, minmax_envelope(run.t_ns, run.tunnel[0])[1], color="k", lw=1)
+        else:
+            ax[1].text(0.5, 0.5, "no airspeed data", transform=ax[1].transAxes, ha="center")
         ax[1].set_ylabel("airspeed (m/s)")
         ax[1].set_xlabel("time (s)")
 
-    on = df[df.wind_off == 0]
+    on = df[~df.kind.isin(("tare", "zero"))]
+    x = on["airspeed_mps"] if run.tunnel is not None else np.arange(len(on))
     with png_figure(folder / "wrench.png", 2, 3, (11, 6)) as (fig, axes):
         for k, c in enumerate(WRENCH_COLUMNS):
             a = axes.flat[k]
-            use_tare = on["tare_segment"] >= 0
-            y = np.where(use_tare, on[f"tare_{c}"], on[f"abs_{c}"])
-            e = np.where(use_tare, on[f"tare_sd_{c}"], on[f"abs_sd_{c}"])
             a.errorbar(
-                on["airspeed_mps"], y, yerr=2 * e, fmt="o", capsize=3, label="recovered (±2σ)"
+                x, on[c], yerr=2 * on[f"sd_{c}"], fmt="o", capsize=3, label="recovered (±2σ)"
             )
             if f"true_{c}" in on:
-                a.plot(
-                    on["airspeed_mps"], on[f"true_{c}"], "x", color="C3", label="virtual-rig truth"
-                )
+                a.plot(x, on[f"true_{c}"], "x", color="C3", label="virtual-rig truth")
             a.set_title(c)
-            a.set_xlabel("airspeed (m/s)")
+            a.set_xlabel("airspeed (m/s)" if run.tunnel is not None else "point")
             a.grid(alpha=0.3)
         axes.flat[0].legend(fontsize=7)
-        fig.suptitle(
-            "Recovered aerodynamic wrench per test point (tare method where a tare exists)"
-        )
+        fig.suptitle("Recovered aerodynamic wrench per test point (at the MRP, {O} axes)")
 
     dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
     with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
         ax = axes[0, 0]
         width = 0.8 / len(dcols)
+        idx = np.arange(len(df))
         for k, c in enumerate(dcols):
-            ax.bar(df["segment"] + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+            ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
         ax.axhline(1.0, color="r", ls="--", lw=1)
         ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
-        ax.set_xlabel("segment")
+        ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
         ax.set_ylabel("measured − expected tension (N)")
         ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
         ax.legend(fontsize=7, ncol=5)
 
 
+def _fmt(v: float, sd: float) -> str:
+    return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
+
+
 def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
+    red = summary["reduction"]
     lines = [
         f"# Analysis of `{run.path.name}`",
         "",
         f"- rig: **{run.rig.name}** ({run.rig.n_cables} cables); pose from: {run.pose_source}",
-        f"- {len(df)} steady segments, {int(df.wind_off.sum())} wind-off tares; method for the "
-        f"expected tensions: `{summary['options']['method']}`",
+        f"- {len(df)} test points from **{red['point_source']}**"
+        f" ({'the /events stream' if red['point_source'] == 'events' else 'steady-point detection'})"
+        f", {int(df.kind.isin(('tare', 'zero')).sum())} wind-off",
         f"- measured vs simulated tensions: max |ΔT| = {summary['check_max_abs_dT_N']:.3f} N "
         f"(paper: about 1 N) → **{'pass' if summary['check_pass'] else 'FAIL'}**",
+    ]
+    wm = red["weight_model"]
+    if wm:
+        lines.append(
+            f"- weight model from {wm['n_tares']} wind-off points: mass {wm['mass_kg']:.5f} kg, "
+            f"CoM_P {np.round(np.array(wm['com_P_m']) * 1e3, 3).tolist()} mm"
+            + (
+                f" (left to the prior: {', '.join(wm['left_to_prior'])})"
+                if wm["left_to_prior"]
+                else ""
+            )
+        )
+    if red["lines"]:
+        lines += ["", "**Warnings**", ""] + [f"- {w}" for w in red["lines"]]
+    lines += [
         "",
-        "| seg | V (m/s) | tare | Fx (N) | Fy (N) | Fz (N) | Mx (N m) | My (N m) | Mz (N m) "
-        "| CL | CD | max ΔT (N) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| point | kind | V (m/s) | Fx (N) | Fy (N) | Fz (N) | Mx (N m) | My (N m) | Mz (N m) "
+        "| CL | CD | max ΔT (N) | masked | flags |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for _, r in df.iterrows():
-        pre = "tare_" if r.tare_segment >= 0 else "abs_"
-        w = [f"{r[pre + c]:.3f} ± {r[pre + 'sd_' + c]:.3f}" for c in WRENCH_COLUMNS]
-        tare = int(r.tare_segment) if r.tare_segment >= 0 else "-"
+        w = [_fmt(r[c], r["sd_" + c]) for c in WRENCH_COLUMNS]
+        coef = ["–" if not np.isfinite(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD")]
         lines.append(
-            f"| {int(r.segment)} | {r.airspeed_mps:.2f} | {tare} | "
+            f"| {r.point} | {r.kind} | {r.airspeed_mps:.2f} | "
             + " | ".join(w)
             + " | "
-            + " | ".join("-" if np.isnan(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD"))
-            + f" | {r.check_max_abs_dT_N:.3f} |"
+            + " | ".join(coef)
+            + f" | {r.check_max_abs_dT_N:.3f} | {int(r.n_masked)} | {r['flags']} |"
         )
     pe = summary.get("camera_pose_error_vs_truth")
     if pe:
@@ -406,17 +608,20 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
             "",
             f"Camera pose against the virtual rig's truth ({pe['n_poses']} poses): position RMS "
             f"{pe['position_rms_mm']:.3f} mm (max {pe['position_max_mm']:.3f}), rotation RMS "
-            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°); the paper's camera: "
-            "0.5 mm and 0.1°.",
+            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°).",
         ]
-    if "true_fx_N" in df:
-        on = df[df.wind_off == 0]
-        errs = ", ".join(f"{c} {np.abs(on['err_' + c]).max():.3g}" for c in WRENCH_COLUMNS)
+    if "max_abs_error_vs_truth" in summary:
+        errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
+    lines += ["", "Stages of the reduction:", ""]
+    for st in red["stages"]:
+        note = f": {st['note']}" if st["note"] else ""
+        lines.append(f"1. `{st['stage']}` — {st['points_flagged']} points flagged{note}")
     lines += [
         "",
-        "Uncertainty: ±1σ from load-cell noise (segment standard error) and the camera pose "
-        "precision (0.5 mm, 0.1°) through the structure matrix (`cdpr.analysis.uncertainty`).",
+        "σ: load-cell noise (standard error of each point's mean), the pose covariance (the camera's "
+        "per frame, else the configured constant, flagged), the weight model's covariance and the "
+        "tare-to-point pose difference, linearised (`cdpr.analysis.reduction`).",
         "",
         "![tensions](tensions.png)",
         "",
@@ -428,36 +633,72 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]:
-    """Analyse one run and write its folder atomically; returns the summary."""
-    run = load_run(path)
-    df = analyze_arrays(run, opts)
+def _options_json(opts: AnalyzeOptions) -> Any:
+    return json.loads(
+        json.dumps(asdict(opts), default=lambda o: list(o) if isinstance(o, tuple) else str(o))
+    )
+
+
+def run_fingerprint(path: str, opts: AnalyzeOptions) -> dict[str, Any]:
+    """The input fingerprint of one run's analysis (:mod:`cdpr.pipelines.freshness`): the run
+    file, the balance calibration, the virtual rig's truth file beside the run (absent is recorded
+    too), the options and the software version."""
+    p = Path(path)
+    truth = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
+    return fingerprint(p, _options_json(opts), __version__, [opts.balance_file, truth])
+
+
+def result_folder(path: str, out_dir: str) -> Path:
+    """``OUT/<run stem>``: where the results of run ``path`` go."""
+    return Path(out_dir) / Path(path).name.removesuffix(".mcap")
+
+
+def analyze_run(
+    path: str, out_dir: str, opts: AnalyzeOptions, fp: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Analyse one run and write its folder atomically; returns the summary (with ``fp``, the
+    input fingerprint, computed here when not given)."""
+    if fp is None:
+        fp = run_fingerprint(path, opts)
+    try:
+        run = load_run(path)
+        df, red = analyze_arrays(run, opts)
+    except ConfigError:
+        raise
+    except CdprError as exc:  # name the file in the one line
+        raise ConfigError(str(path), "", str(exc)) from None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    final = out / run.path.name.removesuffix(".mcap")
+    final = result_folder(path, out_dir)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=out))
     try:
-        summary = {
+        dmax = df["check_max_abs_dT_N"]
+        summary: dict[str, Any] = {
             "run": str(run.path),
-            "run_sha256": file_sha256(run.path),
+            "run_sha256": fp["run_sha256"],
             "software_version": __version__,
+            "fingerprint": fp,
             "rig": run.rig.name,
             "pose_source": run.pose_source,
-            "options": json.loads(json.dumps(asdict(opts), default=float)),
-            "segments": len(df),
-            "check_max_abs_dT_N": float(df["check_max_abs_dT_N"].max()),
-            "check_pass": bool((df["check_max_abs_dT_N"] <= opts.check_limit_N).all()),
+            "options": _options_json(opts),
+            "balance_file": None
+            if opts.balance_file is None
+            else f"{opts.balance_file} sha256={file_sha256(opts.balance_file)}",
+            "points": len(df),
+            "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
+            "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
+            "reduction": red,
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:
             summary["camera_pose_error_vs_truth"] = pose_err
         if "err_fx_N" in df:
-            on = df[df.wind_off == 0]
+            on = df[df.kind == "wind_on"]
             summary["max_abs_error_vs_truth"] = {
                 c: float(np.abs(on[f"err_{c}"]).max()) for c in WRENCH_COLUMNS
             }
-        df.to_csv(tmp / "segments.csv", index=False)
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        df.to_csv(tmp / "points.csv", index=False)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
@@ -470,11 +711,52 @@ def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]
     return summary
 
 
-def _safe(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]:
+def _safe(path: str, out_dir: str, opts: AnalyzeOptions, fp: dict[str, Any]) -> dict[str, Any]:
     try:
-        return analyze_run(path, out_dir, opts)
+        return analyze_run(path, out_dir, opts, fp)
     except CdprError as exc:
         return {"run": path, "error": str(exc)}
+
+
+def _current_summary(path: str, out_dir: str, fp: dict[str, Any]) -> dict[str, Any] | None:
+    """The recorded summary of run ``path`` when its result folder is current, else None."""
+    folder = result_folder(path, out_dir)
+    if not is_current(folder, fp):
+        return None
+    try:
+        summary: dict[str, Any] = json.loads((folder / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    summary["folder"] = str(folder)
+    summary["skipped"] = "current"
+    return summary
+
+
+class _RunsProgress:
+    """A progress bar across runs on stderr (rich), silent when ``enabled`` is False."""
+
+    def __init__(self, total: int, enabled: bool) -> None:
+        self._bar = None
+        if enabled and total:
+            import sys
+
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+            self._bar = Progress(
+                "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+                TimeElapsedColumn(), console=Console(file=sys.stderr),
+            )  # fmt: skip
+            self._bar.start()
+            self._task = self._bar.add_task("analyze: runs", total=total)
+
+    def advance(self) -> None:
+        if self._bar is not None:
+            self._bar.advance(self._task)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
 
 
 def analyze_runs(
@@ -484,50 +766,68 @@ def analyze_runs(
     scheduler: str | None = None,
     workers: int = 2,
     progress: bool = True,
+    force: bool = False,
 ) -> list[dict[str, Any]]:
-    """Analyse runs in parallel on Dask (a local cluster unless ``scheduler`` is an address); a bad
-    run is reported in its summary (``error``) without stopping the others."""
+    """Analyse runs in parallel on Dask (a local cluster of ``workers`` single-threaded processes,
+    unless ``scheduler`` is the address of a running scheduler); a bad run is reported in its
+    summary (``error``) without stopping the others.  A run whose result folder records the
+    fingerprint of its inputs now is not recomputed (its recorded summary comes back with
+    ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr."""
     if not paths:
         raise ConfigError("runs", "", "no run files given")
-    if len(paths) == 1 and scheduler is None:
-        results = [_safe(paths[0], out_dir, opts)]
-    else:
-        from dask.distributed import Client, LocalCluster, as_completed
+    fps = [run_fingerprint(p, opts) for p in paths]
+    results: list[dict[str, Any] | None] = [
+        None if force else _current_summary(p, out_dir, fp)
+        for p, fp in zip(paths, fps, strict=True)
+    ]
+    todo = [i for i, r in enumerate(results) if r is None]
+    bar = _RunsProgress(len(todo), progress)
+    try:
+        if len(todo) == 1 and scheduler is None:
+            results[todo[0]] = _safe(paths[todo[0]], out_dir, opts, fps[todo[0]])
+            bar.advance()
+        elif todo:
+            from dask.distributed import Client, LocalCluster, as_completed
 
-        cluster = None
-        if scheduler is None:
-            cluster = LocalCluster(
-                n_workers=max(1, min(workers, len(paths))),
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-            )
-        client = Client(scheduler or cluster)
-        try:
-            futures = [client.submit(_safe, p, out_dir, opts, pure=False) for p in paths]
-            done = 0
-            for _ in as_completed(futures):
-                done += 1
-                if progress:
-                    print(f"  analysed {done}/{len(paths)} runs", flush=True)
-            results = client.gather(futures)
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            cluster = None
+            if scheduler is None:
+                cluster = LocalCluster(
+                    n_workers=max(1, min(workers, len(todo))),
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                )
+            client = Client(scheduler or cluster)
+            try:
+                futures = {
+                    client.submit(_safe, paths[i], out_dir, opts, fps[i], pure=False): i
+                    for i in todo
+                }
+                for fut in as_completed(futures):
+                    results[futures[fut]] = fut.result()
+                    bar.advance()
+            finally:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+    finally:
+        bar.close()
+    done = [r for r in results if r is not None]
     lines = [
         "# Analysed runs",
         "",
-        "| run | segments | max ΔT (N) | check | report |",
-        "|---|---|---|---|---|",
+        "| run | points | source | warnings | max ΔT (N) | check | report |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for r in results:
+    for r in done:
         if "error" in r:
-            lines.append(f"| {Path(r['run']).name} | - | - | error: {r['error']} | - |")
+            lines.append(f"| {Path(r['run']).name} | - | - | - | - | error: {r['error']} | - |")
         else:
             rel = Path(r["folder"]).name
+            red = r["reduction"]
             lines.append(
-                f"| {Path(r['run']).name} | {r['segments']} | {r['check_max_abs_dT_N']:.3f} | "
+                f"| {Path(r['run']).name} | {r['points']} | {red['point_source']} | "
+                f"{', '.join(red['warnings']) or '-'} | {r['check_max_abs_dT_N']:.3f} | "
                 f"{'pass' if r['check_pass'] else 'FAIL'} | [{rel}/report.md]({rel}/report.md) |"
             )
     index = Path(out_dir) / "index.md"
@@ -535,4 +835,4 @@ def analyze_runs(
     tmp = index.with_suffix(".md.part")
     tmp.write_text("\n".join(lines) + "\n")
     os.replace(tmp, index)
-    return results
+    return done

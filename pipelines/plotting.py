@@ -42,3 +42,39 @@ def png_figure(
         plt.close(fig)
     with atomic_output(path, "wb") as fh:
         fh.write(buf.getvalue())
+
+
+def minmax_envelope(t: Any, y: Any, n_bins: int = 2000) -> tuple[Any, Any]:
+    """Decimate samples for a line plot: the min/max envelope over ``n_bins`` bins of equal sample
+    count.
+
+    ``t`` (n,) sample times, ``y`` (n,) or (n, m) values.  Returns ``(t_d, y_d)`` with two points
+    per bin, both at the bin's first time: the bin's minimum then its maximum (per column, NaN
+    ignored; a bin of NaN only stays NaN, so a gap stays a gap).  Drawn as a line, this covers
+    exactly the pixels the full series would at a width of up to ``n_bins`` pixels (every spike
+    stays visible), from ``2 * n_bins`` points instead of ``n``.  Series of at most ``2 * n_bins``
+    samples come back unchanged.  Vectorised: one ``fmin/fmax.reduceat`` per call.
+    """
+    import warnings
+
+    import numpy as np
+
+    t = np.asarray(t)
+    y = np.asarray(y, dtype=np.float64)
+    if n_bins < 1:
+        raise ValueError(f"n_bins must be >= 1, got {n_bins}")
+    if y.shape[0] != t.shape[0]:
+        raise ValueError(f"t has {t.shape[0]} samples, y {y.shape[0]}")
+    n = len(t)
+    if n <= 2 * n_bins:
+        return t, y
+    starts = (np.arange(n_bins, dtype=np.int64) * n) // n_bins
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins
+        lo = np.fmin.reduceat(y, starts, axis=0)
+        hi = np.fmax.reduceat(y, starts, axis=0)
+    t_d = np.repeat(t[starts], 2)
+    y_d = np.empty((2 * n_bins, *y.shape[1:]))
+    y_d[0::2] = lo
+    y_d[1::2] = hi
+    return t_d, y_d

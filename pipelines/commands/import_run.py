@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.conventions import POSE_COLUMNS
     from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.rotations import quaternion_from_euler
-    from cdpr.daq.mcap_io import McapRunWriter
+    from cdpr.daq.mcap_writer import McapRunWriter
     from cdpr.daq.recorder import Attachment
     from cdpr.daq.replay import CanReplaySource
     from cdpr.daq.runs import run_metadata
@@ -164,16 +164,7 @@ def run(args: argparse.Namespace) -> int:
                 w.add_attachment(a.name, a.data, a.media_type)
             for stream, desc in src.describe().items():
                 w.add_stream(stream, desc)
-            first_ns: int | None = None
-            with src:
-                while True:
-                    batch = src.read(0.5)
-                    for r in batch:
-                        if first_ns is None:
-                            first_ns = r.t_ns
-                        w.write(r)
-                    if not batch and src.exhausted:
-                        break
+            first_ns, can_stats = _write_can_log(w, src, args.can_log, start_ns)
             if poses is not None:
                 tcol, tv, q6 = poses
                 if tcol == "t_s":
@@ -218,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
                     "stop_reason": "import complete",
                     "message_counts": counts,
                     "source_stats": vars(src.stats),
+                    "can_log": can_stats,
                 },
             )
         finally:
@@ -231,7 +223,161 @@ def run(args: argparse.Namespace) -> int:
         tmp.unlink(missing_ok=True)
         raise
     print(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
+    dropped = can_stats["partial_samples_dropped"]
+    if dropped:
+        print(
+            f"note: dropped {dropped} partial sample(s) where the log starts or ends mid-sample "
+            "(their frames are in /can_raw)"
+        )
     return 0
+
+
+def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | None, dict[str, int]]:
+    """Write the frames of the CAN log (``/can_raw``) and the samples the source's decoder makes of
+    them (``/tensions``), a block of frames at a time (:func:`cdpr.daq.canlog.read_log`: candump
+    parsed with numpy, other formats through python-can), with a progress bar on stderr.
+
+    Times as the replay source gives them (``timestamps = "log"``): a frame's log time is its
+    timestamp, or for a log with relative times (below ~1973) ``start_ns`` plus its offset from the
+    first frame.  A partial sample at the log's very start or end (cut mid-sample) is dropped and
+    counted; partial samples inside the log are kept, flagged (status gap).  Returns the first
+    log time and the counts."""
+    import numpy as np
+
+    from cdpr.daq import can_raw
+    from cdpr.daq.canlog import ERROR, EXTENDED, FD, REMOTE, RX, read_log
+    from cdpr.daq.replay import _RELATIVE_LIMIT_S
+    from cdpr.daq.source import STATUS_GAP
+
+    dec = src.decoder
+    fids = np.array(dec.frame_ids if dec is not None else [], np.int64)
+    stats = {"frames": 0, "samples": 0, "partial_samples_dropped": 0}
+    first_ns: int | None = None
+    log_t0: float | None = None
+    progress = _Progress(Path(path).stat().st_size)
+
+    def emit(samples: list[Any], at_end: bool = False) -> None:
+        for r in samples:
+            # a partial sample where the log starts or ends mid-sample: dropped, counted
+            if (at_end or stats["samples"] == 0) and r.status & STATUS_GAP:
+                stats["partial_samples_dropped"] += 1
+                continue
+            w.write(r)
+            stats["samples"] += 1
+
+    for cols in read_log(path, progress=progress.update):
+        n = len(cols)
+        if log_t0 is None:
+            log_t0 = float(cols.t_s[0])
+        t_bus = cols.t_bus_ns
+        rel = cols.t_s < _RELATIVE_LIMIT_S
+        t_ns = np.where(rel, start_ns + np.rint((cols.t_s - log_t0) * 1e9).astype(np.int64), t_bus)
+        if first_ns is None:
+            first_ns = int(t_ns[0])
+        fl = cols.flags.astype(np.int64)
+        chans = cols.channel
+        ch0 = chans[0]
+        same = np.asarray(chans == ch0, bool)
+        enc_flags = (
+            ((fl & EXTENDED) > 0) * 1 | ((fl & ERROR) > 0) * 2 | ((fl & REMOTE) > 0) * 4
+            | ((fl & FD) > 0) * 8
+        )  # fmt: skip
+        lens = np.where(same & (cols.dlc == 8), cols.length, -1)
+        rec = can_raw.encode_columns(
+            cols.arbitration_id, enc_flags, cols.data, lens, t_bus, ch0, (fl & RX) > 0
+        )
+        w.write_records(
+            "can_raw",
+            t_ns,
+            rec,
+            lambda i, c=cols, t=t_ns: can_raw.raw_reading(c.message(i), int(t[i])),
+        )
+        if dec is not None:
+            lc = np.flatnonzero(
+                np.isin(cols.arbitration_id, fids) & ((fl & (ERROR | REMOTE | EXTENDED)) == 0)
+            )
+            _decode_frames(w, dec, src, cols, lc, t_ns, t_bus, emit, stats)
+        stats["frames"] += n
+    if dec is not None:
+        emit(dec.flush(), at_end=True)
+    progress.done()
+    return first_ns, stats
+
+
+def _decode_frames(
+    w: Any, dec: Any, src: Any, cols: Any, lc: Any, t_ns: Any, t_bus: Any, emit: Any, stats: Any
+) -> None:
+    """Decode the load-cell frames ``lc`` (indexes into ``cols``): whole samples at once with
+    ``dec.decode_block`` where the frames are regular, the others frame by frame with
+    ``dec.decode`` (the same decoder state throughout)."""
+    import numpy as np
+
+    i, n_lc = 0, len(lc)
+    nf = len(dec.frame_ids)
+    by_frame = 0  # frames to decode one by one before trying a block again
+    while i < n_lc:
+        if not by_frame and dec._pending_counter is None and stats["samples"] > 0:
+            sel = lc[i : i + 65536]
+            lost0 = dec.lost
+            m, s = dec.decode_block(
+                cols.arbitration_id[sel], np.zeros(len(sel), bool), cols.data[sel],
+                cols.length[sel], t_ns[sel], t_bus[sel],
+            )  # fmt: skip
+            if m:
+                src.stats.lost += dec.lost - lost0
+                _write_samples(w, s)
+                stats["samples"] += len(s["t_ns"])
+                i += m
+                continue
+            by_frame = nf  # an irregular sample: at least its frames one by one
+        j = int(lc[i])
+        lost0 = dec.lost
+        emit(dec.decode(cols.message(j), int(t_ns[j])))
+        src.stats.lost += dec.lost - lost0
+        i += 1
+        by_frame = max(0, by_frame - 1)
+
+
+def _write_samples(w: Any, s: dict[str, Any]) -> None:
+    """``tensions`` samples given as columns, as the stream's codec writes them (the reading's
+    values in order, then ``status``; floats as ``repr``)."""
+    keys = [k for k in s if k not in ("t_ns", "status")] + ["status"]
+    fmt = "{" + ",".join(
+        f'"{k}":%r' if s[k].dtype.kind == "f" else f'"{k}":%d' for k in keys
+    ) + "}"  # fmt: skip
+    rows = zip(*[s[k].tolist() for k in keys], strict=True)
+    w.write_bodies("tensions", s["t_ns"].tolist(), [(fmt % r).encode() for r in rows])
+
+
+class _Progress:
+    """A progress bar on stderr (bytes of the log read) for imports that take more than ~2 s."""
+
+    def __init__(self, total_bytes: int) -> None:
+        import time
+
+        self.total = max(1, total_bytes)
+        self.t0 = time.monotonic()
+        self.shown = False
+
+    def update(self, done_bytes: int) -> None:
+        import sys
+        import time
+
+        dt = time.monotonic() - self.t0
+        if dt < 2.0:
+            return
+        self.shown = True
+        frac = min(1.0, done_bytes / self.total)
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\rimport [{bar:<30s}] {100 * frac:5.1f}% {dt:6.1f} s")
+        sys.stderr.flush()
+
+    def done(self) -> None:
+        import sys
+
+        if self.shown:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
 
 
 def _check_can_log(path: str) -> None:

@@ -1,0 +1,240 @@
+"""Storage benchmarks (issue 9):
+
+- ``import_candump``: frames/s of ``cdpr import`` of a candump ``.log`` (one minute of 8 load
+  cells at 1 kHz: 240,000 frames, the shipped DBC), against python-can's ``LogReader`` just
+  reading the same file;
+- ``run_read_topic``: rows/s of ``open_run(...).table("/tensions")`` on a run of one minute of 8
+  cells at 1 kHz written by the project's writer, against the ``mcap`` package's
+  ``iter_decoded_messages`` + ``json.loads`` on the same file;
+- ``storage_json_bytes_per_sample``: bytes per tension sample in that run (zstd chunks), for the
+  storage notes in docs/recording.md.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG = ROOT / "data_samples" / "flat_optimum.toml"
+DBC = ROOT / "data_samples" / "loadcell.dbc"
+N_SAMPLES = 60_000  # one minute at 1 kHz
+T0_S = 1_700_000_000
+
+
+def write_candump(path: Path, n_samples: int, seed: int = 0) -> int:
+    """A candump -L log of ``n_samples`` samples of the shipped DBC (4 frames a sample: two int24
+    little-endian counts, a status byte, the counter), written with numpy; returns the frames."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 1 << 23, (n_samples, 8))
+    n = 4 * n_samples
+    data = np.zeros((n, 8), np.uint8)
+    c = counts.reshape(n, 2)
+    for k in range(3):
+        data[:, k] = (c[:, 0] >> (8 * k)) & 0xFF
+        data[:, 3 + k] = (c[:, 1] >> (8 * k)) & 0xFF
+    data[:, 7] = np.repeat(np.arange(n_samples) % 256, 4)
+    ids = np.tile([0x181, 0x281, 0x381, 0x481], n_samples)
+    us = np.repeat(np.arange(n_samples) * 1000, 4) + np.tile([0, 100, 200, 300], n_samples)
+    lines = [
+        f"({T0_S + u // 1_000_000}.{u % 1_000_000:06d}) can0 {i:03X}#{d.hex().upper()}\n"
+        for u, i, d in zip(us.tolist(), ids.tolist(), [bytes(r) for r in data], strict=True)
+    ]
+    path.write_text("".join(lines))
+    return n
+
+
+def write_tension_run(path: Path, n_samples: int) -> None:
+    """A run of ``n_samples`` tension samples of 8 cells with the recorder's fields."""
+    from cdpr.daq.mcap_writer import McapRunWriter
+    from cdpr.daq.source import FieldDescription, Reading, StreamDescription
+
+    cables = [f"c{i}" for i in range(1, 9)]
+    fields = {f"T_{c}_N": FieldDescription("N") for c in cables}
+    fields |= {f"raw_{c}_counts": FieldDescription("counts", "int64") for c in cables}
+    fields |= {f"status_{c}": FieldDescription("", "int64") for c in cables}
+    fields |= {k: FieldDescription("", "int64") for k in ("counter", "seq")}
+    fields["t_bus_ns"] = FieldDescription("ns", "int64")
+    rng = np.random.default_rng(1)
+    T = rng.uniform(35.0, 300.0, (n_samples, 8)).tolist()
+    t0 = T0_S * 10**9
+    w = McapRunWriter(path)
+    w.add_stream("tensions", StreamDescription(fields, 1000.0, "bench"))
+    batch = []
+    for i in range(n_samples):
+        v = {f"T_{c}_N": T[i][j] for j, c in enumerate(cables)}
+        v |= {f"raw_{c}_counts": int(T[i][j] * 1000) for j, c in enumerate(cables)}
+        v |= {f"status_{c}": 0 for c in cables}
+        v |= {"counter": i % 256, "seq": i, "t_bus_ns": t0 + i * 1_000_000 + 7}
+        batch.append(Reading("tensions", t0 + i * 1_000_000, v))
+        if len(batch) == 1000:
+            w.write_many(batch)
+            batch = []
+    w.write_many(batch)
+    w.finish()
+
+
+def _python_can_read(path: Path) -> int:
+    import can
+
+    return sum(1 for _ in can.LogReader(str(path)))
+
+
+def _mcap_json_read(path: Path) -> int:
+    from mcap.reader import make_reader
+
+    with path.open("rb") as fh:
+        rows = [
+            json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(topics=["/tensions"])
+        ]
+    return len(rows)
+
+
+def run() -> dict[str, dict]:
+    from cdpr.daq.run_reader import open_run
+    from cdpr.pipelines.cli import main
+    from cdpr.pipelines.commands import import_run  # noqa: F401  (imports not timed)
+    from cdpr.pipelines.config import load_rig  # noqa: F401
+
+    out: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        log = tmp / "bench.log"
+        n_frames = write_candump(log, N_SAMPLES)
+        t = time.perf_counter()
+        assert _python_can_read(log) == n_frames
+        peer_s = time.perf_counter() - t
+        t = time.perf_counter()
+        rc = main(["import", "--can-log", str(log), "--dbc", str(DBC), "--rig", str(RIG),
+                   "--out", str(tmp / "imp.mcap")])  # fmt: skip
+        imp_s = time.perf_counter() - t
+        assert rc == 0
+        from cdpr.daq.canlog import read_candump
+
+        t = time.perf_counter()
+        assert sum(len(c) for c in read_candump(log)) == n_frames
+        parse_s = time.perf_counter() - t
+        out["import_candump"] = {
+            "value": n_frames / imp_s,
+            "unit": "frames/s",
+            "peer": "python-can LogReader reading the same candump file",
+            "peer_value": n_frames / peer_s,
+            "context": f"{n_frames} frames (1 min, 8 cells at 1 kHz); the numpy candump parser "
+            f"alone: {n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader)",
+        }
+
+        run_path = tmp / "tensions.mcap"
+        write_tension_run(run_path, N_SAMPLES)
+        t = time.perf_counter()
+        n_peer = _mcap_json_read(run_path)
+        peer_s = time.perf_counter() - t
+        t = time.perf_counter()
+        with open_run(run_path) as r:
+            n_rows = len(r.table("/tensions"))
+        read_s = time.perf_counter() - t
+        assert n_rows == n_peer == N_SAMPLES
+        out["run_read_topic"] = {
+            "value": n_rows / read_s,
+            "unit": "rows/s",
+            "peer": "mcap iter_decoded_messages + json.loads, same file",
+            "peer_value": n_peer / peer_s,
+            "context": f"{N_SAMPLES} samples of 8 cells (27 fields), per-sample JSON, zstd",
+        }
+        out.update(_storage_options(tmp, run_path))
+        out["storage_json_bytes_per_sample"] = {
+            "value": run_path.stat().st_size / N_SAMPLES,
+            "unit": "B/sample",
+            "context": "file bytes per tension sample (8 cells, 27 fields) with zstd chunks",
+        }
+    return out
+
+
+def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
+    """The storage options measured on the same samples as ``json_run``: binary blocks (one MCAP
+    message of 100 samples: int64 times + float64/int64 columns, as raw little-endian arrays; the
+    ``mcap`` package's own ``Writer``), read back with ``numpy.frombuffer``; and the ``mcap``
+    package's ``Writer`` writing the JSON messages (the writer option)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from cdpr.daq.run_reader import open_run
+
+    with open_run(json_run) as r:
+        df = r.table("/tensions")
+    cols = [c for c in df.columns if c != "t_ns"]
+    arr = np.empty((len(df), len(cols) + 1), np.float64)
+    block = tmp / "blocks.mcap"
+    with block.open("wb") as fh:
+        w = Writer(fh, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema("cdpr.tensions_block", "", b"")
+        cid = w.register_channel("/tensions_block", "cdpr.block.v0", sid)
+        t = df["t_ns"].to_numpy(np.int64)
+        vals = df[cols].to_numpy(np.float64)
+        for a in range(0, len(df), 100):
+            body = t[a : a + 100].tobytes() + np.ascontiguousarray(vals[a : a + 100]).tobytes()
+            w.add_message(cid, int(t[a]), body, int(t[a]))
+        w.finish()
+    tt = time.perf_counter()
+    parts = []
+    with block.open("rb") as fh:
+        for _, _, m in make_reader(fh).iter_messages():
+            k = len(m.data) // (8 * (len(cols) + 1))
+            parts.append(np.frombuffer(m.data, np.float64, offset=8 * k).reshape(k, len(cols)))
+    got = np.concatenate(parts)
+    block_s = time.perf_counter() - tt
+    assert got.shape == (len(df), len(cols)) and arr.shape[0] == len(df)
+
+    # the mcap package's Writer on the JSON messages (what a Writer subclass would cost)
+    with json_run.open("rb") as fh:
+        msgs = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages()]
+    tt = time.perf_counter()
+    with (tmp / "w_mcap.mcap").open("wb") as fh:
+        w = Writer(fh, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema("s", "jsonschema", b"{}")
+        cid = w.register_channel("/tensions", "json", sid)
+        for k, (ts, data) in enumerate(msgs):
+            w.add_message(cid, ts, data, ts, k)
+        w.finish()
+    mcap_w_s = time.perf_counter() - tt
+    from cdpr.daq.mcap_writer import _ChunkedWriter
+
+    tt = time.perf_counter()
+    with (tmp / "w_cdpr.mcap").open("wb") as fh:
+        cw = _ChunkedWriter(fh, 256 * 1024, "zstd")
+        cw.start("", "bench")
+        sid = cw.register_schema("s", "jsonschema", b"{}")
+        cid = cw.register_channel("/tensions", "json", sid, {})
+        for k, (ts, data) in enumerate(msgs):
+            cw.add_message(cid, ts, data, ts, k)
+        cw.finish()
+    cdpr_w_s = time.perf_counter() - tt
+    n = len(df)
+    return {
+        "storage_block_bytes_per_sample": {
+            "value": block.stat().st_size / n,
+            "unit": "B/sample",
+            "context": "binary blocks of 100 samples (same 27 fields), zstd",
+        },
+        "storage_block_read_rows": {
+            "value": n / block_s,
+            "unit": "rows/s",
+            "context": "binary blocks read with the mcap reader + numpy.frombuffer",
+        },
+        "storage_writer_messages": {
+            "value": n / cdpr_w_s,
+            "unit": "messages/s",
+            "peer": "mcap package Writer.add_message, same messages and chunking",
+            "peer_value": n / mcap_w_s,
+        },
+    }
+
+
+if __name__ == "__main__":
+    for k, v in run().items():
+        print(k, v)

@@ -1,0 +1,397 @@
+"""CAN log files read fast: candump ``-L`` ``.log`` files parsed with numpy, a block of lines at a
+time, into columns (:class:`FrameColumns`); every other format python-can reads (ASC, BLF, TRC,
+...) through python-can's own ``LogReader``, turned into the same columns.
+
+The candump parser gives exactly what python-can's ``CanutilsLogReader`` gives for each line (the
+timestamp is the same float: the text converted by the C library, like ``float()``), about an
+order of magnitude faster.  It reads ``block_bytes`` of the file at a time (bounded memory).  A
+line it cannot parse raises :class:`~cdpr.analysis.errors.ConfigError` naming the file and the line
+number; blank lines are skipped, as python-can does.
+
+Line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame ``<id>#<hex data>``
+(classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD, flags bit 0 bit-rate
+switch, bit 1 error-state indicator); an id of more than 3 hex digits is extended; an id with the
+error flag 0x20000000 and the bus-error bit 0x80 is an error frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdpr.analysis.errors import ConfigError
+
+#: flag bits of :attr:`FrameColumns.flags`
+EXTENDED, ERROR, REMOTE, FD, BRS, ESI, RX = 1, 2, 4, 8, 16, 32, 64
+
+_CAN_ERR_FLAG = 0x20000000
+_CAN_ERR_BUSERROR = 0x00000080
+
+_HEX = np.full(256, 255, np.uint8)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"ABCDEF"):
+    _HEX[_c] = 10 + _i
+_DEC = np.full(256, 255, np.uint8)
+for _i, _c in enumerate(b"0123456789"):
+    _DEC[_c] = _i
+
+
+@dataclass
+class FrameColumns:
+    """A block of CAN frames as columns.
+
+    t_s: timestamps (float64 s, as python-can gives them); arbitration_id (int64); flags (uint8:
+    :data:`EXTENDED`, :data:`ERROR`, :data:`REMOTE`, :data:`FD`, :data:`BRS`, :data:`ESI`,
+    :data:`RX`); dlc (int64); data (n, w) uint8 with ``length`` bytes used per row; channel (n,)
+    objects (str, int or None); line (int64: line number in the file, 0 when unknown).
+    """
+
+    t_s: np.ndarray
+    arbitration_id: np.ndarray
+    flags: np.ndarray
+    dlc: np.ndarray
+    data: np.ndarray
+    length: np.ndarray
+    channel: np.ndarray
+    line: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def t_bus_ns(self) -> np.ndarray:
+        """Timestamps as integer ns (``round(t_s * 1e9)``, as for a recorded frame)."""
+        return np.rint(self.t_s * 1e9).astype(np.int64)
+
+    def message(self, i: int) -> Any:
+        """Frame ``i`` as a ``can.Message``."""
+        import can
+
+        f = int(self.flags[i])
+        return can.Message(
+            timestamp=float(self.t_s[i]),
+            is_error_frame=bool(f & ERROR),
+            arbitration_id=int(self.arbitration_id[i]),
+            is_extended_id=bool(f & EXTENDED),
+            is_remote_frame=bool(f & REMOTE),
+            is_fd=bool(f & FD),
+            is_rx=bool(f & RX),
+            bitrate_switch=bool(f & BRS),
+            error_state_indicator=bool(f & ESI),
+            dlc=int(self.dlc[i]),
+            data=None if f & REMOTE else bytearray(self.data[i, : self.length[i]].tobytes()),
+            channel=self.channel[i],
+        )
+
+    def messages(self) -> list[Any]:
+        return [self.message(i) for i in range(len(self))]
+
+    @staticmethod
+    def from_messages(msgs: list[Any], first_line: int = 0) -> FrameColumns:
+        """Columns of ``can.Message`` objects (the fallback readers)."""
+        n = len(msgs)
+        w = max([8, *(len(m.data) for m in msgs)])
+        data = np.zeros((n, w), np.uint8)
+        length = np.zeros(n, np.int64)
+        for i, m in enumerate(msgs):
+            d = bytes(m.data)
+            data[i, : len(d)] = np.frombuffer(d, np.uint8)
+            length[i] = len(d)
+        flags = np.array(
+            [
+                EXTENDED * bool(m.is_extended_id)
+                | ERROR * bool(m.is_error_frame)
+                | REMOTE * bool(m.is_remote_frame)
+                | FD * bool(m.is_fd)
+                | BRS * bool(m.bitrate_switch)
+                | ESI * bool(m.error_state_indicator)
+                | RX * bool(m.is_rx)
+                for m in msgs
+            ],
+            np.uint8,
+        )
+        ch = np.empty(n, object)
+        ch[:] = [m.channel for m in msgs]
+        return FrameColumns(
+            np.array([m.timestamp for m in msgs], np.float64),
+            np.array([m.arbitration_id for m in msgs], np.int64),
+            flags,
+            np.array([m.dlc for m in msgs], np.int64),
+            data,
+            length,
+            ch,
+            np.arange(first_line, first_line + n, dtype=np.int64)
+            if first_line
+            else np.zeros(n, np.int64),
+        )
+
+
+def _next_at(positions: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """For each value of ``after``, the first of the sorted ``positions`` >= it (or a huge
+    number)."""
+    ext = np.append(positions, np.iinfo(np.int64).max // 2)
+    return ext[np.searchsorted(positions, after)]
+
+
+def _gather(buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int) -> np.ndarray:
+    """(n, width) bytes ``buf[start : start + length]`` per row, left-aligned, zero-padded.
+
+    Lines of one length (a log of one kind of frame) have their fields at evenly spaced starts:
+    those are read through a strided view of the buffer instead of an index per byte."""
+    n = len(start)
+    step = int(start[1] - start[0]) if n > 1 else 1
+    if (
+        n > 1
+        and step > 0
+        and int(start[-1]) + width <= len(buf)
+        and bool(np.all(np.diff(start) == step))
+    ):
+        out = np.lib.stride_tricks.as_strided(
+            buf[int(start[0]) :], shape=(n, width), strides=(step, 1), writeable=False
+        ).copy()
+    else:
+        idx = start[:, None] + np.arange(width)
+        out = buf[np.minimum(idx, len(buf) - 1)]
+    if not bool(np.all(length == width)):
+        out[np.arange(width) >= length[:, None]] = 0
+    return out
+
+
+def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
+    """Parse complete lines ``buf`` (ends with a newline) whose first line is ``first_line``."""
+    nl = np.flatnonzero(buf == 10)
+    starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
+    ends = nl.astype(np.int64)
+    line_no = first_line + np.arange(len(starts), dtype=np.int64)
+    # strip a carriage return and trailing blanks; skip blank lines (as python-can does)
+    while True:
+        last = buf[np.maximum(ends - 1, 0)]
+        trim = (ends > starts) & ((last == 13) | (last == 32) | (last == 9))
+        if not trim.any():
+            break
+        ends = ends - trim
+    first = buf[np.minimum(starts, len(buf) - 1)]
+    lead = (ends > starts) & ((first == 32) | (first == 9))
+    while lead.any():
+        starts = starts + lead
+        first = buf[np.minimum(starts, len(buf) - 1)]
+        lead = (ends > starts) & ((first == 32) | (first == 9))
+    keep = ends > starts
+    starts, ends, line_no = starts[keep], ends[keep], line_no[keep]
+    n = len(starts)
+
+    def bad(mask: np.ndarray, problem: str) -> None:
+        if mask.any():
+            i = int(np.flatnonzero(mask)[0])
+            text = bytes(buf[starts[i] : ends[i]]).decode("latin-1")
+            raise ConfigError(path, f"line {int(line_no[i])}", f"{problem}: {text[:80]!r}")
+
+    if n == 0:
+        return _empty()
+    bad(buf[starts] != 40, "not a candump -L line (expected '(<seconds>) <channel> <id>#<data>')")
+    rpar = _next_at(np.flatnonzero(buf == 41), starts)
+    spaces = np.flatnonzero(buf == 32)
+    sp1 = _next_at(spaces, rpar)
+    sp2 = _next_at(spaces, sp1 + 1)
+    bad((rpar >= ends) | (sp1 != rpar + 1) | (sp2 >= ends) | (sp2 == sp1 + 1),
+        "not a candump -L line (expected '(<seconds>) <channel> <id>#<data>')")  # fmt: skip
+    sp3 = _next_at(spaces, sp2 + 1)
+    frame_end = np.minimum(sp3, ends)
+    # an optional direction token ' R' / ' T' after the frame
+    has_dir = sp3 < ends
+    dir_char = buf[np.minimum(sp3 + 1, len(buf) - 1)] | 32  # lower case
+    bad(has_dir & ((ends != sp3 + 2) | ((dir_char != ord("r")) & (dir_char != ord("t")))),
+        "unexpected text after the frame (expected ' R' or ' T')")  # fmt: skip
+    is_rx = ~has_dir | (dir_char == ord("r"))
+    hashes = np.flatnonzero(buf == 35)
+    h = _next_at(hashes, sp2 + 1)
+    bad(h >= frame_end, "no '#' in the frame")
+
+    # timestamp: the text between the parentheses, converted by the C library like float()
+    tlen = rpar - starts - 1
+    tw = int(tlen.max())
+    ttext = _gather(buf, starts + 1, tlen, tw)
+    t_s = _timestamps(ttext, tlen)
+    if t_s is None:
+        try:
+            t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+        except ValueError:
+            for i in range(n):  # find the line for the message (only on bad input)
+                try:
+                    float(bytes(ttext[i, : tlen[i]]))
+                except ValueError:
+                    bad(np.arange(n) == i, "bad timestamp")
+            raise
+
+    # id: hex digits between the second space and '#'
+    idlen = h - sp2 - 1
+    bad((idlen < 1) | (idlen > 8), "bad CAN id")
+    idtext = _gather(buf, sp2 + 1, idlen, 8)
+    idval = _HEX[idtext]
+    bad(((idval == 255) & (np.arange(8) < idlen[:, None])).any(axis=1), "bad CAN id (not hex)")
+    ids = np.zeros(n, np.int64)
+    for c in range(8):
+        use = c < idlen
+        ids = np.where(use, ids * 16 + idval[:, c], ids)
+    extended = idlen > 3
+
+    # data: after '#': '#<flags>' for FD, 'R[<dlc>]' for remote, else hex pairs
+    d0 = h + 1
+    c0 = buf[np.minimum(d0, len(buf) - 1)]
+    fd = (d0 < frame_end) & (c0 == 35)
+    fdflags = np.where(fd, _HEX[buf[np.minimum(d0 + 1, len(buf) - 1)]], 0)
+    bad(fd & ((d0 + 1 >= frame_end) | (fdflags == 255)), "bad CAN FD flags")
+    dstart = np.where(fd, d0 + 2, d0)
+    cs = buf[np.minimum(dstart, len(buf) - 1)] | 32
+    remote = (dstart < frame_end) & (cs == ord("r"))
+    dlen = np.maximum(frame_end - dstart, 0)
+    rlen = np.where(remote, dlen - 1, 0)  # remote: optional decimal dlc
+    rw = max(1, int(rlen.max()))
+    rtext = _DEC[_gather(buf, dstart + 1, rlen, rw)]
+    bad(remote & ((rtext == 255) & (np.arange(rw) < rlen[:, None])).any(axis=1), "bad remote dlc")
+    rdlc = np.zeros(n, np.int64)
+    for c in range(rw):
+        rdlc = np.where(c < rlen, rdlc * 10 + rtext[:, c], rdlc)
+    hexlen = np.where(remote, 0, dlen)
+    bad((hexlen % 2 == 1) | (hexlen > 128), "bad data (expected up to 64 bytes as hex pairs)")
+    nbytes = hexlen // 2
+    w = max(8, int(nbytes.max()))
+    htext = _HEX[_gather(buf, dstart, hexlen, 2 * w)]
+    bad(((htext == 255) & (np.arange(2 * w) < hexlen[:, None])).any(axis=1), "bad data (not hex)")
+    htext[np.arange(2 * w) >= hexlen[:, None]] = 0
+    data = (htext[:, 0::2] << 4) | htext[:, 1::2]
+    dlc = np.where(remote, rdlc, nbytes)
+
+    # channel: the text between the spaces (few distinct values); digits become an int
+    clen = sp2 - sp1 - 1
+    cw = int(clen.max())
+    ctext = _gather(buf, sp1 + 1, clen, cw).view(f"S{cw}").ravel()
+    uniq, inv = np.unique(ctext, return_inverse=True)
+    names = [u.decode("latin-1") for u in uniq.tolist()]
+    table = np.empty(len(names), object)
+    table[:] = [int(s) if s.isdigit() else s for s in names]
+    channel = table[inv.ravel()]
+
+    error = ((ids & _CAN_ERR_FLAG) != 0) & ((ids & _CAN_ERR_BUSERROR) != 0)
+    flags = (
+        EXTENDED * extended
+        | REMOTE * remote
+        | FD * fd
+        | BRS * (fd & ((fdflags & 1) != 0))
+        | ESI * (fd & ((fdflags & 2) != 0))
+        | RX * is_rx
+    ).astype(np.uint8)
+    ids = ids & 0x1FFFFFFF
+    if error.any():  # python-can: Message(timestamp=..., is_error_frame=True), nothing else
+        flags = np.where(error, ERROR | EXTENDED | RX, flags).astype(np.uint8)
+        ids = np.where(error, 0, ids)
+        dlc = np.where(error, 0, dlc)
+        nbytes = np.where(error, 0, nbytes)
+        data[error] = 0
+        channel = channel.copy()
+        channel[error] = None
+    nbytes = np.where(remote, 0, nbytes)
+    return FrameColumns(t_s, ids, flags, dlc.astype(np.int64), data, nbytes.astype(np.int64),
+                        channel, line_no)  # fmt: skip
+
+
+def _timestamps(ttext: np.ndarray, tlen: np.ndarray) -> np.ndarray | None:
+    """float64 of decimal texts ``<digits>.<digits>`` (n, w) exactly as ``float()`` gives them, or
+    None when a text is not of that form.  The digits make an integer N < 2**53 and the value is
+    N / 10**k for k fraction digits: both exact in float64, so IEEE division rounds the quotient
+    correctly, which is what ``float()`` does with the text."""
+    n, w = ttext.shape
+    inside = np.arange(w) < tlen[:, None]
+    digit = _DEC[ttext]
+    isdot = ttext == 46
+    if not np.all(((digit != 255) | isdot) | ~inside):
+        return None
+    ndots = np.count_nonzero(isdot & inside, axis=1)
+    if np.any(ndots > 1) or np.any(tlen - ndots > 15):  # N must stay below 2**53
+        return None
+    dotpos = np.where(ndots == 1, np.argmax(isdot, axis=1), tlen)
+    k = np.where(ndots == 1, tlen - dotpos - 1, 0)
+    N = np.zeros(n, np.int64)
+    for c in range(w):
+        use = inside[:, c] & ~isdot[:, c]
+        N = np.where(use, N * 10 + digit[:, c], N)
+    return N.astype(np.float64) / 10.0 ** k.astype(np.float64)
+
+
+def _empty() -> FrameColumns:
+    return FrameColumns(
+        np.empty(0, np.float64), np.empty(0, np.int64), np.empty(0, np.uint8),
+        np.empty(0, np.int64), np.empty((0, 8), np.uint8), np.empty(0, np.int64),
+        np.empty(0, object), np.empty(0, np.int64),
+    )  # fmt: skip
+
+
+def read_candump(
+    path: str | os.PathLike[str],
+    block_bytes: int = 8 << 20,
+    progress: Callable[[int], None] | None = None,
+) -> Iterator[FrameColumns]:
+    """The frames of a candump ``-L`` log, ``block_bytes`` of text at a time (``progress(bytes
+    read)`` after each block)."""
+    p = Path(path)
+    line = 1
+    done = 0
+    with p.open("rb") as fh:
+        rest = b""
+        while True:
+            chunk = fh.read(block_bytes)
+            if not chunk:
+                break
+            done += len(chunk)
+            if progress is not None:
+                progress(done)
+            text = rest + chunk
+            cut = text.rfind(b"\n")
+            if cut < 0:
+                rest = text
+                continue
+            rest = text[cut + 1 :]
+            block = np.frombuffer(text[: cut + 1], np.uint8)
+            cols = _parse_block(block, str(p), line)
+            line += int(np.count_nonzero(block == 10))
+            if len(cols):
+                yield cols
+        if rest.strip():
+            cols = _parse_block(np.frombuffer(rest + b"\n", np.uint8), str(p), line)
+            if len(cols):
+                yield cols
+
+
+def read_log(
+    path: str | os.PathLike[str],
+    block_frames: int = 100_000,
+    progress: Callable[[int], None] | None = None,
+) -> Iterator[FrameColumns]:
+    """The frames of any CAN log: candump ``.log`` with :func:`read_candump`, other formats with
+    python-can's ``LogReader`` (``block_frames`` at a time)."""
+    p = Path(path)
+    if p.suffix.lower() == ".log":
+        yield from read_candump(p, progress=progress)
+        return
+    import can
+
+    reader = can.LogReader(str(p))
+    try:
+        block: list[Any] = []
+        for m in reader:
+            block.append(m)
+            if len(block) >= block_frames:
+                yield FrameColumns.from_messages(block)
+                block = []
+        if block:
+            yield FrameColumns.from_messages(block)
+    finally:
+        stop = getattr(reader, "stop", None)
+        if stop is not None:
+            stop()
