@@ -44,7 +44,6 @@ from cdpr.analysis.errors import CdprError, ConfigError
 from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix, rotation_from_euler
-
 from cdpr.daq.schema import rig_from_mapping
 
 from . import __version__

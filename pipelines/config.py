@@ -11,7 +11,6 @@ import hashlib
 import io
 import os
 import re
-import tomllib
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path

@@ -17,9 +17,9 @@ from mcap.reader import make_reader
 
 from cdpr.analysis.aero import attitude_from_flow_angles, flow_angles
 from cdpr.analysis.errors import ConfigError
-from cdpr.daq.schema import rig_from_mapping
 from cdpr.daq.aero_model import AeroModel
 from cdpr.daq.files import load_toml
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
 from cdpr.pipelines.campaign import load_test_matrix, schedule_mapping
 
