@@ -246,6 +246,8 @@ def _centroid(
         return None
     border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
     bg = float(np.median(border))
+    if bg > thr:  # the surroundings are as bright as the blob (a grey or washed-out frame)
+        return None
     mask = win > thr
     area = float(mask.sum())
     if area == 0:
@@ -315,6 +317,14 @@ def detect_blobs(
         )
         for k in range(1, n):
             bx, by, bw, bh, area = stats[k]
+            # a blob touching the image border is cut: its centroid is biased, it is not measured
+            if x0 + bx == 0 or y0 + by == 0 or x0 + bx + bw == w or y0 + by + bh == h:
+                continue
+            # a blob cut by a search window (not by the image border): search the whole frame
+            if predicted is not None and (
+                bx == 0 or by == 0 or bx + bw == x1 - x0 or by + bh == y1 - y0
+            ):
+                return detect_blobs(gray, s, None)
             if area < s.min_area_px or area > s.max_area_px:
                 continue
             pad = 3
@@ -459,7 +469,7 @@ class PointMatcher:
             max_rms_px=max(4 * self.sigma_px * np.sqrt(2), 0.3),
         )
         flags |= pose.flags
-        if sel.sum() < self.min_markers:
+        if pose.n_points < self.min_markers:  # counted after outlier rejection
             flags |= FLAG_FEW_POINTS
         if margin < self.margin_min:
             flags |= FLAG_AMBIGUOUS

@@ -177,6 +177,8 @@ def estimate_pose(
         flags |= FLAG_OUTLIERS
         rvec, tvec = cv.refine_pnp_lm(obj[inl], img[inl], K, dist, rvec, tvec)
         res = cv.project_points(obj, rvec, tvec, K, dist) - img
+    elif bad.any():  # too few points would remain: keep them all, and say the pose is untrustworthy
+        flags |= FLAG_OUTLIERS | FLAG_FEW_POINTS
     if tvec[2] <= 0:
         return failed_pose(FLAG_NO_POSE)
     rms = float(np.sqrt(np.mean(np.sum(res[inl] ** 2, axis=1))))
