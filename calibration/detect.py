@@ -18,9 +18,12 @@ whose labelling is not unique is flagged ``FLAG_AMBIGUOUS``; labels are never gu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from cdpr.analysis.errors import InputError
 
 from . import cv
 from .camera_model import CameraModel
@@ -128,6 +131,25 @@ def refine_marker_corners(
     return np.where(ok[:, None, None], C, C0), ok
 
 
+def check_frame(gray: NDArray[Any], size_wh: tuple[int, int] | None = None) -> None:
+    """Raise :class:`InputError` unless ``gray`` is a single-channel uint8 image (of ``size_wh``
+    (width, height) px when given: a frame of another size than the calibrated camera's would give
+    a pose far off, silently)."""
+    a = np.asarray(gray)
+    if a.ndim != 2:
+        raise InputError(
+            f"frame: expected a gray (H, W) image, got shape {a.shape} "
+            "(convert colour frames to gray first: cdpr.calibration.cv.to_gray)"
+        )
+    if a.dtype != np.uint8:
+        raise InputError(f"frame: expected 8-bit pixels (uint8), got {a.dtype}")
+    if size_wh is not None and (a.shape[1], a.shape[0]) != tuple(size_wh):
+        raise InputError(
+            f"frame: {a.shape[1]}x{a.shape[0]} px, the camera model is "
+            f"{size_wh[0]}x{size_wh[1]} px (wrong camera, or a resized or cropped frame)"
+        )
+
+
 @dataclass
 class FiducialDetector:
     """ArUco/AprilTag detection for a fiducial layout, with edge refinement and ROI tracking.
@@ -172,6 +194,7 @@ class FiducialDetector:
         ``redecode_every``-th frame, or when that fails, the markers are decoded again in windows
         around the prediction, and if any is missing, on the full frame.
         """
+        check_frame(gray, self.camera.image_size_px)
         ids: I64
         corners: F64
         self._frames += 1
@@ -278,6 +301,7 @@ def detect_blobs(
     frame is scanned on a ``coarse_factor`` downsampled copy and each blob measured at full size.
     """
     s = settings or BlobSettings()
+    check_frame(gray)
     h, w = gray.shape
     windows: list[tuple[int, int, int, int]] = []
     if predicted is not None:

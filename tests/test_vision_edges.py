@@ -181,3 +181,21 @@ def test_camera_source_can_be_told_not_to_track(setup, tmp_path: Path, monkeypat
         whole_frame_first = searched[0]
         assert whole_frame_first
         assert all(searched) is (not track)
+
+
+def test_colour_and_resized_frames_are_clear_errors(setup) -> None:
+    from cdpr.analysis.errors import InputError
+    from cdpr.calibration.detect import FiducialDetector, detect_blobs
+    from cdpr.calibration.markers import flat_prototype_fiducial_layout
+
+    cam, layout = setup
+    rng = np.random.default_rng(15)
+    img = _draw(cam, layout, P0, np.eye(3), rng)
+    colour = np.repeat(img[:, :, None], 3, axis=2)
+    with pytest.raises(InputError, match=r"gray \(H, W\) image, got shape \(1024, 1280, 3\)"):
+        FramePoseEstimator(cam, layout, reference=(P0, np.eye(3))).estimate(colour)
+    with pytest.raises(InputError, match="gray"):
+        detect_blobs(colour)
+    fid = FiducialDetector(flat_prototype_fiducial_layout(), cam)
+    with pytest.raises(InputError, match="640x512 px, the camera model is 1280x1024"):
+        fid.detect(np.ascontiguousarray(img[::2, ::2]))
