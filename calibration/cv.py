@@ -427,8 +427,49 @@ class VideoWriter:
 
 
 # ------------------------------------------------------------------------------------ ArUco
+DICTIONARY_FILE_EXTENSIONS = (".yml", ".yaml", ".json", ".xml")
+
+_DICT_CACHE: dict[str, Any] = {}
+"""Dictionaries read from files, by path (a cache, not state: the file is read once)."""
+
+
+def _dictionary_from_file(path: str) -> Any:
+    """A custom dictionary from an OpenCV FileStorage file (``nmarkers``, ``markersize``,
+    ``maxCorrectionBits``, ``marker_0`` ... as bit strings), the format OpenCV's
+    ``Dictionary::writeDictionary`` writes and its ArUco tutorials read."""
+    if path in _DICT_CACHE:
+        return _DICT_CACHE[path]
+    if not os.path.isfile(path):
+        raise ConfigError(path, "", "dictionary file not found")
+    try:
+        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise ConfigError(path, "", f"not an OpenCV FileStorage file: {exc.err}") from None
+    try:
+        for key in ("nmarkers", "markersize"):
+            if fs.getNode(key).empty():
+                raise ConfigError(path, key, "missing")
+        n, size = int(fs.getNode("nmarkers").real()), int(fs.getNode("markersize").real())
+        for i in range(n):
+            bits = fs.getNode(f"marker_{i}").string()
+            if len(bits) != size * size or set(bits) - {"0", "1"}:
+                raise ConfigError(
+                    path, f"marker_{i}", f"expected {size * size} bits of 0/1, got {bits!r}"
+                )
+        d = cv2.aruco.Dictionary()
+        if not d.readDictionary(fs.root()):
+            raise ConfigError(path, "", "OpenCV cannot read this dictionary")
+    finally:
+        fs.release()
+    _DICT_CACHE[path] = d
+    return d
+
+
 def aruco_dictionary(name: str) -> Any:
-    """A predefined ArUco/AprilTag dictionary by name (``"DICT_4X4_50"``, ``"DICT_APRILTAG_36h11"``)."""
+    """A predefined ArUco/AprilTag dictionary by name (``"DICT_4X4_50"``, ``"DICT_APRILTAG_36h11"``),
+    or a custom one from a file path ending in .yml, .yaml, .json or .xml."""
+    if name.lower().endswith(DICTIONARY_FILE_EXTENSIONS):
+        return _dictionary_from_file(name)
     key = name if name.startswith("DICT_") else f"DICT_{name}"
     if not hasattr(cv2.aruco, key):
         names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))

@@ -18,9 +18,12 @@ whose labelling is not unique is flagged ``FLAG_AMBIGUOUS``; labels are never gu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from cdpr.analysis.errors import InputError
 
 from . import cv
 from .camera_model import CameraModel
@@ -128,6 +131,25 @@ def refine_marker_corners(
     return np.where(ok[:, None, None], C, C0), ok
 
 
+def check_frame(gray: NDArray[Any], size_wh: tuple[int, int] | None = None) -> None:
+    """Raise :class:`InputError` unless ``gray`` is a single-channel uint8 image (of ``size_wh``
+    (width, height) px when given: a frame of another size than the calibrated camera's would give
+    a pose far off, silently)."""
+    a = np.asarray(gray)
+    if a.ndim != 2:
+        raise InputError(
+            f"frame: expected a gray (H, W) image, got shape {a.shape} "
+            "(convert colour frames to gray first: cdpr.calibration.cv.to_gray)"
+        )
+    if a.dtype != np.uint8:
+        raise InputError(f"frame: expected 8-bit pixels (uint8), got {a.dtype}")
+    if size_wh is not None and (a.shape[1], a.shape[0]) != tuple(size_wh):
+        raise InputError(
+            f"frame: {a.shape[1]}x{a.shape[0]} px, the camera model is "
+            f"{size_wh[0]}x{size_wh[1]} px (wrong camera, or a resized or cropped frame)"
+        )
+
+
 @dataclass
 class FiducialDetector:
     """ArUco/AprilTag detection for a fiducial layout, with edge refinement and ROI tracking.
@@ -172,6 +194,7 @@ class FiducialDetector:
         ``redecode_every``-th frame, or when that fails, the markers are decoded again in windows
         around the prediction, and if any is missing, on the full frame.
         """
+        check_frame(gray, self.camera.image_size_px)
         ids: I64
         corners: F64
         self._frames += 1
@@ -246,6 +269,8 @@ def _centroid(
         return None
     border = np.concatenate([win[0], win[-1], win[:, 0], win[:, -1]])
     bg = float(np.median(border))
+    if bg > thr:  # the surroundings are as bright as the blob (a grey or washed-out frame)
+        return None
     mask = win > thr
     area = float(mask.sum())
     if area == 0:
@@ -276,6 +301,7 @@ def detect_blobs(
     frame is scanned on a ``coarse_factor`` downsampled copy and each blob measured at full size.
     """
     s = settings or BlobSettings()
+    check_frame(gray)
     h, w = gray.shape
     windows: list[tuple[int, int, int, int]] = []
     if predicted is not None:
@@ -315,6 +341,14 @@ def detect_blobs(
         )
         for k in range(1, n):
             bx, by, bw, bh, area = stats[k]
+            # a blob touching the image border is cut: its centroid is biased, it is not measured
+            if x0 + bx == 0 or y0 + by == 0 or x0 + bx + bw == w or y0 + by + bh == h:
+                continue
+            # a blob cut by a search window (not by the image border): search the whole frame
+            if predicted is not None and (
+                bx == 0 or by == 0 or bx + bw == x1 - x0 or by + bh == y1 - y0
+            ):
+                return detect_blobs(gray, s, None)
             if area < s.min_area_px or area > s.max_area_px:
                 continue
             pad = 3
@@ -459,7 +493,7 @@ class PointMatcher:
             max_rms_px=max(4 * self.sigma_px * np.sqrt(2), 0.3),
         )
         flags |= pose.flags
-        if sel.sum() < self.min_markers:
+        if pose.n_points < self.min_markers:  # counted after outlier rejection
             flags |= FLAG_FEW_POINTS
         if margin < self.margin_min:
             flags |= FLAG_AMBIGUOUS

@@ -388,13 +388,14 @@ def extrinsics_from_fiducials(
 def _extrinsics(
     camera: CameraModel, obj_O: ArrayLike, img: ArrayLike, sigma_px: float, method: str
 ) -> CameraModel:
-    R_O_C, c_O, cov, rms = camera_pose_from_points(obj_O, img, camera, sigma_px)
+    R_O_C, c_O, cov, rms, sigma_used = camera_pose_from_points(obj_O, img, camera, sigma_px)
     info = {
         "method": method,
         "rms_px": rms,
         "n_points": int(np.asarray(img).reshape(-1, 2).shape[0]),
         "std_position_O_m": np.sqrt(np.diag(cov)[:3]).tolist(),
         "std_rotation_O_rad": np.sqrt(np.diag(cov)[3:]).tolist(),
-        "sigma_px_assumed": sigma_px,
+        "sigma_px_prior": sigma_px,
+        "sigma_px_from_residuals": sigma_used,
     }
     return camera.with_extrinsics(R_O_C, c_O, info)

@@ -30,6 +30,7 @@ TOML layout (loaded by ``cdpr.pipelines.vision_config.load_marker_layout``)::
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -183,10 +184,19 @@ def layout_from_mapping(data: dict[str, Any], source: str = "<layout>") -> Marke
     layout = MarkerLayout(kind=kind, frame=frame, name=str(data.get("name", "")))
     if kind == "fiducial":
         dictionary = data.get("dictionary")
-        if not isinstance(dictionary, str) or not dictionary.startswith("DICT_"):
+        is_file = isinstance(dictionary, str) and dictionary.lower().endswith(
+            (".yml", ".yaml", ".json", ".xml")
+        )
+        if not isinstance(dictionary, str) or not (dictionary.startswith("DICT_") or is_file):
             raise ConfigError(
-                source, "dictionary", f"expected a name like 'DICT_4X4_50', got {dictionary!r}"
+                source,
+                "dictionary",
+                "expected a name like 'DICT_4X4_50' or a dictionary file (.yml, .yaml, .json, "
+                f".xml), got {dictionary!r}",
             )
+        if is_file and not os.path.isabs(dictionary) and source not in ("", "<layout>"):
+            # a custom dictionary file is found beside the layout file
+            dictionary = os.path.join(os.path.dirname(os.path.abspath(source)), dictionary)
         layout.dictionary = dictionary
         qz = data.get("quiet_zone_cells", 1.0)
         if not isinstance(qz, int | float) or qz < 0:

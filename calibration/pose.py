@@ -3,9 +3,16 @@
 Pipeline of :func:`estimate_pose`: SQPnP (or the iterative solver from a guess) for a first pose of
 {P} in the camera frame {C}, Levenberg-Marquardt refinement (``cv2.solvePnPRefineLM``), residuals,
 points beyond ``outlier_k`` sigma dropped and the pose refined again, then the covariance
-``Sigma = sigma_px^2 (J^T J)^-1`` from the projection Jacobian ``J`` (2N x 6) with respect to a
+``Sigma = s^2 (J^T J)^-1`` from the projection Jacobian ``J`` (2N x 6) with respect to a
 translation ``dt_C`` and a small rotation ``dtheta_C`` applied on the left (``R' = exp(dtheta) R``),
 and everything expressed in the tunnel frame {O} through the camera extrinsics.
+
+Noise from the data: ``s^2 = (nu0 sigma_px^2 + RSS) / (nu0 + 2n - 6)``, the inliers' residual sum
+of squares over its ``2n - 6`` degrees of freedom, pooled with the detector's nominal ``sigma_px``
+only where the data are thin: ``nu0 = max(0, 6 - (2n - 6))`` (``prior_dof`` overrides it), so from
+6 points on the residuals alone decide, and with 4 or 5 points the nominal value keeps one lucky
+small residual from making the pose look exact.  ``s`` is returned in ``extra["sigma_px"]`` (and
+the residual degrees of freedom in ``extra["dof"]``).
 
 Covariance layout (6 x 6): ``[position_O_m (3), rotation_O_rad (3)]``, the rotation part being a
 small rotation vector in {O} axes applied on the left: ``R_est = exp([dtheta]x) R_true``.
@@ -43,6 +50,10 @@ FLAG_NAMES = {
 }
 BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL
 """Flags that make a pose unusable for analysis (outliers and resets are informational)."""
+
+
+MIN_NOISE_DOF = 6.0
+"""Residual degrees of freedom below which the nominal sigma_px fills in (see the module doc)."""
 
 
 def flag_names(flags: int) -> list[str]:
@@ -133,13 +144,15 @@ def estimate_pose(
     min_points: int = 4,
     outlier_k: float = 5.0,
     max_rms_px: float = 2.0,
+    prior_dof: float | None = None,
 ) -> PoseEstimate:
     """Pose of {P} from (N, 3) points in {P} (m) and their (N, 2) image positions (px).
 
-    sigma_px: standard deviation of one image coordinate of one point (px), the noise model of the
-    detector; the covariance scales with its square.  guess: optional ``(rvec_C, tvec_C)`` to start
-    the iterative solver from (tracking).  Returns a :class:`PoseEstimate`; on failure its flags
-    say why (the pose is then NaN or untrustworthy).
+    sigma_px: nominal standard deviation of one image coordinate of one point (px): the outlier
+    gate and the prior of the noise estimate (module docstring), pooled with the residuals.
+    guess: optional ``(rvec_C, tvec_C)`` to start the iterative solver from (tracking).
+    Returns a :class:`PoseEstimate`; on failure its flags say why (the pose is then NaN or
+    untrustworthy).
     """
     obj = np.asarray(object_points_P, np.float64).reshape(-1, 3)
     img = np.asarray(image_points_px, np.float64).reshape(-1, 2)
@@ -164,14 +177,21 @@ def estimate_pose(
         flags |= FLAG_OUTLIERS
         rvec, tvec = cv.refine_pnp_lm(obj[inl], img[inl], K, dist, rvec, tvec)
         res = cv.project_points(obj, rvec, tvec, K, dist) - img
+    elif bad.any():  # too few points would remain: keep them all, and say the pose is untrustworthy
+        flags |= FLAG_OUTLIERS | FLAG_FEW_POINTS
     if tvec[2] <= 0:
         return failed_pose(FLAG_NO_POSE)
     rms = float(np.sqrt(np.mean(np.sum(res[inl] ** 2, axis=1))))
     if rms > max_rms_px:
         flags |= FLAG_HIGH_RESIDUAL
     J = projection_jacobian(obj[inl], rvec, tvec, K, dist)
+    # noise from the data (module docstring)
+    dof = 2 * int(inl.sum()) - 6
+    rss = float(np.sum(res[inl] ** 2))
+    nu0 = max(0.0, MIN_NOISE_DOF - dof) if prior_dof is None else float(prior_dof)
+    sigma2 = (nu0 * sigma_px**2 + rss) / max(nu0 + dof, 1e-12)
     try:
-        cov_C = sigma_px**2 * np.linalg.inv(J.T @ J)
+        cov_C = sigma2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         cov_C = np.full((6, 6), np.inf)
         flags |= FLAG_FEW_POINTS
@@ -181,7 +201,8 @@ def estimate_pose(
     cov_O = B @ cov_C @ B.T
     R_C_P = cv.rodrigues(rvec)
     p_O, R_O_P = camera.pose_O_from_C(R_C_P, tvec)
-    return PoseEstimate(p_O, R_O_P, rvec, tvec, rms, res, inl, cov_O, flags, int(inl.sum()))
+    extra = {"sigma_px": float(np.sqrt(sigma2)), "dof": float(dof)}
+    return PoseEstimate(p_O, R_O_P, rvec, tvec, rms, res, inl, cov_O, flags, int(inl.sum()), extra)
 
 
 def pose_error(
@@ -205,8 +226,9 @@ def camera_pose_from_points(
     image_points_px: ArrayLike,
     camera: CameraModel,
     sigma_px: float,
-) -> tuple[F64, F64, F64, float]:
-    """Extrinsics from points known in {O}: ``(R_O_C, position_O_m, covariance (6, 6), rms_px)``.
+) -> tuple[F64, F64, F64, float, float]:
+    """Extrinsics from points known in {O}: ``(R_O_C, position_O_m, covariance (6, 6), rms_px,
+    sigma_px used for the covariance)`` (``sigma_px`` is the prior, see :func:`estimate_pose`).
 
     The covariance is of ``[position_O_m of the camera, rotation_O_rad]`` (left rotation in {O}).
     """
@@ -230,4 +252,4 @@ def camera_pose_from_points(
     G[:3, 3:] = cx @ Rt
     G[3:, 3:] = -Rt  # R_O_C' = R^T exp(-dth): rotation error in {O} = -R^T dth
     cov = G @ cov_C @ G.T
-    return R_O_C, c_O, cov, est.reprojection_rms_px
+    return R_O_C, c_O, cov, est.reprojection_rms_px, est.extra["sigma_px"]

@@ -72,7 +72,9 @@ class FramePoseEstimator:
 
     sigma_px: detector noise per image coordinate (px) used for the covariance; defaults are the
     values measured on rendered frames (docs/vision.md).  reference: the nominal pose used to
-    acquire point markers (defaults to the camera's ``looks_at_O_m`` with R = I).
+    acquire point markers (defaults to the camera's ``looks_at_O_m`` with R = I).  track: False
+    for unrelated snapshots (a folder of photographs): every frame is then acquired from scratch,
+    no search around the last pose.
     """
 
     def __init__(
@@ -82,8 +84,10 @@ class FramePoseEstimator:
         sigma_px: float | None = None,
         reference: tuple[ArrayLike, ArrayLike] | None = None,
         blob_settings: BlobSettings | None = None,
+        track: bool = True,
     ) -> None:
         self.camera, self.layout = camera, layout
+        self.track = bool(track)
         if reference is None:
             p0 = camera.extrinsics_info.get("looks_at_O_m", [0.0, 0.0, 0.0])
             reference = (np.asarray(p0, np.float64), np.eye(3))
@@ -100,8 +104,17 @@ class FramePoseEstimator:
             self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
             self._blob = blob_settings or BlobSettings()
 
+    def reset(self) -> None:
+        """Forget the last poses: the next frame is acquired from scratch."""
+        if self.layout.kind == "fiducial":
+            self._last = self._prev = None
+        else:
+            self._pm.reset()
+
     def estimate(self, gray: NDArray[np.uint8]) -> PoseEstimate:
         """The pose in this frame (flags say when it is not usable)."""
+        if not self.track:  # unrelated snapshots: every frame acquired from scratch
+            self.reset()
         if self.layout.kind == "fiducial":
             pred = None
             guess = None
@@ -213,6 +226,7 @@ class _PoseSourceBase(Source):
         jpeg_quality: int = 85,
         sigma_px: float | None = None,
         reference: tuple[ArrayLike, ArrayLike] | None = None,
+        track: bool = True,
     ) -> None:
         super().__init__(name)
         self.camera = _camera(camera)
@@ -228,7 +242,9 @@ class _PoseSourceBase(Source):
         self._last_image_t: int | None = None
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
-        self.estimator = FramePoseEstimator(self.camera, self.layout, sigma_px, reference)
+        self.estimator = FramePoseEstimator(
+            self.camera, self.layout, sigma_px, reference, track=track
+        )
         self.frame_index = 0
 
     def _readings(self, t_ns: int, gray: NDArray[np.uint8]) -> list[Reading]:
@@ -307,6 +323,7 @@ class CameraSource(_PoseSourceBase):
             "image_rate_hz": self.image_rate_hz,
             "image_format": self.image_format,
             "sigma_px": self.estimator.sigma_px,
+            "track": self.estimator.track,
         }
 
     def describe(self) -> dict[str, StreamDescription]:

@@ -195,6 +195,8 @@ def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
 
         try:
             cv.aruco_dictionary(layout.dictionary)
+        except ConfigError:  # a custom dictionary file: its own file and key
+            raise
         except Exception as exc:  # noqa: BLE001
             raise ConfigError(str(path), "dictionary", str(exc)) from None
     return layout

@@ -54,3 +54,55 @@ def render_circle_grid(
     value = np.where(card, np.where(inside, dark_dn, light_dn), 120.0).mean(axis=(2, 3))
     value = value + rng.normal(0.0, noise_dn, value.shape)
     return np.clip(np.rint(value), 0, 255).astype(np.uint8)
+
+
+def _blur(img: NDArray[np.float64], sigma_px: float) -> NDArray[np.float64]:
+    """Separable Gaussian blur (numpy), edges replicated."""
+    r = int(np.ceil(4 * sigma_px))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma_px) ** 2)
+    k /= k.sum()
+    p = np.pad(img, r, mode="edge")
+    p = sum(k[i] * p[:, i : i + img.shape[1]] for i in range(2 * r + 1))
+    return sum(k[i] * p[i : i + img.shape[0], :] for i in range(2 * r + 1))
+
+
+def render_ir_disks(
+    K: NDArray[np.float64],
+    size_wh: tuple[int, int],
+    centres_C_m: NDArray[np.float64],
+    normals_C: NDArray[np.float64],
+    radius_m: float,
+    rng: np.random.Generator,
+    ss: int = 4,
+    blur_px: float = 0.8,
+    noise_dn: float = 1.5,
+    background_dn: float = 12.0,
+    spot_dn: float = 235.0,
+) -> NDArray[np.uint8]:
+    """Gray IR frame of bright flat disks (centres (N, 3) and unit normals (N, 3) in the camera
+    frame, m) on a dark background, through a distortion-free pinhole camera ``K``: every sample
+    ray is intersected with each disk's plane, coverage per pixel, Gaussian optical blur, noise."""
+    w, h = size_wh
+    cover = np.zeros((h, w))
+    Ki = np.linalg.inv(K)
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    for c, n in zip(np.asarray(centres_C_m), np.asarray(normals_C), strict=True):
+        u0, v0 = (K @ c)[:2] / c[2]
+        rpx = K[0, 0] * radius_m / c[2] + 3
+        x0, x1 = int(max(np.floor(u0 - rpx), 0)), int(min(np.ceil(u0 + rpx) + 1, w))
+        y0, y1 = int(max(np.floor(v0 - rpx), 0)), int(min(np.ceil(v0 + rpx) + 1, h))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        u = np.arange(x0, x1)[None, :, None, None] + off[None, None, None, :]
+        v = np.arange(y0, y1)[:, None, None, None] + off[None, None, :, None]
+        u, v = np.broadcast_arrays(u, v)
+        d = np.stack([u, v, np.ones_like(u)], axis=-1) @ Ki.T  # rays (.., 3)
+        s = (n @ c) / (d @ n)
+        X = d * s[..., None]
+        inside = np.sum((X - c) ** 2, axis=-1) <= radius_m**2
+        cover[y0:y1, x0:x1] = np.maximum(cover[y0:y1, x0:x1], inside.mean(axis=(2, 3)))
+    img = background_dn + (spot_dn - background_dn) * cover
+    if blur_px > 0:
+        img = _blur(img, blur_px)
+    img = img + rng.normal(0.0, noise_dn, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)

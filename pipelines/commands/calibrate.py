@@ -59,7 +59,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     g.add_argument("--board", help="board file with a [pose_O] table")
     g.add_argument("--markers", help="fiducial layout with frame = 'O'")
     ext.add_argument(
-        "--sigma-px", type=float, default=0.1, help="corner noise for the covariance (px)"
+        "--sigma-px",
+        type=float,
+        default=0.1,
+        help="nominal corner noise (px): the outlier gate; the covariance takes the noise from the "
+        "residuals (this value fills in only below 6 residual degrees of freedom)",
     )
     ext.add_argument("--out", required=True, help="output camera model (JSON)")
     ext.set_defaults(func=run_extrinsics)
