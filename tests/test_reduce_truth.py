@@ -21,8 +21,8 @@ from cdpr.analysis.balance import (
     steady_points,
 )
 from cdpr.analysis.reduction import points_from_samples
-from cdpr.analysis.rig import rig_from_mapping
 from cdpr.analysis.weight import fit_weight
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.pipelines.reduce import points_table, reduce_points, reduction_stages
 
 RIG = rig_from_mapping(tomllib.loads(RIG_FILE.read_text()), str(RIG_FILE))
