@@ -669,8 +669,13 @@ class CanLoadCellSource(Source):
         deadline = time.monotonic() + timeout_s
         gather_until = deadline
         wait = timeout_s
+        monotonic = time.monotonic
         try:
-            while n < 4096:
+            # bounded by time, not by a frame count: a backlog (a starved process) is handed to the
+            # writer in slices of at most ~timeout_s, never held back for seconds
+            while True:
+                if n & 63 == 63 and monotonic() >= gather_until:
+                    break
                 msg = recv(timeout=wait)
                 if msg is None:
                     now = time.monotonic()

@@ -15,7 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "record",
         help="record the sources of an acquisition config (tunnel.toml) into a new MCAP run",
         description="Record every source of the config into <out>/<date>_<time>_<label>.mcap "
-        "until --duration elapses or Ctrl-C / SIGTERM; the file is always finished.",
+        "until --duration elapses or Ctrl-C / SIGTERM; the file is always finished. Exit codes: "
+        "0 clean run; 2 bad input; 3 a source failed or degraded (the run is kept, the faults are "
+        "printed and recorded as /event messages with name 'fault').",
     )
     p.add_argument(
         "--config", required=True, help="acquisition config (TOML), see docs/recording.md"
@@ -32,6 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--pressure", type=float, help="static pressure of this test point, Pa")
     p.add_argument("--temperature", type=float, help="air temperature of this test point, K")
     p.add_argument("--quiet", action="store_true", help="no live view")
+    p.add_argument(
+        "--allow-degraded",
+        action="store_true",
+        help="keep recording when a source delivers nothing within [recorder] startup_timeout_s "
+        "(default: stop); the run still exits 3",
+    )
     p.set_defaults(func=run)
 
 
@@ -88,7 +96,25 @@ def record_run(
         f"({st.stop_reason})",
         flush=True,
     )
+    report_faults(st)
     return st
+
+
+def report_faults(st: Any) -> int:
+    """Print a failed or degraded recording's faults on stderr; the exit code (0 clean, 3)."""
+    faults = list(st.faults)
+    if st.failure:
+        # one line; the failed source's own summary would only repeat it
+        print(
+            f"cdpr record: failed: {st.failure}; the data recorded so far is kept", file=sys.stderr
+        )
+        name = st.failure.split("'")[1] if st.failure.count("'") >= 2 else ""
+        faults = [f for f in faults if not f.startswith(f"source {name}:")]
+    if faults:
+        print(f"cdpr record: DEGRADED run, {len(faults)} faulty source(s):", file=sys.stderr)
+        for line in faults:
+            print(f"  {line}", file=sys.stderr)
+    return 3 if st.failure or st.faults else 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -135,6 +161,14 @@ def run(args: argparse.Namespace) -> int:
     if cfg.rig is not None:
         attachments.append(Attachment.from_file(cfg.rig, "rig/" + cfg.rig.name))
     attachments += [Attachment.from_file(c, "calibration/" + c.name) for c in cfg.calibrations]
+    for sc in cfg.sources:  # a camera's model and marker layout travel with its poses
+        if sc.kind == "camera":
+            for key in ("camera", "layout"):
+                if isinstance(sc.settings.get(key), str):
+                    f = Path(sc.settings[key])
+                    name = f"calibration/{f.name}"
+                    if all(a.name != name for a in attachments):
+                        attachments.append(Attachment.from_file(f, name))
     config_snapshot = {
         "file": str(cfg.path),
         "sha256": file_sha256(cfg.path),
@@ -162,8 +196,11 @@ def run(args: argparse.Namespace) -> int:
         chunk_size=cfg.chunk_size,
         flush_interval_s=cfg.flush_interval_s,
         compression=cfg.compression,
+        startup_timeout_s=cfg.startup_timeout_s,
+        stall_timeout_s=cfg.stall_timeout_s,
+        allow_degraded=args.allow_degraded,
     )
-    record_run(
+    st = record_run(
         sources,
         path,
         metadata=md,
@@ -174,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
         t_min_N=list(rig.t_min_N) if rig else None,
         t_max_N=list(rig.t_max_N) if rig else None,
     )
-    return 0
+    return 3 if st.failure or st.faults else 0
 
 
 def _check_cables(origin: str, sources: Any, rig: Any) -> None:
