@@ -491,6 +491,8 @@ def build_decoder(
 
 
 GATHER_S = 0.005
+#: error class bit of a SocketCAN error frame's id (linux/can/error.h): the controller is bus-off
+CAN_ERR_BUSOFF = 0x40
 """After the first frame of a read, :meth:`CanLoadCellSource.read` keeps receiving for this long (s)."""
 
 
@@ -727,6 +729,13 @@ class CanLoadCellSource(Source):
                     msg.arbitration_id,
                     bytes(msg.data).hex(),
                 )
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                # SocketCAN reports bus-off as an error frame of class CAN_ERR_BUSOFF: the
+                # controller has left the bus; reopening it restarts the controller
+                self.stats.extra["bus_off"] = self.stats.extra.get("bus_off", 0) + 1
+                if self.emit_raw:
+                    out.add_frame(msg, t_ns)
+                raise can.CanOperationError("bus-off (error frame class CAN_ERR_BUSOFF)")
             if k > self.error_frame_limit:
                 self._err_window = (now, 0)
                 if self.emit_raw:

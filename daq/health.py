@@ -25,6 +25,11 @@ COUNTER_FAULTS = {
     "dropped": "readings dropped (queue full)",
     "reopened": "reopens",
 }
+#: driver counters (``Source.stats.extra``) reported as their own fault kinds
+EXTRA_FAULTS = {
+    "error_frames": "CAN error frames",
+    "bus_off": "CAN bus-off",
+}
 
 
 @dataclass
@@ -95,8 +100,9 @@ class HealthMonitor:
         """Look at every source now; returns the sources that never delivered within the startup
         timeout and were flagged in this call.
 
-        counters: per source, an object with the :data:`COUNTER_FAULTS` attributes and
-        ``last_error``.  stopping: a stop was requested (silence is then expected).
+        counters: per source, an object with the :data:`COUNTER_FAULTS` attributes,
+        ``last_error`` and ``extra`` (driver counters, :data:`EXTRA_FAULTS`).
+        stopping: a stop was requested (silence is then expected).
         others_running: some acquisition thread is still alive (an ended source is then early).
         """
         now = time.monotonic()
@@ -112,6 +118,12 @@ class HealthMonitor:
                         f"; last error: {c.last_error}" if key == "errors" and c.last_error else ""
                     )
                     self._fault(name, key, f"source {name}: {v - old} {words} (total {v}){extra}")
+            for key, words in EXTRA_FAULTS.items():
+                v = int(getattr(c, "extra", {}).get(key, 0))
+                old = t.counts.get(key, 0)
+                if v > old:
+                    t.counts[key] = v
+                    self._fault(name, key, f"source {name}: {v - old} {words} (total {v})")
             if stopping:
                 if t.first is None and not t.startup_flagged:  # a run shorter than the timeout
                     t.startup_flagged = True
@@ -190,7 +202,7 @@ class HealthMonitor:
                 parts.append(f"stalled {n}x")
             if "ended" in kinds:
                 parts.append("ended early")
-            for key, words in COUNTER_FAULTS.items():
+            for key, words in {**COUNTER_FAULTS, **EXTRA_FAULTS}.items():
                 if t.counts.get(key):
                     parts.append(f"{t.counts[key]} {words}")
             out.append(f"source {name}: " + ", ".join(parts))

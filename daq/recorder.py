@@ -25,6 +25,7 @@ from typing import Any
 
 from cdpr.analysis.errors import InputError
 
+from .faultwatch import DataWatch
 from .health import HealthMonitor
 from .mcap_io import McapRunWriter
 from .runs import iso_utc
@@ -199,6 +200,7 @@ class SourceCounters:
     bad: int = 0
     reopened: int = 0
     last_error: str = ""
+    extra: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -276,6 +278,7 @@ class Recorder:
         self._health: HealthMonitor | None = None
         self._monitor_thread: threading.Thread | None = None
         self.failure: str | None = None
+        self._watch = DataWatch(self.event)
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -427,6 +430,7 @@ class Recorder:
             c.read, c.dropped, c.queued = q.accepted + q.dropped, q.dropped, q.pending
             c.lost, c.bad, c.reopened = s.stats.lost, s.stats.bad, s.stats.reopened
             c.errors = self._acq_errors[s.name] + s.stats.errors
+            c.extra = dict(s.stats.extra)
         return self._counters
 
     def status(self) -> RecorderStatus:
@@ -439,7 +443,10 @@ class Recorder:
             elapsed_s=time.monotonic() - self._t0 if self._t0 else 0.0,
             counts=dict(w.counts) if w else {},
             latest=dict(self._latest),
-            sources={k: SourceCounters(**vars(v)) for k, v in self._counters.items()},
+            sources={
+                k: SourceCounters(**{**vars(v), "extra": dict(v.extra)})
+                for k, v in self._counters.items()
+            },
             flushes=w.flushes if w else 0,
             error=self._error,
             stop_reason=self._stop_reason,
@@ -519,8 +526,10 @@ class Recorder:
             batches = q.take_all()
             if len(batches) > 1 and all(getattr(b, "can_frames", False) is True for b in batches):
                 batches = _joined(batches)
+            watch = self._watch.feed
             for batch in batches:
                 n += write_many(batch)
+                watch(batch)
                 latest_of = getattr(batch, "latest", None)
                 if latest_of is not None:  # a CAN frame batch knows its latest readings
                     latest.update(latest_of())

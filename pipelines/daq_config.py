@@ -17,6 +17,7 @@ Layout (example: ``data_samples/tunnel.toml``; every relative path is relative t
     queue_readings = 200000             # per-source queue capacity (readings)
     startup_timeout_s = 5.0             # a source silent this long after the start fails the run
     stall_timeout_s = 2.0               # a periodic source silent this long is a fault (stalled)
+    nice = -10                          # process priority asked for (-20..19; refused: an event)
 
     [sources.loadcells]                 # one table per source; "kind" picks the driver
     kind = "can_loadcell"
@@ -64,6 +65,7 @@ _REC_KEYS = {
     "queue_readings",
     "startup_timeout_s",
     "stall_timeout_s",
+    "nice",
 }
 
 
@@ -93,6 +95,7 @@ class DaqConfig:
     queue_readings: int = 200_000
     startup_timeout_s: float = 5.0
     stall_timeout_s: float = 2.0
+    nice: int | None = -10
     sources: list[SourceConfig] = field(default_factory=list)
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -197,6 +200,11 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
         if v < 1:
             raise ConfigError(origin, "recorder.queue_readings", f"expected >= 1, got {v}")
         cfg.queue_readings = v
+    if "nice" in rec:
+        v = _typed(rec, "nice", (int,), origin, "recorder")
+        if not -20 <= v <= 19:
+            raise ConfigError(origin, "recorder.nice", f"expected -20..19, got {v}")
+        cfg.nice = v
     for key in ("startup_timeout_s", "stall_timeout_s"):
         if key in rec:
             v = _typed(rec, key, (int, float), origin, "recorder")

@@ -156,28 +156,39 @@ def test_a_pty_that_closes_mid_run_is_a_fault_and_an_alarm(tmp_path: Path) -> No
     assert json.loads(rc.metadata["run_end"]["faults"]) == st.faults
 
 
-def test_can_error_frames_are_faults(tmp_path: Path) -> None:
+def test_can_error_frames_and_bus_off_are_faults(tmp_path: Path) -> None:
     channel = f"cdpr-errframes-{time.monotonic_ns()}"
     src = create_source(
         "can_loadcell",
         "lc",
-        {"interface": "virtual", "channel": channel, "bitrate": 1000000, "rate_hz": 100.0},
+        {
+            "interface": "virtual",
+            "channel": channel,
+            "bitrate": 1000000,
+            "rate_hz": 100.0,
+            "reopen_backoff_s": [0.05, 0.2],
+        },
         "t.toml",
     )
     path = tmp_path / "run.mcap"
     sender = can.Bus(interface="virtual", channel=channel, bitrate=1000000)
     try:
         with Recorder([src], path, options=RecorderOptions(startup_timeout_s=20.0)) as rec:
-            # an error frame as a SocketCAN interface reports one (CAN_ERR_FLAG, class in the id)
+            # error frames as SocketCAN reports them (CAN_ERR_FLAG; the class in the id):
+            # 0x004 controller problem (error warning in data[1])
             for _ in range(3):
-                sender.send(can.Message(arbitration_id=0x4, is_error_frame=True, dlc=8))
-            _wait(lambda: rec.status().sources["lc"].errors >= 3, what="3 error frames")
-            _wait(lambda: rec.status().faults, what="the fault")
+                sender.send(can.Message(arbitration_id=0x4, is_error_frame=True, data=[0, 4]))
+            _wait(lambda: rec.status().sources["lc"].extra.get("error_frames") == 3, what="3")
+            # 0x040 CAN_ERR_BUSOFF: the controller left the bus; the driver reopens it
+            sender.send(can.Message(arbitration_id=0x40, is_error_frame=True, dlc=8))
+            _wait(lambda: rec.status().sources["lc"].reopened >= 1, what="the reopen")
     finally:
         sender.shutdown()
-    assert rec.status().faults == ["source lc: 3 driver/bus errors"]
-    faults = _faults(path)
-    assert {f["fault"] for f in faults} == {"errors"} and faults[0]["level"] == 4
+    (line,) = rec.status().faults
+    assert line.startswith("source lc: ") and "4 CAN error frames" in line
+    assert "1 CAN bus-off" in line and "1 reopens" in line
+    kinds = {f["fault"] for f in _faults(path)}
+    assert {"error_frames", "bus_off", "reopened"} <= kinds
 
 
 def test_a_camera_folder_that_runs_dry_is_a_fault(tmp_path: Path) -> None:

@@ -55,11 +55,14 @@ def record_run(
     t_min_N: Sequence[float] | None = None,
     t_max_N: Sequence[float] | None = None,
     on_started: Any = None,
+    nice: int | None = None,
 ) -> Any:
     """Run a :class:`~cdpr.daq.recorder.Recorder` until ``duration_s``, SIGINT or SIGTERM.
 
     The signal handlers only request a stop; ``Recorder.stop`` (summary, footer, fsync) runs in a
     ``finally``.  The live view is shown when stdout is a terminal and ``quiet`` is false.
+    ``nice``: the process priority to ask for (e.g. -10: ahead of ordinary processes, so a busy
+    machine does not starve the acquisition); refused (no privilege) it is an event, not an error.
     Returns the recorder's final status.
     """
     from cdpr.daq.recorder import Recorder
@@ -72,6 +75,8 @@ def record_run(
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         rec.start()
+        if nice is not None:
+            _set_priority(rec, nice)
         print(f"recording {path}", flush=True)
         if on_started is not None:
             on_started(rec)
@@ -98,6 +103,22 @@ def record_run(
     )
     report_faults(st)
     return st
+
+
+def _set_priority(rec: Any, nice: int) -> None:
+    import os
+
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except OSError as exc:
+        rec.event(
+            f"could not set the recorder's priority to nice {nice} ({exc.strerror}): under CPU "
+            "load it may fall behind (give it CAP_SYS_NICE or run it as root)",
+            level="warning",
+            name="recorder",
+        )
+    else:
+        rec.event(f"recorder priority: nice {os.getpriority(os.PRIO_PROCESS, 0)}", name="recorder")
 
 
 def report_faults(st: Any) -> int:
@@ -210,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         t_min_N=list(rig.t_min_N) if rig else None,
         t_max_N=list(rig.t_max_N) if rig else None,
+        nice=cfg.nice,
     )
     return 3 if st.failure or st.faults else 0
 
