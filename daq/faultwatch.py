@@ -52,8 +52,12 @@ class TensionWatch:
         self._hist: np.ndarray | None = None  # last `window` raw counts (float, NaN missing)
         self._run: np.ndarray | None = None  # identical-count run length per cable
         self._baseline: np.ndarray | None = None
+        self._last_raw: np.ndarray | None = None
         self._seen = 0
         self.active: dict[tuple[str, str], int] = {}  # (kind, cable) -> t_start_ns
+        self.recent_T_N: np.ndarray = np.zeros((0, 0))  # the last `keep` tension samples, N
+        self.recent_t_ns: np.ndarray = np.zeros(0, np.int64)
+        self.keep = 512
 
     def _setup(self, values: Any) -> None:
         self.cables = [k[4:-7] for k in values if k.startswith("raw_") and k.endswith("_counts")]
@@ -118,6 +122,13 @@ class TensionWatch:
             [[r.values.get(k, 0) or 0 for k in self._status_keys] for r in readings], np.int64
         )
         t = np.array([r.t_ns for r in readings], np.int64)
+        T = np.array(
+            [[r.values.get(f"T_{c}_N", np.nan) for c in self.cables] for r in readings], np.float64
+        )
+        if self.recent_T_N.shape[1:] != T.shape[1:]:
+            self.recent_T_N = T[:0]
+        self.recent_T_N = np.vstack([self.recent_T_N, T])[-self.keep :]
+        self.recent_t_ns = np.concatenate([self.recent_t_ns, t])[-self.keep :]
         # status bits, per cable: a flag that starts (and maybe ends) in this batch
         any_flag = status != 0
         for bit, kind in _BITS:
@@ -125,7 +136,8 @@ class TensionWatch:
             for j, c in enumerate(self.cables):
                 self._track(kind, c, on[:, j], t)
         # stuck: run length of identical counts (not when missing or self-reported), vectorised
-        prev = self._hist[-1:] if len(self._hist) else np.full((1, len(self.cables)), np.nan)
+        prev = self._last_raw if self._last_raw is not None else raw[:1] * np.nan
+        self._last_raw = raw[-1:]
         same = (np.diff(np.vstack([prev, raw]), axis=0) == 0) & ~any_flag
         idx = np.arange(len(raw))[:, None]
         last_reset = np.maximum.accumulate(np.where(same, -1, idx), axis=0)
@@ -135,7 +147,9 @@ class TensionWatch:
         for j, c in enumerate(self.cables):
             self._track("stuck", c, stuck[:, j], t, lead=self.stuck_samples - 1)
         # noise: MAD of first differences over the window against a slow baseline
-        self._hist = np.vstack([self._hist, raw])[-(self.window + 1) :]
+        # a flagged or stuck sample says nothing about the noise
+        quiet = np.where(any_flag | stuck, np.nan, raw)
+        self._hist = np.vstack([self._hist, quiet])[-(self.window + 1) :]
         self._seen += len(raw)
         if len(self._hist) <= self.window // 2:
             return
@@ -165,6 +179,13 @@ class DataWatch:
         self.emit = emit
         self._tensions: dict[str, TensionWatch] = {}
         self._markers_lost: dict[str, int] = {}
+
+    def recent_tensions(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+        """The cables, times (k,) ns and tensions (k, m) N of the latest samples of the first
+        tensions stream (empty before any)."""
+        for w in self._tensions.values():
+            return list(w.cables), w.recent_t_ns, w.recent_T_N
+        return [], np.zeros(0, np.int64), np.zeros((0, 0))
 
     def feed(self, batch: Sequence[Reading]) -> None:
         others = getattr(batch, "others", None)

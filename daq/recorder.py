@@ -456,6 +456,11 @@ class Recorder:
             failure=self.failure,
         )
 
+    def recent_tensions(self) -> tuple[list[str], Any, Any]:
+        """Cables, times (k,) ns and tensions (k, m) N of the latest samples (about 2 s at 200 Hz)
+        of the first tensions stream, for the live view's steadiness and wrench estimate."""
+        return self._watch.recent_tensions()
+
     def backlog(self, source: str) -> int:
         """Readings of ``source`` waiting in its queue."""
         return self._queues[source].pending

@@ -35,6 +35,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--temperature", type=float, help="air temperature of this test point, K")
     p.add_argument("--quiet", action="store_true", help="no live view")
     p.add_argument(
+        "--test-matrix",
+        help="test matrix (TOML, docs/campaign.md): the live view steps through its points, "
+        "SPACE starts and ends the current one (a 'test_point' event each)",
+    )
+    p.add_argument(
         "--allow-degraded",
         action="store_true",
         help="keep recording when a source delivers nothing within [recorder] startup_timeout_s "
@@ -56,11 +61,15 @@ def record_run(
     t_max_N: Sequence[float] | None = None,
     on_started: Any = None,
     nice: int | None = None,
+    rig: Any = None,
+    test_points: Sequence[Any] | None = None,
 ) -> Any:
     """Run a :class:`~cdpr.daq.recorder.Recorder` until ``duration_s``, SIGINT or SIGTERM.
 
     The signal handlers only request a stop; ``Recorder.stop`` (summary, footer, fsync) runs in a
     ``finally``.  The live view is shown when stdout is a terminal and ``quiet`` is false.
+    ``rig``: the live view's wrench estimate; ``test_points``: the points the operator steps
+    through in the live view (``test_point`` events).
     ``nice``: the process priority to ask for (e.g. -10: ahead of ordinary processes, so a busy
     machine does not starve the acquisition); refused (no privilege) it is an event, not an error.
     Returns the recorder's final status.
@@ -73,17 +82,19 @@ def record_run(
         rec.request_stop(signal.Signals(signum).name)
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    # before the threads start: Linux keeps a nice value per thread, new threads inherit it
+    prio = _set_priority(nice) if nice is not None else None
     try:
         rec.start()
-        if nice is not None:
-            _set_priority(rec, nice)
+        if prio is not None:
+            rec.event(prio[1], level=prio[0], name="recorder")
         print(f"recording {path}", flush=True)
         if on_started is not None:
             on_started(rec)
         if not quiet and sys.stdout.isatty():
             from cdpr.daq.live import LiveView
 
-            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N):
+            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N, rig=rig, test_points=test_points):
                 rec.wait(duration_s)
         else:
             rec.wait(duration_s)
@@ -105,20 +116,35 @@ def record_run(
     return st
 
 
-def _set_priority(rec: Any, nice: int) -> None:
+def _test_points(path: str) -> list[Any]:
+    """The points of a test matrix file (``cdpr.pipelines.campaign.load_test_matrix``)."""
+    from cdpr.analysis.errors import ConfigError
+
+    try:
+        from cdpr.pipelines.campaign import load_test_matrix  # type: ignore[import-not-found]
+    except ImportError:
+        raise ConfigError(
+            path, "", "test matrices need cdpr.pipelines.campaign (not in this version)"
+        ) from None
+    points = list(load_test_matrix(path).points)
+    if not points:
+        raise ConfigError(path, "points", "no test points")
+    return points
+
+
+def _set_priority(nice: int) -> tuple[str, str]:
+    """Set this thread's nice value (threads started later inherit it); (level, event message)."""
     import os
 
     try:
         os.setpriority(os.PRIO_PROCESS, 0, nice)
     except OSError as exc:
-        rec.event(
+        return (
+            "warning",
             f"could not set the recorder's priority to nice {nice} ({exc.strerror}): under CPU "
             "load it may fall behind (give it CAP_SYS_NICE or run it as root)",
-            level="warning",
-            name="recorder",
         )
-    else:
-        rec.event(f"recorder priority: nice {os.getpriority(os.PRIO_PROCESS, 0)}", name="recorder")
+    return "info", f"recorder priority: nice {os.getpriority(os.PRIO_PROCESS, 0)}"
 
 
 def report_faults(st: Any) -> int:
@@ -147,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     from ..daq_config import build_sources, load_daq_config
 
     cfg = load_daq_config(args.config)
+    test_points = _test_points(args.test_matrix) if args.test_matrix else None
     if args.duration is not None and not args.duration > 0:
         from cdpr.analysis.errors import InputError
 
@@ -232,6 +259,8 @@ def run(args: argparse.Namespace) -> int:
         t_min_N=list(rig.t_min_N) if rig else None,
         t_max_N=list(rig.t_max_N) if rig else None,
         nice=cfg.nice,
+        rig=rig,
+        test_points=test_points,
     )
     return 3 if st.failure or st.faults else 0
 
