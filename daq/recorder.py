@@ -279,6 +279,7 @@ class Recorder:
         self._monitor_thread: threading.Thread | None = None
         self.failure: str | None = None
         self._watch = DataWatch(self.event)
+        self._os_error: OSError | None = None
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -406,7 +407,13 @@ class Recorder:
             finally:
                 w.finish()
         if self._error is not None:
-            raise OSError(f"recorder writer failed: {self._error}")
+            errno_ = self._os_error.errno if self._os_error is not None else None
+            raise OSError(
+                errno_,
+                f"{self._error}: recording stopped; what was written is kept "
+                f"(salvage it with `cdpr recover {self.path}`)",
+                str(self.path),
+            )
         return self.path
 
     def __enter__(self) -> Recorder:
@@ -573,8 +580,12 @@ class Recorder:
             w.add_metadata("run_end", self._end_metadata(now_ns()))
             w.finish()
         except BaseException as exc:
-            self._error = f"{type(exc).__name__}: {exc}"
-            traceback.print_exc()
+            if isinstance(exc, OSError):  # a full disk, a file size limit, an I/O error
+                self._error = exc.strerror or str(exc)
+                self._os_error = exc
+            else:  # a bug: the traceback matters
+                self._error = f"{type(exc).__name__}: {exc}"
+                traceback.print_exc()
             self._stop.set()
             try:
                 w.finish()

@@ -222,3 +222,62 @@ def test_a_camera_folder_that_runs_dry_is_a_fault(tmp_path: Path) -> None:
     assert (
         f["source"] == "cam" and f["fault"] == "ended" and "while the run went on" in f["message"]
     )
+
+
+def _file_size_limit(limit_bytes: int):
+    def pre() -> None:
+        import resource
+        import signal
+
+        # a full disk: writes past the limit fail with EFBIG (instead of the default SIGXFSZ kill)
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return pre
+
+
+def test_a_full_disk_stops_with_one_line_and_keeps_what_was_written(tmp_path: Path) -> None:
+    from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
+
+    rig = load_rig(ROOT / "data_samples/flat_optimum.toml")
+    sched = schedule_from_mapping(
+        {
+            "schedule": {"name": "full", "rate_hz": 200.0, "seed": 5},
+            "segments": [{"label": "hold", "duration_s": 60.0, "wind_mps": 17.27}],
+        },
+        "<test>",
+        rig,
+    )
+    vr = VirtualRig(rig, sched)
+    link = tmp_path / "lc"
+    run = vr.start("slcan", link=link, wait_reader_s=60.0)
+    kind, settings = vr.source_settings("slcan", link=str(link))["loadcell"]
+    cfg = {
+        "run": {"label": "full", "rig": str(ROOT / "data_samples/flat_optimum.toml")},
+        "recorder": {"startup_timeout_s": 60.0},
+        "sources": {"loadcell": {"kind": kind, **settings}},
+    }
+    p = tmp_path / "full.toml"
+    p.write_bytes(tomli_w.dumps(cfg).encode())
+    out = tmp_path / "runs"
+    try:  # no --duration: the recorder stops by itself when the disk is full
+        res = subprocess.run(
+            [*CDPR, "record", "--config", str(p), "--out", str(out), "--quiet"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            preexec_fn=_file_size_limit(250_000),
+        )
+    finally:
+        run.stop()
+    (path,) = sorted(out.glob("*_full.mcap"))
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert lines[0].startswith(f"cdpr record: error: {path}: File too large: recording stopped")
+    assert path.stat().st_size <= 250_000
+    res = subprocess.run([*CDPR, "recover", str(path)], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    rc = read_run(path.with_name(path.stem + ".recovered.mcap"))
+    seq = [b["seq"] for _, b in rc.messages["/tensions"]]
+    assert len(seq) > 100 and seq == list(range(seq[0], seq[0] + len(seq)))
