@@ -18,6 +18,7 @@ The work per batch is a few numpy reductions over a window of ``window`` samples
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -154,8 +155,10 @@ class TensionWatch:
         if len(self._hist) <= self.window // 2:
             return
         d = np.diff(self._hist, axis=0)
-        med = np.nanmedian(d, axis=0)
-        spread = np.maximum(1.4826 * np.nanmedian(np.abs(d - med), axis=0), 1.0)
+        with warnings.catch_warnings():  # a cable flagged the whole window: all NaN, no verdict
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(d, axis=0)
+            spread = np.maximum(1.4826 * np.nanmedian(np.abs(d - med), axis=0), 1.0)
         base = self._baseline
         ready = self._seen >= 2 * self.window
         burst = (

@@ -52,11 +52,16 @@ def _blank_camera(vr: Any, rig: Any, window_ns: list[int]) -> Any:
     from cdpr.daq.camera_source import VirtualCameraSource
     from cdpr.pipelines.vision_config import load_camera, load_marker_layout
 
+    frame_t = [0]
+
+    def pose_at(t_ns: int) -> Any:
+        frame_t[0] = int(t_ns)  # the time of the frame being rendered
+        return vr.true_pose_at(t_ns)
+
     class CoveredCamera(VirtualCameraSource):
         def render(self, position_O_m: Any, R_O_P: Any) -> Any:
             img = super().render(position_O_m, R_O_P)
-            t = time.time_ns()
-            if window_ns and window_ns[0] <= t <= window_ns[1]:
+            if window_ns and window_ns[0] <= frame_t[0] <= window_ns[1]:
                 img = np.full_like(img, int(np.median(img)))  # a cloth over the model
             return img
 
@@ -64,7 +69,7 @@ def _blank_camera(vr: Any, rig: Any, window_ns: list[int]) -> Any:
         "camera",
         load_camera(str(CAMERA)),
         load_marker_layout(str(MARKERS)),
-        pose_at=vr.true_pose_at,
+        pose_at=pose_at,
         rate_hz=10.0,
         realtime=True,
         reference=(rig.reference_position_O_m, rotation_from_euler(rig.reference_euler_rad)),
@@ -166,9 +171,10 @@ def main(argv: list[str] | None = None) -> int:
             if args.only and name != args.only:
                 continue
             events, t0, t1 = run_case(Path(tmp), name, faults, transport, inject, 100 + k)
-            # detected: an event of an expected kind from the start of the fault to 2.5 s after it
+            # detected: an event of an expected kind from the fault's start to 5 s after its end
+            # (event times are host reception times: a recorder starved on a busy machine lags)
             hits = [
-                e for e in events if e["fault"] in kinds and t0 - 0.2e9 <= _time_of(e) <= t1 + 2.5e9
+                e for e in events if e["fault"] in kinds and t0 - 0.2e9 <= _time_of(e) <= t1 + 5e9
             ]
             injected += 1
             detected += bool(hits)
