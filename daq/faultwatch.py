@@ -41,12 +41,14 @@ class TensionWatch:
         window: int = 40,
         stuck_samples: int = 25,
         noise_factor: float = 4.0,
+        noise_every: int = 8,
     ) -> None:
         self.stream = stream
         self.emit = emit
         self.window = int(window)
         self.stuck_samples = int(stuck_samples)
         self.noise_factor = float(noise_factor)
+        self.noise_every = int(noise_every)
         self.cables: list[str] = []
         self._raw_keys: list[str] = []
         self._status_keys: list[str] = []
@@ -54,6 +56,7 @@ class TensionWatch:
         self._run: np.ndarray | None = None  # identical-count run length per cable
         self._baseline: np.ndarray | None = None
         self._last_raw: np.ndarray | None = None
+        self._run_t0 = np.zeros(0, np.int64)
         self._seen = 0
         self.active: dict[tuple[str, str], int] = {}  # (kind, cable) -> t_start_ns
         self.recent_T_N: np.ndarray = np.zeros((0, 0))  # the last `keep` tension samples, N
@@ -67,6 +70,7 @@ class TensionWatch:
         n = len(self.cables)
         self._hist = np.full((0, n), np.nan)
         self._run = np.zeros(n, np.int64)
+        self._run_t0 = np.zeros(n, np.int64)
         self._baseline = np.full(n, np.nan)
 
     def _edge(self, kind: str, cable: str, on: bool, t_ns: int) -> None:
@@ -95,17 +99,25 @@ class TensionWatch:
                 t_start_ns=t0,
             )
 
-    def _track(self, kind: str, cable: str, on: np.ndarray, t: np.ndarray, lead: int = 0) -> None:
+    def _track(
+        self, kind: str, cable: str, on: np.ndarray, t: np.ndarray, t_on: int | None = None
+    ) -> None:
         """Events for one cable's condition ``on`` over the samples at times ``t``: it starts at
-        its first sample (``lead`` samples earlier: a run detected late), ends at the last."""
+        its first sample (or ``t_on``: a run detected late), ends at the last."""
         if on.any():
             if (kind, cable) not in self.active:
                 first = int(np.argmax(on))
-                self._edge(kind, cable, True, int(t[max(0, first - lead)]))
+                self._edge(kind, cable, True, int(t[first]) if t_on is None else t_on)
             if not on[-1]:
                 self._edge(kind, cable, False, int(t[-1]))
         elif (kind, cable) in self.active:
             self._edge(kind, cable, False, int(t[0]))
+
+    def _concerned(self, kind: str, on: np.ndarray) -> list[int]:
+        """Cables with ``kind`` on in ``on`` (rows x cables) or active: the only ones to look at."""
+        cols = set(np.flatnonzero(on.any(axis=0)).tolist())
+        cols |= {self.cables.index(c) for k, c in self.active if k == kind}
+        return sorted(cols)
 
     def feed(self, readings: Sequence[Reading]) -> None:
         if not readings:
@@ -134,8 +146,8 @@ class TensionWatch:
         any_flag = status != 0
         for bit, kind in _BITS:
             on = (status & bit) != 0
-            for j, c in enumerate(self.cables):
-                self._track(kind, c, on[:, j], t)
+            for j in self._concerned(kind, on):
+                self._track(kind, self.cables[j], on[:, j], t)
         # stuck: run length of identical counts (not when missing or self-reported), vectorised
         prev = self._last_raw if self._last_raw is not None else raw[:1] * np.nan
         self._last_raw = raw[-1:]
@@ -143,16 +155,32 @@ class TensionWatch:
         idx = np.arange(len(raw))[:, None]
         last_reset = np.maximum.accumulate(np.where(same, -1, idx), axis=0)
         run = np.where(last_reset >= 0, idx - last_reset, self._run[None, :] + idx + 1)
-        self._run = run[-1]
         stuck = run >= self.stuck_samples
-        for j, c in enumerate(self.cables):
-            self._track("stuck", c, stuck[:, j], t, lead=self.stuck_samples - 1)
+        n_rows = len(raw)
+        for j in self._concerned("stuck", stuck):
+            c = self.cables[j]
+            col = stuck[:, j]
+            t_on = None
+            if col.any():  # the run began at its first repeated sample, maybe in a past batch
+                f = int(np.argmax(col))
+                k = f - int(run[f, j]) + 1
+                t_on = int(t[k]) if k >= 0 else int(self._run_t0[j])
+            self._track("stuck", c, col, t, t_on=t_on)
+        # where each current run began (for a run found stuck in a later batch)
+        k = n_rows - run[-1]
+        here = (run[-1] > 0) & (k >= 0)
+        self._run_t0[here] = t[k[here]]
+        self._run = run[-1]
         # noise: MAD of first differences over the window against a slow baseline
         # a flagged or stuck sample says nothing about the noise
         quiet = np.where(any_flag | stuck, np.nan, raw)
         self._hist = np.vstack([self._hist, quiet])[-(self.window + 1) :]
+        seen0 = self._seen
         self._seen += len(raw)
-        if len(self._hist) <= self.window // 2:
+        # the noise verdict every `noise_every` samples (two medians over the window)
+        if len(self._hist) <= self.window // 2 or seen0 // self.noise_every == (
+            self._seen // self.noise_every
+        ):
             return
         d = np.diff(self._hist, axis=0)
         with warnings.catch_warnings():  # a cable flagged the whole window: all NaN, no verdict
@@ -164,15 +192,12 @@ class TensionWatch:
         burst = (
             ready & np.isfinite(base) & (spread > self.noise_factor * np.nan_to_num(base, nan=1))
         )
-        for j, c in enumerate(self.cables):
-            if not np.isfinite(spread[j]):
-                continue
-            self._track("noise_burst", c, burst[j : j + 1], t[:1])
-            if not burst[j]:
-                # the baseline follows slow changes only, never a burst
-                base[j] = (
-                    spread[j] if not np.isfinite(base[j]) else 0.95 * base[j] + 0.05 * spread[j]
-                )
+        for j in self._concerned("noise_burst", burst[None, :]):
+            self._track("noise_burst", self.cables[j], burst[j : j + 1], t[:1])
+        # the baseline follows slow changes only, never a burst
+        calm = np.isfinite(spread) & ~burst
+        base[calm] = np.where(np.isfinite(base[calm]), 0.95 * base[calm] + 0.05 * spread[calm],
+                              spread[calm])  # fmt: skip
 
 
 class DataWatch:
