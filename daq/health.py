@@ -71,6 +71,9 @@ class HealthMonitor:
         self.fault_kinds: dict[str, set[str]] = {n: set() for n in rates_hz}
         self.never_delivered: list[str] = []
         self._t0 = time.monotonic()
+        self.clock_jump_s = 0.1
+        self._clock_offset_ns = time.time_ns() - time.monotonic_ns()
+        self.clock_jumps: list[float] = []
 
     def start(self) -> None:
         """The recording starts now (the startup timeout counts from here)."""
@@ -106,6 +109,7 @@ class HealthMonitor:
         others_running: some acquisition thread is still alive (an ended source is then early).
         """
         now = time.monotonic()
+        self._check_clock()
         new_dead: list[str] = []
         for name, t in self._tracks.items():
             c = counters[name]
@@ -174,6 +178,25 @@ class HealthMonitor:
                 )
         return new_dead
 
+    def _check_clock(self) -> None:
+        """A step of the host clock (NTP, an operator, a VM resumed) against the monotonic clock:
+        the readings' host timestamps jump with it, so it is a fault of the whole run."""
+        offset = time.time_ns() - time.monotonic_ns()
+        step_s = (offset - self._clock_offset_ns) / 1e9
+        if abs(step_s) >= self.clock_jump_s:
+            self._clock_offset_ns = offset
+            self.clock_jumps.append(step_s)
+            self.faults.append(f"host clock jumped by {step_s:+.3f} s")
+            self._emit(
+                f"host clock jumped by {step_s:+.3f} s: host timestamps before and after differ "
+                "by that much more than the time that passed",
+                "error",
+                name="fault",
+                source="host",
+                fault="clock_jump",
+                step_s=step_s,
+            )
+
     def alarms(self) -> list[str]:
         """What is wrong right now (for the live view)."""
         now = time.monotonic()
@@ -190,6 +213,9 @@ class HealthMonitor:
     def summary(self) -> list[str]:
         """One line per faulty source: its fault kinds and counters (empty: a clean run)."""
         out = []
+        if self.clock_jumps:
+            steps = ", ".join(f"{s:+.3f} s" for s in self.clock_jumps)
+            out.append(f"host clock: jumped {len(self.clock_jumps)}x ({steps})")
         for name, kinds in self.fault_kinds.items():
             if not kinds:
                 continue

@@ -281,3 +281,29 @@ def test_a_full_disk_stops_with_one_line_and_keeps_what_was_written(tmp_path: Pa
     rc = read_run(path.with_name(path.stem + ".recovered.mcap"))
     seq = [b["seq"] for _, b in rc.messages["/tensions"]]
     assert len(seq) > 100 and seq == list(range(seq[0], seq[0] + len(seq)))
+
+
+def test_a_host_clock_jump_is_a_fault(monkeypatch) -> None:
+    # no way here to step the machine's real clock (no CAP_SYS_TIME, and libfaketime breaks
+    # Python's sleeps): the host clock the monitor reads is stepped 30 s forward instead
+    from cdpr.daq import health
+
+    events: list[tuple] = []
+    h = health.HealthMonitor(
+        {"a": [10.0]},
+        lambda msg, level, **kw: events.append((msg, kw)),
+        startup_timeout_s=60.0,
+        stall_timeout_s=60.0,
+    )
+    c = {"a": type("C", (), {"errors": 0, "lost": 0, "bad": 0, "dropped": 0, "reopened": 0,
+                              "last_error": "", "extra": {}})()}  # fmt: skip
+    h.check(c, stopping=False, others_running=True)
+    assert events == []
+    real = time.time_ns
+    monkeypatch.setattr(health.time, "time_ns", lambda: real() + 30_000_000_000)
+    h.check(c, stopping=False, others_running=True)
+    h.check(c, stopping=False, others_running=True)  # one jump, one event
+    ((msg, kw),) = events
+    assert kw["fault"] == "clock_jump" and kw["source"] == "host"
+    assert 29.9 < kw["step_s"] < 30.1 and msg.startswith("host clock jumped by +30.0")
+    assert h.summary()[0].startswith("host clock: jumped 1x (+30.0")
