@@ -132,9 +132,12 @@ def main(argv: list[str] | None = None) -> int:
     node = json.loads(
         subprocess.run(["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True).stdout
     )
-    from cdpr.daq.mcap_io import read_run
+    from mcap.reader import make_reader
 
-    end_md = read_run(path, decode=False).metadata["run_end"]
+    with path.open("rb") as fh:  # the run_end record only (the summary's metadata index)
+        end_md = next(
+            dict(m.metadata) for m in make_reader(fh).iter_metadata() if m.name == "run_end"
+        )
     ana = subprocess.run(
         [str(CDPR), "analyze", str(path), "--out", str(out / "analysis")],
         capture_output=True,
