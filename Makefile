@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 VPATH_ := PATH="$(abspath $(VENV))/bin:$$PATH"
 OUT    ?= out
 
-.PHONY: demo test lint bench analyze install clean chromium
+.PHONY: demo test lint bench analyze install clean chromium faults soak killtest
 RUNS   ?= $(OUT)/runs
 
 install: $(STAMP)
@@ -44,6 +44,19 @@ analyze: $(STAMP)
 
 bench: $(STAMP)
 	$(VPATH_) $(PY) bench/run.py
+
+# the fault matrix: every fault injected once, 10 clean runs (docs/recording.md, "Faults")
+faults: $(STAMP)
+	$(VPATH_) $(PY) scripts/fault_matrix.py
+
+# 30 min at full rate with the live view in tmux, then inspect and analyze (not part of `make test`)
+SOAK_MINUTES ?= 30
+soak: $(STAMP)
+	$(VPATH_) $(PY) scripts/soak.py --minutes $(SOAK_MINUTES) --out $(OUT)/soak
+
+# kill -9 under a CPU hog on every core, 20 times, then cdpr recover: the lost-time table
+killtest: $(STAMP)
+	$(VPATH_) $(PY) scripts/kill_under_load.py --trials 20
 
 clean:
 	rm -rf $(VENV) $(OUT) bench/results.json .pytest_cache .ruff_cache .mypy_cache

@@ -283,6 +283,9 @@ class CameraSource(_PoseSourceBase):
     Exactly one of ``device`` (int index), ``video`` (path) or ``folder`` (path) is given.
     ``fps``: nominal frame rate (for folders' timestamps and the drop counter; a device's or video's
     own rate is used if 0).  ``finished`` turns True at the end of a file or folder.
+    ``realtime``: a folder or video is delivered at its frame rate, frame ``k`` not before the open
+    time plus ``k / fps`` (a recording of a folder then lasts as long as the folder; default True);
+    False delivers frames as fast as the pose estimator goes (post-hoc processing).
     """
 
     kind = "camera"
@@ -296,9 +299,11 @@ class CameraSource(_PoseSourceBase):
         video: str | None = None,
         folder: str | None = None,
         fps: float = 0.0,
+        realtime: bool = True,
         **kwargs: Any,
     ) -> None:
         super().__init__(name, camera, layout, **kwargs)
+        self.realtime = bool(realtime)
         given = [x is not None for x in (device, video, folder)]
         if sum(given) != 1:
             raise ConfigError(
@@ -324,7 +329,24 @@ class CameraSource(_PoseSourceBase):
             "image_format": self.image_format,
             "sigma_px": self.estimator.sigma_px,
             "track": self.estimator.track,
+            "realtime": self.realtime,
         }
+
+    @property
+    def exhausted(self) -> bool:
+        """The end of a video file or image folder (a device never ends)."""
+        return self.finished
+
+    def _not_due(self, t_ns: int, timeout_s: float) -> bool:
+        """Realtime pacing of a file or folder: True (after sleeping up to ``timeout_s``) while the
+        frame at ``t_ns`` is still in the future."""
+        if not self.realtime:
+            return False
+        wait_s = (t_ns - now_ns()) / 1e9
+        if wait_s <= 0:
+            return False
+        time.sleep(min(wait_s, timeout_s))
+        return wait_s > timeout_s
 
     def describe(self) -> dict[str, StreamDescription]:
         return _describe(self.fps, self.image_every, self.image_rate_hz)
@@ -360,8 +382,10 @@ class CameraSource(_PoseSourceBase):
         if self.folder is not None:
             while self.frame_index < len(self._files):
                 i = self.frame_index
-                img = cv.read_image(self._files[i])
                 t = self._t0 + int(round(i * 1e9 / self.fps))
+                if self._not_due(t, timeout_s):
+                    return []
+                img = cv.read_image(self._files[i])
                 if img is None:
                     self.stats.lost += 1
                     self.frame_index += 1
@@ -381,6 +405,8 @@ class CameraSource(_PoseSourceBase):
         gray = cv.to_gray(frame)
         if self.video is not None:
             t = self._t0 + int(round(self._cap.position_ms() * 1e6))
+            if self.realtime and t > now_ns():
+                time.sleep((t - now_ns()) / 1e9)  # at most one frame period
         else:
             t = t_host
             if self._last_t is not None and self.fps > 0:

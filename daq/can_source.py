@@ -468,9 +468,6 @@ class CanFrameBatch(Sequence[Reading]):
 
     __slots__ = ("stream", "messages", "t_ns", "others", "_pos")
 
-    #: marker for the recorder (the writer dispatches on the registered batch type instead)
-    can_frames = True
-
     def __init__(
         self,
         stream: str = "can_raw",
@@ -611,6 +608,8 @@ def build_decoder(
 
 
 GATHER_S = 0.005
+#: error class bit of a SocketCAN error frame's id (linux/can/error.h): the controller is bus-off
+CAN_ERR_BUSOFF = 0x40
 """After the first frame of a read, :meth:`CanLoadCellSource.read` keeps receiving for this long (s)."""
 
 
@@ -796,8 +795,13 @@ class CanLoadCellSource(Source):
         deadline = time.monotonic() + timeout_s
         gather_until = deadline
         wait = timeout_s
+        monotonic = time.monotonic
         try:
-            while n < 4096:
+            # bounded by time, not by a frame count: a backlog (a starved process) is handed to the
+            # writer in slices of at most ~timeout_s, never held back for seconds
+            while True:
+                if n & 63 == 63 and monotonic() >= gather_until:
+                    break
                 msg = recv(timeout=wait)
                 if msg is None:
                     now = time.monotonic()
@@ -849,6 +853,13 @@ class CanLoadCellSource(Source):
                     msg.arbitration_id,
                     bytes(msg.data).hex(),
                 )
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                # SocketCAN reports bus-off as an error frame of class CAN_ERR_BUSOFF: the
+                # controller has left the bus; reopening it restarts the controller
+                self.stats.extra["bus_off"] = self.stats.extra.get("bus_off", 0) + 1
+                if self.emit_raw:
+                    out.add_frame(msg, t_ns)
+                raise can.CanOperationError("bus-off (error frame class CAN_ERR_BUSOFF)")
             if k > self.error_frame_limit:
                 self._err_window = (now, 0)
                 if self.emit_raw:

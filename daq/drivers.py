@@ -9,6 +9,7 @@ kind                      what                                                  
 ``serial_tunnel``         tunnel conditions as ``$TUN`` lines (pyserial)           tunnel, serial_bad
 ``manual_tunnel``         tunnel conditions entered per test point                 tunnel
 ``can_replay``            a CAN log python-can reads (candump .log, .asc, .blf)    can_raw, tensions
+``camera``                platform pose from marker images (device, video, folder)  pose, image
 ========================  =======================================================  ==============
 """
 
@@ -22,6 +23,7 @@ DRIVERS: dict[str, str] = {
     "serial_tunnel": "cdpr.daq.tunnel:SerialTunnelSource",
     "manual_tunnel": "cdpr.daq.tunnel:ManualTunnelSource",
     "can_replay": "cdpr.daq.replay:CanReplaySource",
+    "camera": "cdpr.daq.camera_source:CameraSource",
 }
 
 for _kind, _target in DRIVERS.items():

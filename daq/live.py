@@ -1,9 +1,22 @@
-"""Terminal live view of a recording (rich): rates, latest tensions, slack/saturation, drops.
+"""Terminal live view of a recording (rich): the test point, steadiness, the wrench estimate,
+alarms, tensions by cable with their limits, stream rates and source counters.
 
 :class:`LiveView` polls :meth:`Recorder.status` ``refresh_hz`` times a second (default 4 Hz) from its
-own thread and redraws one table; it is used only when stdout is a terminal and ``--quiet`` is not
-given (the CLI decides).  Slack and saturation come from the status bits of the latest reading and,
-when cable limits are given, from tensions (``T_<cable>_N`` fields) outside ``[t_min_N, t_max_N]``.
+own thread and redraws; it is used only when stdout is a terminal and ``--quiet`` is not given (the
+CLI decides).  Slack and saturation come from the status bits of the latest reading and, when cable
+limits are given, from tensions (``T_<cable>_N`` fields) outside ``[t_min_N, t_max_N]``.
+
+- **Test point**: with a list of test points (a test matrix's ``.points``: mappings or objects with
+  ``point``, ``kind``, ``target_aoa_deg``, ``target_sideslip_deg``, ``target_airspeed_mps``,
+  ``repeat_of``), the operator presses SPACE (or Enter) to start the current point and again to end
+  it (then the next one is current); ``n`` / ``p`` move to the next / previous point without
+  recording.  Each start and end is an ``/event`` with ``name = "test_point"``, ``phase``
+  ``"start"``/``"end"`` and the point's fields (:class:`TestPointStepper`).
+- **Steady**: the largest standard deviation over cables of the last ``steady_window_s`` of
+  tensions below ``steady_sd_N``.
+- **Wrench**: ``W = -A T - G`` (absolute method, N and N m at P in {O} axes) from the mean tensions
+  of that window, at the latest camera pose if there is one, else at the rig's reference pose.
+- **Alarms**: sources that stalled or never delivered, and the faults seen so far.
 """
 
 from __future__ import annotations
@@ -14,8 +27,146 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from .recorder import Recorder, RecorderStatus
 from .source import STATUS_GAP, STATUS_SATURATED, STATUS_SENSOR_FAULT, STATUS_SLACK
+
+#: fields of a test point copied into its ``test_point`` events
+POINT_FIELDS = (
+    "point",
+    "kind",
+    "target_aoa_deg",
+    "target_sideslip_deg",
+    "target_airspeed_mps",
+    "repeat_of",
+)
+
+
+def _field(point: Any, key: str) -> Any:
+    v = point.get(key) if isinstance(point, dict) else getattr(point, key, None)
+    if isinstance(v, np.generic):
+        v = v.item()
+    return "" if v is None and key in ("kind", "repeat_of") else v
+
+
+class TestPointStepper:
+    """The operator's place in a list of test points; :meth:`toggle` starts or ends the current
+    point and records it as a ``test_point`` event (see the module docstring)."""
+
+    def __init__(self, points: Sequence[Any], event: Any) -> None:
+        self.points = list(points)
+        self.event = event
+        self.index = 0
+        self.active_since: float | None = None
+        self.done = 0
+        self._lock = threading.Lock()
+
+    @property
+    def current(self) -> Any:
+        return self.points[self.index] if self.index < len(self.points) else None
+
+    def _emit(self, phase: str) -> None:
+        p = self.current
+        fields = {k: _field(p, k) for k in POINT_FIELDS}
+        self.event(
+            f"test point {fields['point']} {phase}",
+            level="info",
+            name="test_point",
+            phase=phase,
+            **fields,
+        )
+
+    def toggle(self) -> None:
+        with self._lock:
+            if self.current is None:
+                return
+            if self.active_since is None:
+                self._emit("start")
+                self.active_since = time.monotonic()
+            else:
+                self._emit("end")
+                self.active_since = None
+                self.done += 1
+                self.index += 1
+
+    def move(self, step: int) -> None:
+        """Next (+1) or previous (-1) point, when none is running."""
+        with self._lock:
+            if self.active_since is None:
+                self.index = min(max(self.index + step, 0), len(self.points))
+
+    def finish(self) -> None:
+        """End a point still running when the recording stops."""
+        if self.active_since is not None:
+            self.toggle()
+
+    def line(self) -> str:
+        p = self.current
+        if p is None:
+            return f"all {len(self.points)} test points done"
+        label = _field(p, "point")
+        targets = ", ".join(
+            f"{name} {v:g}{unit}"
+            for name, key, unit in (
+                ("aoa", "target_aoa_deg", "°"),
+                ("sideslip", "target_sideslip_deg", "°"),
+                ("airspeed", "target_airspeed_mps", " m/s"),
+            )
+            if isinstance((v := _field(p, key)), int | float)
+        )
+        rep = f", repeat of {_field(p, 'repeat_of')}" if _field(p, "repeat_of") else ""
+        where = f"{self.index + 1}/{len(self.points)}"
+        if self.active_since is not None:
+            run = time.monotonic() - self.active_since
+            return f"{where} {label} RUNNING {run:5.1f} s ({targets}{rep})  [SPACE: end point]"
+        return f"{where} {label} next ({targets}{rep})  [SPACE: start, n/p: next/previous]"
+
+
+class _Keys:
+    """Single key presses from the terminal (cbreak mode) handed to ``on_key`` from a thread."""
+
+    def __init__(self, on_key: Any) -> None:
+        self.on_key = on_key
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._saved: Any = None
+
+    def __enter__(self) -> _Keys:
+        import sys
+        import termios
+        import tty
+
+        if not sys.stdin.isatty():
+            return self
+        fd = sys.stdin.fileno()
+        self._saved = termios.tcgetattr(fd)
+        tty.setcbreak(fd)
+        self._thread = threading.Thread(target=self._loop, args=(fd,), name="keys", daemon=True)
+        self._thread.start()
+        return self
+
+    def _loop(self, fd: int) -> None:
+        import os
+        import select
+
+        while not self._stop.is_set():
+            if select.select([fd], [], [], 0.1)[0]:
+                data = os.read(fd, 32)
+                if not data:
+                    return
+                for ch in data.decode(errors="replace"):
+                    self.on_key(ch)
+
+    def __exit__(self, *exc: object) -> None:
+        import sys
+        import termios
+
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        if self._saved is not None:
+            termios.tcsetattr(sys.stdin.fileno(), termios.TCSADRAIN, self._saved)
 
 
 def status_flags(status: int) -> list[str]:
@@ -65,6 +216,11 @@ class LiveView:
         t_max_N: Sequence[float] | None = None,
         title: str = "",
         console: Any = None,
+        rig: Any = None,
+        test_points: Sequence[Any] | None = None,
+        keys: bool = True,
+        steady_window_s: float = 1.0,
+        steady_sd_N: float = 0.5,
     ) -> None:
         if refresh_hz < 2.0:
             raise ValueError(f"refresh_hz must be >= 2, got {refresh_hz}")
@@ -80,6 +236,95 @@ class LiveView:
         self._thread: threading.Thread | None = None
         self._live: Any = None
         self.frames = 0
+        self.rig = rig
+        self.steady_window_s = float(steady_window_s)
+        self.steady_sd_N = float(steady_sd_N)
+        self.stepper = (
+            TestPointStepper(test_points, recorder.event) if test_points is not None else None
+        )
+        self._keys = _Keys(self._on_key) if keys and self.stepper is not None else None
+
+    def _on_key(self, ch: str) -> None:
+        assert self.stepper is not None
+        if ch in (" ", "\n", "\r"):
+            self.stepper.toggle()
+        elif ch == "n":
+            self.stepper.move(1)
+        elif ch == "p":
+            self.stepper.move(-1)
+
+    def _state(self) -> tuple[str, str]:
+        """(steadiness, wrench) lines from the latest tensions."""
+        cables, t_ns, T = self.recorder.recent_tensions()
+        if T.shape[0] < 2:
+            return "steady   (no tensions yet)", ""
+        keep = t_ns >= t_ns[-1] - int(self.steady_window_s * 1e9)
+        win = T[keep]
+        ok = np.all(np.isfinite(win), axis=1)
+        if ok.sum() < 2:
+            return "steady   (no complete samples)", ""
+        sd = float(np.max(np.std(win[ok], axis=0)))
+        steady = sd < self.steady_sd_N
+        line = (
+            f"{'STEADY  ' if steady else 'UNSTEADY'} max σ {sd:6.3f} N over "
+            f"{self.steady_window_s:g} s (limit {self.steady_sd_N:g} N)"
+        )
+        return line, self._wrench(cables, win[ok].mean(axis=0))
+
+    def _wrench(self, cables: list[str], T_N: np.ndarray) -> str:
+        if self.rig is None or list(self.rig.cable_names) != cables:
+            return ""
+        from cdpr.analysis.dynamics import gravity_wrench
+        from cdpr.analysis.kinematics import structure_matrix
+        from cdpr.analysis.rotations import rotation_from_euler, rotation_from_quaternion
+        from cdpr.analysis.wrench import wrench_absolute
+
+        rig = self.rig
+        pose = self.recorder.status().latest.get("pose")
+        where = "reference pose"
+        p, R = rig.reference_position_O_m, rotation_from_euler(rig.reference_euler_rad)
+        if pose is not None and pose.status == 0:
+            p = np.asarray(pose.values["position_O_m"], np.float64)
+            R = rotation_from_quaternion(np.asarray(pose.values["quaternion_wxyz"], np.float64))
+            where = "camera pose"
+        A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, p, R)
+        G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+        w = wrench_absolute(A, T_N, G)
+        names = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
+        f = " ".join(f"{n} {v:7.2f}" for n, v in zip(names[:3], w[:3], strict=True))
+        m = " ".join(f"{n} {v:7.3f}" for n, v in zip(names[3:], w[3:], strict=True))
+        return f"wrench   {f} N  {m} N·m  (absolute, at the {where})"
+
+    def _cables(self, st: RecorderStatus) -> Any:
+        from rich.table import Table
+        from rich.text import Text
+
+        r = next((v for k, v in st.latest.items() if k.endswith("tensions")), None)
+        tab = Table(title="tensions", expand=False)
+        for col in ("cable", "T N", "min N", "max N", "state"):
+            tab.add_column(col)
+        if r is None:
+            return tab
+        values = dict(r.values)
+        cables = [k[2:-2] for k in values if k.startswith("T_") and k.endswith("_N")]
+        for i, c in enumerate(cables):
+            v = values[f"T_{c}_N"]
+            lo = self.t_min_N[i] if self.t_min_N is not None and i < len(self.t_min_N) else None
+            hi = self.t_max_N[i] if self.t_max_N is not None and i < len(self.t_max_N) else None
+            warn = [
+                w.split(" ", 1)[1]
+                for w in tension_warnings({f"T_{c}_N": v, f"status_{c}": values.get(f"status_{c}")},
+                                          None if lo is None else [lo],
+                                          None if hi is None else [hi])
+            ]  # fmt: skip
+            tab.add_row(
+                c,
+                f"{v:8.2f}" if isinstance(v, float) else str(v),
+                "" if lo is None else f"{lo:g}",
+                "" if hi is None else f"{hi:g}",
+                Text(", ".join(warn), style="bold red") if warn else Text("ok", style="green"),
+            )
+        return tab
 
     def render(self, st: RecorderStatus, update_rates: bool = True) -> Any:
         """The table for one status snapshot (rates over the time since the previous one)."""
@@ -144,7 +389,22 @@ class LiveView:
                 c.last_error[:50],
             )
         self.frames += 1
-        return Group(streams, srcs)
+        head: list[Any] = [Text(f"{self.title}  {st.elapsed_s:7.1f} s", style="bold")]
+        if self.stepper is not None:
+            head.append(Text("test point  " + self.stepper.line(), style="bold cyan"))
+        steady, wrench = self._state()
+        head.append(Text(steady, style="green" if steady.startswith("STEADY ") else "yellow"))
+        if wrench:
+            head.append(Text(wrench))
+        alarms = list(st.alarms)
+        alarms += [f for f in st.faults if not any(f.startswith(a.split(":")[0]) for a in alarms)]
+        if st.failure:
+            alarms.insert(0, st.failure)
+        if alarms:
+            head += [Text("ALARM  " + a, style="bold white on red") for a in alarms[:6]]
+        else:
+            head.append(Text("no alarms", style="green"))
+        return Group(*head, self._cables(st), streams, srcs)
 
     def _loop(self) -> None:
         period = 1.0 / self.refresh_hz
@@ -161,12 +421,18 @@ class LiveView:
             transient=False,
         )
         self._live.__enter__()
+        if self._keys is not None:
+            self._keys.__enter__()
         self._thread = threading.Thread(target=self._loop, name="live-view", daemon=True)
         self._thread.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
+        if self._keys is not None:
+            self._keys.__exit__()
+        if self.stepper is not None:
+            self.stepper.finish()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         try:

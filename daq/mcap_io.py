@@ -8,14 +8,12 @@ from __future__ import annotations
 
 import json
 import os
-import struct
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cdpr.analysis.errors import ConfigError, InputError
+from cdpr.analysis.errors import ConfigError
 
 from .mcap_writer import (  # noqa: F401  (re-exported: the writer's public names)
     LIBRARY,
@@ -83,16 +81,16 @@ def iter_records(path: str | os.PathLike[str]) -> Iterator[Any]:
 
 
 def _iter_records(p: Path, errors: list[str]) -> Iterator[Any]:
-    from mcap.exceptions import McapError
     from mcap.stream_reader import StreamReader
 
     with p.open("rb") as fh:
         reader = StreamReader(fh, validate_crcs=True)
         try:
             yield from reader.records
-        except (McapError, struct.error, ValueError, EOFError) as exc:
-            # McapError: EndOfFile, bad magic, record too long; struct.error: a record header cut
-            # short; ValueError: CRC mismatch or a zstd frame cut short.
+        except Exception as exc:
+            # McapError: EndOfFile, bad magic, record too long, CRC mismatch; struct.error: a record
+            # header cut short; ValueError: a zstd frame cut short; ZstdError / lz4 RuntimeError: a
+            # corrupted frame; UnicodeDecodeError: a damaged name. Any damage ends the read here.
             errors.append(f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__)
 
 
@@ -150,77 +148,9 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
 def recover_run(
     path: str | os.PathLike[str], out_path: str | os.PathLike[str] | None = None
 ) -> tuple[Path, RunContents]:
-    """Salvage a truncated or damaged run file into ``<run>.recovered.mcap``.
+    """Salvage a truncated or damaged run file into ``<run>.recovered.mcap``: every readable chunk,
+    before and after damage (skipped chunks are named); see :func:`cdpr.daq.recover.recover_run`."""
+    from .recover import recover_run as _recover
 
-    Every complete chunk (and every schema, channel, metadata record and attachment before the
-    damage) is copied into a new, finished file; the original is left untouched.  Returns the new
-    path and what was read.  Refuses to overwrite an existing output.
-    """
-    from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
-    from mcap.writer import CompressionType, Writer
-
-    p = _check_file(path)
-    if out_path is None:
-        stem = p.name[:-5] if p.name.endswith(".mcap") else p.name
-        out_path = p.with_name(stem + ".recovered.mcap")
-    q = Path(out_path)
-    if q.exists():
-        raise InputError(f"{q}: exists already; a run is never overwritten")
-    tmp = q.with_name(f".{q.name}.part")
-    contents = RunContents()
-    errors: list[str] = []
-    try:
-        with open(tmp, "xb") as fh:
-            w = Writer(fh, chunk_size=1024 * 1024, compression=CompressionType.ZSTD)
-            w.start(profile=PROFILE, library=LIBRARY + "-recover")
-            schema_map: dict[int, int] = {}
-            chan_map: dict[int, int] = {}
-            pending: dict[int, Any] = {}
-            for rec in _iter_records(p, errors):
-                if isinstance(rec, Message):
-                    cid = chan_map.get(rec.channel_id)
-                    if cid is None:
-                        continue
-                    w.add_message(cid, rec.log_time, rec.data, rec.publish_time, rec.sequence)
-                    topic = pending[rec.channel_id].topic
-                    contents.messages.setdefault(topic, []).append((rec.log_time, {}))
-                elif isinstance(rec, Schema) and rec.id not in schema_map:
-                    schema_map[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-                elif isinstance(rec, Channel) and rec.id not in chan_map:
-                    chan_map[rec.id] = w.register_channel(
-                        rec.topic,
-                        rec.message_encoding,
-                        schema_map.get(rec.schema_id, 0),
-                        dict(rec.metadata),
-                    )
-                    pending[rec.id] = rec
-                    contents.messages.setdefault(rec.topic, [])
-                elif isinstance(rec, Metadata):
-                    w.add_metadata(rec.name, dict(rec.metadata))
-                    contents.metadata[rec.name] = dict(rec.metadata)
-                elif isinstance(rec, Attachment):
-                    w.add_attachment(
-                        rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
-                    )
-                    contents.attachments[rec.name] = (rec.media_type, b"")
-                elif isinstance(rec, Footer):
-                    contents.complete = True
-            w.add_metadata(
-                "recovery",
-                {
-                    "source_file": p.name,
-                    "source_complete": str(contents.complete).lower(),
-                    "stopped_at": errors[0] if errors else "end of file",
-                    "messages": str(sum(len(v) for v in contents.messages.values())),
-                    "recovered_at_ns": str(time.time_ns()),
-                },
-            )
-            w.finish()
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, q)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    contents.error = errors[0] if errors else None
-    return q, contents
+    out, contents = _recover(path, out_path)
+    return out, contents

@@ -336,6 +336,11 @@ def register_frame_batch_type(batch_type: type) -> None:
     _FRAME_BATCH_TYPES.add(batch_type)
 
 
+def is_frame_batch(batch: Any) -> bool:
+    """True for an instance of a registered frame-batch type (:func:`register_frame_batch_type`)."""
+    return type(batch) in _FRAME_BATCH_TYPES
+
+
 CodecFactory = Callable[[str, "StreamDescription | None"], StreamCodec]
 _CODECS: list[tuple[str, CodecFactory]] = [
     ("pose*", _pose_codec),
@@ -786,7 +791,7 @@ class McapRunWriter:
         :class:`~cdpr.daq.can_source.CanFrameBatch`) has its frames formatted at once by its stream
         codec's ``encode_frames`` (:func:`cdpr.daq.can_raw.encode_can_frames`); its other readings
         (decoded tensions) follow."""
-        if type(readings) in _FRAME_BATCH_TYPES:
+        if is_frame_batch(readings):
             return self._write_frame_batch(readings)
         channels = self._channels
         codecs = self._codecs

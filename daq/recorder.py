@@ -25,7 +25,10 @@ from typing import Any
 
 from cdpr.analysis.errors import InputError
 
+from .faultwatch import DataWatch
+from .health import HealthMonitor
 from .mcap_io import McapRunWriter
+from .mcap_writer import is_frame_batch
 from .runs import iso_utc
 from .source import FieldDescription, Reading, Source, StreamDescription, now_ns
 
@@ -40,6 +43,11 @@ class RecorderOptions:
     compression: ``"zstd"``, ``"lz4"`` or ``"none"``.
     stats_interval_s: period of the ``/recorder`` counter messages.
     read_timeout_s: timeout of each :meth:`Source.read` call (bounds the stop latency).
+    startup_timeout_s: a source with no reading this long after the start is a failure: the recording
+        stops (``failure`` names it) unless ``allow_degraded``, then it goes on with the others.
+    stall_timeout_s: a periodic source (a stream with ``rate_hz > 0``) silent this long (at least 5
+        sample periods) after it delivered is stalled: a fault event, an alarm while it lasts.
+    allow_degraded: keep recording when a source never delivers (the fault is still reported).
     capture_logs: while recording, log records (INFO and above) of this logger (the drivers': bus
         errors, reopens, bad lines) become ``/event`` messages instead of console lines; ``None``: off.
     max_log_events_per_s: at most this many captured log records per second (the rest are counted).
@@ -53,8 +61,16 @@ class RecorderOptions:
     read_timeout_s: float = 0.05
     capture_logs: str | None = "cdpr.daq"
     max_log_events_per_s: int = 20
+    startup_timeout_s: float = 5.0
+    stall_timeout_s: float = 2.0
+    allow_degraded: bool = False
 
     def __post_init__(self) -> None:
+        if not self.startup_timeout_s > 0 or not self.stall_timeout_s > 0:
+            raise InputError(
+                "startup_timeout_s and stall_timeout_s must be > 0 s, got "
+                f"{self.startup_timeout_s} and {self.stall_timeout_s}"
+            )
         if self.queue_readings < 1:
             raise InputError(f"queue_readings must be >= 1, got {self.queue_readings}")
         if not 0 < self.flush_interval_s <= 1.0:
@@ -185,6 +201,7 @@ class SourceCounters:
     bad: int = 0
     reopened: int = 0
     last_error: str = ""
+    extra: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -200,6 +217,9 @@ class RecorderStatus:
     error: str | None = None
     stop_reason: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    alarms: list[str] = field(default_factory=list)
+    faults: list[str] = field(default_factory=list)
+    failure: str | None = None
 
 
 class Recorder:
@@ -255,6 +275,12 @@ class Recorder:
         self._lock = threading.Lock()
         self._renames: dict[str, dict[str, str]] = {}
         self._log_handler: _EventLogHandler | None = None
+        self._acq_errors = {s.name: 0 for s in self.sources}
+        self._health: HealthMonitor | None = None
+        self._monitor_thread: threading.Thread | None = None
+        self.failure: str | None = None
+        self._watch = DataWatch(self.event)
+        self._os_error: OSError | None = None
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -291,6 +317,12 @@ class Recorder:
                     self._writer.add_stream(ren.get(stream, stream), desc)
             for stream, desc in self._extra_streams.items():
                 self._writer.add_stream(stream, desc)
+            self._health = HealthMonitor(
+                {n: [d.rate_hz for d in described[n].values()] for n in described},
+                self.event,
+                startup_timeout_s=o.startup_timeout_s,
+                stall_timeout_s=o.stall_timeout_s,
+            )
             self._writer.flush()
         except BaseException:
             # nothing recorded yet: leave no half-written run behind
@@ -308,6 +340,11 @@ class Recorder:
             t = threading.Thread(target=self._acquire, args=(s,), name=f"acq-{s.name}", daemon=True)
             self._threads.append(t)
             t.start()
+        self._health.start()
+        self._monitor_thread = threading.Thread(
+            target=self._monitor, name="recorder-health", daemon=True
+        )
+        self._monitor_thread.start()
         self.event("recording started", level="info")
 
     def request_stop(self, reason: str = "requested") -> None:
@@ -349,6 +386,10 @@ class Recorder:
         self.request_stop(reason or "stopped")
         for t in self._threads:
             t.join(timeout=10.0)
+        if self._monitor_thread is not None:
+            self._monitor_thread.join(timeout=5.0)
+        if self._health is not None:  # the counters' last changes (errors while stopping)
+            self._health.check(self._refresh_counters(), stopping=True, others_running=False)
         if self._log_handler is not None:
             logging.getLogger(self.options.capture_logs).removeHandler(self._log_handler)
         self._acq_done.set()
@@ -367,7 +408,13 @@ class Recorder:
             finally:
                 w.finish()
         if self._error is not None:
-            raise OSError(f"recorder writer failed: {self._error}")
+            errno_ = self._os_error.errno if self._os_error is not None else None
+            raise OSError(
+                errno_,
+                f"{self._error}: recording stopped; what was written is kept "
+                f"(salvage it with `cdpr recover {self.path}`)",
+                str(self.path),
+            )
         return self.path
 
     def __enter__(self) -> Recorder:
@@ -384,25 +431,43 @@ class Recorder:
             Reading("event", now_ns(), {"message": message, "level": level, **extra})
         )
 
-    def status(self) -> RecorderStatus:
-        """Counters, latest reading per stream, elapsed time (thread-safe snapshot)."""
-        w = self._writer
+    def _refresh_counters(self) -> dict[str, SourceCounters]:
         for s in self.sources:
             c = self._counters[s.name]
             q = self._queues[s.name]
             c.read, c.dropped, c.queued = q.accepted + q.dropped, q.dropped, q.pending
             c.lost, c.bad, c.reopened = s.stats.lost, s.stats.bad, s.stats.reopened
+            c.errors = self._acq_errors[s.name] + s.stats.errors
+            c.extra = dict(s.stats.extra)
+        return self._counters
+
+    def status(self) -> RecorderStatus:
+        """Counters, latest reading per stream, elapsed time, alarms and faults (a snapshot)."""
+        w = self._writer
+        self._refresh_counters()
+        h = self._health
         return RecorderStatus(
             running=not self._stop.is_set(),
             elapsed_s=time.monotonic() - self._t0 if self._t0 else 0.0,
             counts=dict(w.counts) if w else {},
             latest=dict(self._latest),
-            sources={k: SourceCounters(**vars(v)) for k, v in self._counters.items()},
+            sources={
+                k: SourceCounters(**{**vars(v), "extra": dict(v.extra)})
+                for k, v in self._counters.items()
+            },
             flushes=w.flushes if w else 0,
             error=self._error,
             stop_reason=self._stop_reason,
             extra={"queue_peak": {k: q.peak for k, q in self._queues.items()}},
+            alarms=h.alarms() if h is not None and not self._stop.is_set() else [],
+            faults=h.summary() if h is not None else [],
+            failure=self.failure,
         )
+
+    def recent_tensions(self) -> tuple[list[str], Any, Any]:
+        """Cables, times (k,) ns and tensions (k, m) N of the latest samples (about 2 s at 200 Hz)
+        of the first tensions stream, for the live view's steadiness and wrench estimate."""
+        return self._watch.recent_tensions()
 
     def backlog(self, source: str) -> int:
         """Readings of ``source`` waiting in its queue."""
@@ -420,13 +485,16 @@ class Recorder:
         timeout = self.options.read_timeout_s
         backoff = 0.2
         ren = self._renames.get(src.name, {})
+        name = src.name
+        assert self._health is not None
+        delivered = self._health.delivered
         try:
             while not self._stop.is_set():
                 try:
                     batch = src.read(timeout)
                     backoff = 0.2
                 except Exception as exc:  # a driver failure never kills the recording
-                    c.errors += 1
+                    self._acq_errors[src.name] += 1
                     c.last_error = f"{type(exc).__name__}: {exc}"
                     self.event(f"source {src.name}: {c.last_error}", level="error")
                     try:
@@ -437,7 +505,8 @@ class Recorder:
                     backoff = min(2 * backoff, 5.0)
                     continue
                 if batch:
-                    if ren and getattr(batch, "can_frames", False) is True:
+                    delivered(name)
+                    if ren and is_frame_batch(batch):
                         batch = batch.renamed(ren)  # a CAN frame batch (can_source.CanFrameBatch)
                     elif ren:
                         batch = [
@@ -449,6 +518,7 @@ class Recorder:
                     q.put(batch)
                 elif getattr(src, "exhausted", False):
                     self.event(f"source {src.name}: end of data", level="info")
+                    self._health.ended(name)
                     break
         finally:
             try:
@@ -467,10 +537,12 @@ class Recorder:
         write_many = w.write_many
         for q in self._queues.values():
             batches = q.take_all()
-            if len(batches) > 1 and all(getattr(b, "can_frames", False) is True for b in batches):
+            if len(batches) > 1 and all(is_frame_batch(b) for b in batches):
                 batches = _joined(batches)
+            watch = self._watch.feed
             for batch in batches:
                 n += write_many(batch)
+                watch(batch)
                 latest_of = getattr(batch, "latest", None)
                 if latest_of is not None:  # a CAN frame batch knows its latest readings
                     latest.update(latest_of())
@@ -509,13 +581,34 @@ class Recorder:
             w.add_metadata("run_end", self._end_metadata(now_ns()))
             w.finish()
         except BaseException as exc:
-            self._error = f"{type(exc).__name__}: {exc}"
-            traceback.print_exc()
+            if isinstance(exc, OSError):  # a full disk, a file size limit, an I/O error
+                self._error = exc.strerror or str(exc)
+                self._os_error = exc
+            else:  # a bug: the traceback matters
+                self._error = f"{type(exc).__name__}: {exc}"
+                traceback.print_exc()
             self._stop.set()
             try:
                 w.finish()
             except BaseException:
                 pass
+
+    def _monitor(self) -> None:
+        """Source health ten times a second until the stop: faults become events; a source that
+        never delivered stops the recording unless ``allow_degraded``."""
+        h = self._health
+        assert h is not None
+        while not self._stop.wait(0.1):
+            alive = sum(t.is_alive() for t in self._threads)
+            dead = h.check(self._refresh_counters(), stopping=False, others_running=alive > 0)
+            if dead and not self.options.allow_degraded and self.failure is None:
+                c = self._counters[dead[0]]
+                why = f" (last error: {c.last_error})" if c.last_error else ""
+                self.failure = (
+                    f"source {dead[0]!r} delivered nothing within "
+                    f"{self.options.startup_timeout_s:g} s{why}"
+                )
+                self.request_stop("failed: " + self.failure)
 
     # helpers ---------------------------------------------------------------------------------
     def _recorder_description(self) -> StreamDescription:
@@ -558,4 +651,6 @@ class Recorder:
             "sources": {k: vars(v) for k, v in st.sources.items()},
             "dropped_total": str(self.dropped),
             "queue_peak": st.extra["queue_peak"],
+            "faults": st.faults,
+            "failure": st.failure or "",
         }

@@ -15,6 +15,9 @@ Layout (example: ``data_samples/tunnel.toml``; every relative path is relative t
     flush_interval_s = 0.25             # ... or after this long (<= 1 s), then fsync
     compression = "zstd"                # zstd | lz4 | none
     queue_readings = 200000             # per-source queue capacity (readings)
+    startup_timeout_s = 5.0             # a source silent this long after the start fails the run
+    stall_timeout_s = 2.0               # a periodic source silent this long is a fault (stalled)
+    nice = -10                          # process priority asked for (-20..19; refused: an event)
 
     [sources.loadcells]                 # one table per source; "kind" picks the driver
     kind = "can_loadcell"
@@ -37,10 +40,33 @@ from cdpr.analysis.errors import ConfigError
 from .config import file_sha256, load_toml
 
 #: Source settings that name files: resolved relative to the config file.
-PATH_KEYS = ("dbc", "calibration", "calibration_file", "file", "path", "log", "rig", "schedule")
+PATH_KEYS = (
+    "dbc",
+    "calibration",
+    "calibration_file",
+    "file",
+    "path",
+    "log",
+    "rig",
+    "schedule",
+    "camera",
+    "layout",
+    "video",
+)
+#: Source settings that name folders (an image folder of a ``camera`` source): resolved likewise.
+DIR_KEYS = ("folder",)
 
 _RUN_KEYS = {"label", "rig", "calibrations", "operator", "notes"}
-_REC_KEYS = {"out", "chunk_size_kib", "flush_interval_s", "compression", "queue_readings"}
+_REC_KEYS = {
+    "out",
+    "chunk_size_kib",
+    "flush_interval_s",
+    "compression",
+    "queue_readings",
+    "startup_timeout_s",
+    "stall_timeout_s",
+    "nice",
+}
 
 
 @dataclass
@@ -67,6 +93,9 @@ class DaqConfig:
     flush_interval_s: float = 0.25
     compression: str = "zstd"
     queue_readings: int = 200_000
+    startup_timeout_s: float = 5.0
+    stall_timeout_s: float = 2.0
+    nice: int | None = -10
     sources: list[SourceConfig] = field(default_factory=list)
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -171,6 +200,17 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
         if v < 1:
             raise ConfigError(origin, "recorder.queue_readings", f"expected >= 1, got {v}")
         cfg.queue_readings = v
+    if "nice" in rec:
+        v = _typed(rec, "nice", (int,), origin, "recorder")
+        if not -20 <= v <= 19:
+            raise ConfigError(origin, "recorder.nice", f"expected -20..19, got {v}")
+        cfg.nice = v
+    for key in ("startup_timeout_s", "stall_timeout_s"):
+        if key in rec:
+            v = _typed(rec, key, (int, float), origin, "recorder")
+            if not 0 < v <= 3600:
+                raise ConfigError(origin, f"recorder.{key}", f"expected (0, 3600] s, got {v}")
+            setattr(cfg, key, float(v))
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not sources:
@@ -185,6 +225,12 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
         for k in PATH_KEYS:
             if k in settings and isinstance(settings[k], str):
                 settings[k] = str(_resolve(base, settings[k], origin, f"{prefix}.{k}"))
+        for k in DIR_KEYS:
+            if k in settings and isinstance(settings[k], str):
+                d = Path(settings[k]) if Path(settings[k]).is_absolute() else base / settings[k]
+                if not d.is_dir():
+                    raise ConfigError(origin, f"{prefix}.{k}", f"folder not found: {d}")
+                settings[k] = str(d)
         if "calibration_file" in settings:
             _apply_calibration_file(settings, origin, prefix)
             cal_path = Path(settings.pop("calibration_file"))

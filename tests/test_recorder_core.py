@@ -133,9 +133,14 @@ def test_a_failing_driver_is_logged_and_the_recording_goes_on(tmp_path: Path) ->
         time.sleep(2.0)  # backoff 0.2 s + 0.4 s, then 26 reads of 10 ms
     assert rec.status().sources["flaky"].errors == 2
     rc = read_run(p)
-    msgs = [b["message"] for _, b in rc.messages["/event"]]
-    assert sum("device unplugged" in m for m in msgs) == 2
-    assert [b["level"] for _, b in rc.messages["/event"] if "unplugged" in b["message"]] == [4, 4]
+    ev = [b for _, b in rc.messages["/event"] if b["name"] != "fault"]
+    assert sum("device unplugged" in b["message"] for b in ev) == 2
+    assert [b["level"] for b in ev if "unplugged" in b["message"]] == [4, 4]
+    # the two errors are also faults: events naming the source, and the run's summary
+    faults = [b for _, b in rc.messages["/event"] if b["name"] == "fault"]
+    assert sum(b["fault"] == "errors" for b in faults) >= 1
+    assert all(b["source"] == "flaky" for b in faults)
+    assert rc.metadata["run_end"]["faults"] == '["source flaky: 2 driver/bus errors"]'
     assert [b["k"] for _, b in rc.messages["/flaky"]] == [1, *range(4, 30)]
     assert src.opens >= 2  # closed and reopened after the error
 

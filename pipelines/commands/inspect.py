@@ -75,16 +75,28 @@ def inspect_run(path: str) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.errors import CdprError, ConfigError, InputError
 
     if Path(args.run).is_dir():
         raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
-    info = inspect_run(args.run)
+    try:
+        info = inspect_run(args.run)
+    except CdprError:
+        raise
+    except Exception as exc:  # a reader failing on damage: one line, never a traceback
+        raise InputError(
+            f"{args.run}: damaged run file ({type(exc).__name__}: {exc}); "
+            "`cdpr recover` salvages every readable chunk"
+        ) from None
+    damage = _damage_line(args.run) if info["read_error"] else ""
     if args.json:
+        info["damage"] = damage
         print(json.dumps(info, indent=2))
         return 0
     md = info["metadata"]
-    state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error']})"
+    state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error'] or 'no footer'})"
+    if damage:
+        state = damage
     print(f"run {info['file']}: {state}, {info['duration_s']:.3f} s of data")
     for k in ("label", "rig", "rig_sha256", "software_version", "host", "start_time_utc",
               "operator", "notes", "calibration_ids", "command"):  # fmt: skip
@@ -118,3 +130,18 @@ def run(args: argparse.Namespace) -> int:
                 f"{c.get('lost', 0):6d} {c.get('bad', 0):6d} {c.get('errors', 0):6d}"
             )
     return 0
+
+
+def _damage_line(path: str) -> str:
+    """``DAMAGED (...)`` when parts inside the file are unreadable (not only its end cut off)."""
+    from cdpr.daq.recover import Scan, scan_mcap
+
+    scan = Scan()
+    for _ in scan_mcap(path, scan):
+        pass
+    if not scan.skipped:
+        return ""
+    return (
+        f"DAMAGED ({len(scan.skipped)} unreadable part(s), first {scan.skipped[0]}; the counts "
+        "below stop there; `cdpr recover` keeps every readable chunk after it)"
+    )

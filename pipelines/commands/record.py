@@ -15,7 +15,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "record",
         help="record the sources of an acquisition config (tunnel.toml) into a new MCAP run",
         description="Record every source of the config into <out>/<date>_<time>_<label>.mcap "
-        "until --duration elapses or Ctrl-C / SIGTERM; the file is always finished.",
+        "until --duration elapses or Ctrl-C / SIGTERM; the file is always finished. Exit codes: "
+        "0 clean run; 2 bad input; 3 a source failed or degraded (the run is kept, the faults are "
+        "printed and recorded as /event messages with name 'fault').",
     )
     p.add_argument(
         "--config", required=True, help="acquisition config (TOML), see docs/recording.md"
@@ -32,6 +34,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--pressure", type=float, help="static pressure of this test point, Pa")
     p.add_argument("--temperature", type=float, help="air temperature of this test point, K")
     p.add_argument("--quiet", action="store_true", help="no live view")
+    p.add_argument(
+        "--test-matrix",
+        help="test matrix (TOML, docs/campaign.md): the live view steps through its points, "
+        "SPACE starts and ends the current one (a 'test_point' event each)",
+    )
+    p.add_argument(
+        "--allow-degraded",
+        action="store_true",
+        help="keep recording when a source delivers nothing within [recorder] startup_timeout_s "
+        "(default: stop); the run still exits 3",
+    )
     p.set_defaults(func=run)
 
 
@@ -47,11 +60,18 @@ def record_run(
     t_min_N: Sequence[float] | None = None,
     t_max_N: Sequence[float] | None = None,
     on_started: Any = None,
+    nice: int | None = None,
+    rig: Any = None,
+    test_points: Sequence[Any] | None = None,
 ) -> Any:
     """Run a :class:`~cdpr.daq.recorder.Recorder` until ``duration_s``, SIGINT or SIGTERM.
 
     The signal handlers only request a stop; ``Recorder.stop`` (summary, footer, fsync) runs in a
     ``finally``.  The live view is shown when stdout is a terminal and ``quiet`` is false.
+    ``rig``: the live view's wrench estimate; ``test_points``: the points the operator steps
+    through in the live view (``test_point`` events).
+    ``nice``: the process priority to ask for (e.g. -10: ahead of ordinary processes, so a busy
+    machine does not starve the acquisition); refused (no privilege) it is an event, not an error.
     Returns the recorder's final status.
     """
     from cdpr.daq.recorder import Recorder
@@ -62,15 +82,19 @@ def record_run(
         rec.request_stop(signal.Signals(signum).name)
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    # before the threads start: Linux keeps a nice value per thread, new threads inherit it
+    prio = _set_priority(nice) if nice is not None else None
     try:
         rec.start()
+        if prio is not None:
+            rec.event(prio[1], level=prio[0], name="recorder")
         print(f"recording {path}", flush=True)
         if on_started is not None:
             on_started(rec)
         if not quiet and sys.stdout.isatty():
             from cdpr.daq.live import LiveView
 
-            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N):
+            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N, rig=rig, test_points=test_points):
                 rec.wait(duration_s)
         else:
             rec.wait(duration_s)
@@ -88,7 +112,56 @@ def record_run(
         f"({st.stop_reason})",
         flush=True,
     )
+    report_faults(st)
     return st
+
+
+def _test_points(path: str) -> list[Any]:
+    """The points of a test matrix file (``cdpr.pipelines.campaign.load_test_matrix``)."""
+    from cdpr.analysis.errors import ConfigError
+
+    try:
+        from cdpr.pipelines.campaign import load_test_matrix  # type: ignore[import-not-found]
+    except ImportError:
+        raise ConfigError(
+            path, "", "test matrices need cdpr.pipelines.campaign (not in this version)"
+        ) from None
+    points = list(load_test_matrix(path).points)
+    if not points:
+        raise ConfigError(path, "points", "no test points")
+    return points
+
+
+def _set_priority(nice: int) -> tuple[str, str]:
+    """Set this thread's nice value (threads started later inherit it); (level, event message)."""
+    import os
+
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except OSError as exc:
+        return (
+            "warning",
+            f"could not set the recorder's priority to nice {nice} ({exc.strerror}): under CPU "
+            "load it may fall behind (give it CAP_SYS_NICE or run it as root)",
+        )
+    return "info", f"recorder priority: nice {os.getpriority(os.PRIO_PROCESS, 0)}"
+
+
+def report_faults(st: Any) -> int:
+    """Print a failed or degraded recording's faults on stderr; the exit code (0 clean, 3)."""
+    faults = list(st.faults)
+    if st.failure:
+        # one line; the failed source's own summary would only repeat it
+        print(
+            f"cdpr record: failed: {st.failure}; the data recorded so far is kept", file=sys.stderr
+        )
+        name = st.failure.split("'")[1] if st.failure.count("'") >= 2 else ""
+        faults = [f for f in faults if not f.startswith(f"source {name}:")]
+    if faults:
+        print(f"cdpr record: DEGRADED run, {len(faults)} faulty source(s):", file=sys.stderr)
+        for line in faults:
+            print(f"  {line}", file=sys.stderr)
+    return 3 if st.failure or st.faults else 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -100,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
     from ..daq_config import build_sources, load_daq_config
 
     cfg = load_daq_config(args.config)
+    test_points = _test_points(args.test_matrix) if args.test_matrix else None
     if args.duration is not None and not args.duration > 0:
         from cdpr.analysis.errors import InputError
 
@@ -135,6 +209,14 @@ def run(args: argparse.Namespace) -> int:
     if cfg.rig is not None:
         attachments.append(Attachment.from_file(cfg.rig, "rig/" + cfg.rig.name))
     attachments += [Attachment.from_file(c, "calibration/" + c.name) for c in cfg.calibrations]
+    for sc in cfg.sources:  # a camera's model and marker layout travel with its poses
+        if sc.kind == "camera":
+            for key in ("camera", "layout"):
+                if isinstance(sc.settings.get(key), str):
+                    f = Path(sc.settings[key])
+                    name = f"calibration/{f.name}"
+                    if all(a.name != name for a in attachments):
+                        attachments.append(Attachment.from_file(f, name))
     config_snapshot = {
         "file": str(cfg.path),
         "sha256": file_sha256(cfg.path),
@@ -162,8 +244,11 @@ def run(args: argparse.Namespace) -> int:
         chunk_size=cfg.chunk_size,
         flush_interval_s=cfg.flush_interval_s,
         compression=cfg.compression,
+        startup_timeout_s=cfg.startup_timeout_s,
+        stall_timeout_s=cfg.stall_timeout_s,
+        allow_degraded=args.allow_degraded,
     )
-    record_run(
+    st = record_run(
         sources,
         path,
         metadata=md,
@@ -173,8 +258,11 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         t_min_N=list(rig.t_min_N) if rig else None,
         t_max_N=list(rig.t_max_N) if rig else None,
+        nice=cfg.nice,
+        rig=rig,
+        test_points=test_points,
     )
-    return 0
+    return 3 if st.failure or st.faults else 0
 
 
 def _check_cables(origin: str, sources: Any, rig: Any) -> None:

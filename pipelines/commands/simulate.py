@@ -213,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
                 "--transport", args.transport, "--pty-link", str(link),
                 "--tunnel-link", str(tunnel_link), "--truth", str(truth_path),
                 "--wait-reader", "15", "--speed", str(args.speed),
+                "--linger", "600",  # ports stay open until the recording stopped (terminate)
             ]  # fmt: skip
             child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             assert child.stdout is not None
@@ -282,7 +283,22 @@ def run(args: argparse.Namespace) -> int:
                 if rig_run is not None:
                     rig_run.done.wait()
                 elif child is not None:
-                    child.wait()
+                    # the schedule's end by the child's clock (its STARTED line), not the child's
+                    # exit: closing its ports under a running recorder would be a fault
+                    while child.poll() is None and vr.t0_ns is None:
+                        time.sleep(0.05)
+                    if vr.t0_ns is not None:
+                        # after the schedule's end, wait until the load cells fall silent for 1 s
+                        # (a child starved on a busy machine sends behind its clock)
+                        end_ns = vr.t0_ns + int(schedule.duration_s / args.speed * 1e9)
+                        last_n, quiet_since = -1, time.monotonic()
+                        while child.poll() is None:
+                            n = rec.status().counts.get("tensions", 0)
+                            if n != last_n:
+                                last_n, quiet_since = n, time.monotonic()
+                            elif time.time_ns() > end_ns and time.monotonic() - quiet_since > 1.0:
+                                break
+                            time.sleep(0.05)
                 time.sleep(0.3)  # the last frames in flight
                 rec.request_stop("schedule done")
 

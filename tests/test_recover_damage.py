@@ -1,0 +1,208 @@
+"""Damaged run files: ``cdpr recover`` skips a damaged chunk and keeps every intact one after it,
+resyncs over broken framing, refuses (exit 2, no file) when nothing can be salvaged; ``inspect``,
+``recover`` and ``export`` never end in a traceback on truncated or bit-flipped files (hypothesis).
+
+The chunk layout is taken from the python ``mcap`` reader's chunk index of the intact file, the
+recovered files are counted by the independent reader (npm ``@mcap/core``)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from test_recorder_helpers import CountingSource, node_read
+
+from cdpr.daq.mcap_io import read_run
+from cdpr.daq.recorder import Recorder, RecorderOptions
+from cdpr.pipelines.cli import main as cdpr_main
+
+N = 6000
+
+
+@pytest.fixture(scope="module")
+def run_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished run of one counting source (i = 0..N-1) in a dozen or more zstd chunks."""
+    p = tmp_path_factory.mktemp("dmg") / "run.mcap"
+    opts = RecorderOptions(chunk_size=16 * 1024, startup_timeout_s=30.0)
+    src = CountingSource("c", total=N, batch=50)
+    with Recorder([src], p, options=opts) as rec:
+        end = time.monotonic() + 60
+        while rec.status().counts.get("count", 0) < N and time.monotonic() < end:
+            time.sleep(0.02)
+    return p
+
+
+def _topics(path: Path) -> dict[int, str]:
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    return {c.id: c.topic for c in summary.channels.values()}
+
+
+def _chunks(path: Path) -> list[tuple[int, int]]:
+    """(offset, length) of every chunk, from the mcap library's summary of the intact file."""
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    return sorted((c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes)
+
+
+def _ids_per_chunk(path: Path) -> list[set[int]]:
+    """The ``i`` of the /count messages in each chunk (each chunk read on its own by the python
+    mcap stream reader, at the offsets of the chunk index)."""
+    data = path.read_bytes()
+    topics = _topics(path)
+    out = []
+    for off, length in _chunks(path):
+        rd = StreamReader(io.BytesIO(data[off : off + length]), skip_magic=True)
+        ids = set()
+        with contextlib.suppress(EndOfFile):  # the slice ends after the chunk: no footer
+            for r in rd.records:
+                if isinstance(r, Message) and topics[r.channel_id] == "/count":
+                    ids.add(json.loads(r.data)["i"])
+        out.append(ids)
+    return out
+
+
+def _cli(capsys, *argv: str) -> tuple[int, str, str]:
+    rc = cdpr_main(list(argv))
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def _recovered_ids(path: Path) -> list[int]:
+    return [b["i"] for _, b in read_run(path).messages["/count"]]
+
+
+def test_a_corrupted_zstd_chunk_is_skipped_and_the_later_chunks_kept(
+    run_file: Path, tmp_path: Path, capsys
+) -> None:
+    chunks = _chunks(run_file)
+    assert len(chunks) >= 8
+    per_chunk = _ids_per_chunk(run_file)
+    assert set().union(*per_chunk) == set(range(N))
+    k = 3
+    off, length = chunks[k]
+    p = tmp_path / "bad.mcap"
+    data = bytearray(run_file.read_bytes())
+    mid = off + length // 2
+    data[mid : mid + 16] = bytes(b ^ 0xFF for b in data[mid : mid + 16])  # inside the zstd frame
+    p.write_bytes(bytes(data))
+
+    rc, out, err = _cli(capsys, "inspect", str(p))  # the damage in one line, no traceback
+    assert rc == 0 and err == ""
+    (line,) = [x for x in out.splitlines() if "DAMAGED" in x]
+    assert f"DAMAGED (1 unreadable part(s), first {length} bytes at offset {off}" in line
+
+    rc, out, err = _cli(capsys, "recover", str(p))
+    assert rc == 3, err
+    lines = err.strip().splitlines()
+    assert lines[0] == f"cdpr recover: {p}: 1 damaged part(s) skipped:"
+    assert f"{length} bytes at offset {off}" in lines[1] and "chunk skipped" in lines[1]
+    rec = p.with_name("bad.recovered.mcap")
+    node = node_read(rec)
+    assert node["complete"] and node["error"] is None
+    lost = per_chunk[k] - set().union(*(per_chunk[:k] + per_chunk[k + 1 :]))
+    assert lost and node["topics"]["/count"] == N - len(lost)
+    assert sorted(_recovered_ids(rec)) == sorted(set(range(N)) - lost)  # every later chunk kept
+    md = read_run(rec).metadata
+    assert md["run_end"]["stop_reason"]  # metadata after the damage survives too
+    assert len(json.loads(md["recovery"]["skipped"])) == 1
+
+
+def test_broken_framing_is_resynchronised_on_the_next_chunk(
+    run_file: Path, tmp_path: Path, capsys
+) -> None:
+    chunks = _chunks(run_file)
+    per_chunk = _ids_per_chunk(run_file)
+    k = 2
+    off, _ = chunks[k]
+    data = bytearray(run_file.read_bytes())
+    data[off + 1 : off + 9] = (2**40).to_bytes(8, "little")  # chunk length far past the end
+    p = tmp_path / "frame.mcap"
+    p.write_bytes(bytes(data))
+    rc, out, err = _cli(capsys, "recover", str(p))
+    assert rc == 3, err
+    assert f"offset {off}" in err and "resynchronised" in err
+    expect = set().union(*(per_chunk[:k] + per_chunk[k + 1 :]))
+    assert set(_recovered_ids(p.with_name("frame.recovered.mcap"))) == expect
+
+
+def test_a_file_cut_inside_its_header_salvages_nothing(
+    run_file: Path, tmp_path: Path, capsys
+) -> None:
+    p = tmp_path / "cut.mcap"
+    p.write_bytes(run_file.read_bytes()[:20])
+    rc, out, err = _cli(capsys, "recover", str(p))
+    assert rc == 2 and out == ""
+    assert err.strip().splitlines() == [
+        f"cdpr recover: error: {p}: nothing to salvage (record at offset 8 needs "
+        + err.split("needs ")[1].split(" bytes")[0]
+        + " bytes, 3 left (file cut short))"
+    ]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["cut.mcap"]  # nothing written
+
+
+def test_a_truncated_file_keeps_every_complete_chunk(
+    run_file: Path, tmp_path: Path, capsys
+) -> None:
+    chunks = _chunks(run_file)
+    per_chunk = _ids_per_chunk(run_file)
+    k = 5
+    off, length = chunks[k]
+    p = tmp_path / "trunc.mcap"
+    p.write_bytes(run_file.read_bytes()[: off + length // 2])
+    rc, out, err = _cli(capsys, "recover", str(p))
+    assert rc == 0 and err == ""
+    assert set(_recovered_ids(p.with_name("trunc.recovered.mcap"))) == set().union(*per_chunk[:k])
+
+
+@settings(
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(
+    cut=st.one_of(st.none(), st.floats(0.0, 1.0)),
+    flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 7)), max_size=4),
+)
+def test_fuzz_inspect_recover_export_never_trace_back(
+    run_file: Path, tmp_path: Path, capsys, cut, flips
+) -> None:
+    data = bytearray(run_file.read_bytes())
+    if cut is not None:
+        data = data[: int(cut * len(data))]
+    for where, bit in flips:
+        if data:
+            i = min(int(where * len(data)), len(data) - 1)
+            data[i] ^= 1 << bit
+    d = tmp_path / f"fz{time.monotonic_ns()}"
+    d.mkdir()
+    p = d / "f.mcap"
+    p.write_bytes(bytes(data))
+    (d / "f.h5").write_bytes(b"existing")  # an existing output is never overwritten
+    for argv, ok in (
+        (["inspect", str(p)], (0,)),
+        (["recover", str(p)], (0, 3)),
+        (["export", str(p), "--hdf5", str(d / "f.h5")], ()),
+        (["export", str(p), "--hdf5", str(d / "g.h5")], (0,)),
+    ):
+        rc, out, err = _cli(capsys, *argv)  # an exception here is a traceback for the user
+        if rc not in ok:
+            assert rc == 2, (argv, rc, err)
+            lines = err.strip().splitlines()
+            assert len(lines) == 1 and str(d) in lines[0], (argv, err)
+    assert (d / "f.h5").read_bytes() == b"existing"
+    assert not [x for x in d.iterdir() if x.name.endswith(".part")]
+    shutil.rmtree(d)
