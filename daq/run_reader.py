@@ -103,10 +103,16 @@ def _fields_of(schema: dict[str, Any] | None, units: dict[str, str]) -> dict[str
     return out
 
 
+class DamagedRunError(InputError):
+    """A chunk inside a run file cannot be read (bad compression or CRC): open the file with
+    ``open_run(path, recover=True)`` to read what the recovery path salvages, or run
+    ``cdpr recover``."""
+
+
 class Run:
     """An open run file (see the module docstring); use :func:`open_run`."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, recover: bool = False) -> None:
         from mcap.exceptions import McapError
         from mcap.reader import SeekingReader
 
@@ -120,8 +126,14 @@ class Run:
             summary = SeekingReader(self._fh).get_summary()
         except (McapError, struct.error, ValueError, EOFError, OSError):
             summary = None  # too short for a footer, or a bad one: recovery reads what is there
-        if summary is None or (
-            summary.statistics and summary.statistics.message_count and not summary.chunk_indexes
+        if (
+            recover
+            or summary is None
+            or (
+                summary.statistics
+                and summary.statistics.message_count
+                and not summary.chunk_indexes
+            )
         ):
             self._fh.close()
             self._open_recovered(path)
@@ -261,25 +273,23 @@ class Run:
         pos += 8 + clen
         (rlen,) = struct.unpack_from("<Q", raw, pos)
         body = raw[pos + 8 : pos + 8 + rlen]
-        if compression == "zstd":
-            import zstandard
-
-            data = zstandard.ZstdDecompressor().decompress(
-                body, max_output_size=ci.uncompressed_size
-            )
-        elif compression == "lz4":
-            import lz4.frame
-
-            data = lz4.frame.decompress(body)
-        elif compression == "":
-            data = bytes(body)
-        else:
+        try:
+            data = _decompress(compression, body, ci.uncompressed_size)
+        except Exception as exc:  # zstandard.ZstdError, lz4's RuntimeError: the chunk is damaged
+            raise DamagedRunError(
+                f"{self.path}: damaged chunk at byte {ci.chunk_start_offset} "
+                f"({type(exc).__name__}: {exc}); `cdpr recover` keeps every readable chunk"
+            ) from None
+        if data is None:
             raise InputError(
                 f"{self.path}: chunk at byte {ci.chunk_start_offset}: "
                 f"unknown compression {compression!r}"
             )
         if crc and zlib.crc32(data) != crc:
-            raise InputError(f"{self.path}: chunk at byte {ci.chunk_start_offset}: CRC mismatch")
+            raise DamagedRunError(
+                f"{self.path}: damaged chunk at byte {ci.chunk_start_offset}: CRC mismatch; "
+                "`cdpr recover` keeps every readable chunk"
+            )
         if len(self._chunk_cache) >= 4:
             self._chunk_cache.pop(next(iter(self._chunk_cache)))
         self._chunk_cache[ci.chunk_start_offset] = data
@@ -291,9 +301,23 @@ class Run:
         if off is None:
             return np.empty((0, 2), _U64)
         head = self._read_at(off, 15)
+        # message index record: opcode 0x07, u64 length, u16 channel, u32 entries byte length
+        if len(head) < 15 or head[0] != 0x07 or struct.unpack_from("<H", head, 9)[0] != cid:
+            raise self._damaged(off, "not a message index of its channel")
         (blen,) = struct.unpack_from("<I", head, 11)
         raw = self._read_at(off + 15, blen)
-        return np.frombuffer(raw, _U64).reshape(-1, 2)
+        if blen % 16 or len(raw) != blen:
+            raise self._damaged(off, "message index cut or of a bad length")
+        idx = np.frombuffer(raw, _U64).reshape(-1, 2)
+        if len(idx) and int(idx[:, 1].max()) >= ci.uncompressed_size:
+            raise self._damaged(off, "message index points outside its chunk")
+        return idx
+
+    def _damaged(self, offset: int, what: str) -> DamagedRunError:
+        return DamagedRunError(
+            f"{self.path}: damaged index at byte {offset} ({what}); "
+            "`cdpr recover` keeps every readable chunk"
+        )
 
     def _chunks_of(self, cid: int, start_ns: int | None, stop_ns: int | None) -> list[Any]:
         out = [
@@ -349,9 +373,13 @@ class Run:
             buf = np.frombuffer(data, np.uint8)
             off = idx[:, 1].astype(np.int64)
             # message record: opcode, u64 length, u16 channel, u32 sequence, u64 log, u64 publish
+            if int(off.max()) + 31 > len(buf) or (buf[off] != 0x05).any():
+                raise self._damaged(ci.chunk_start_offset, "a message offset is not a message")
             lens = buf[(off + 1)[:, None] + np.arange(8)].copy().view(_U64).ravel().astype(np.int64)
             starts = off + 31
             ends = off + 9 + lens
+            if (lens < 22).any() or int(ends.max()) > len(buf):
+                raise self._damaged(ci.chunk_start_offset, "a message runs past its chunk")
             yield t, [data[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
 
     def _decode(self, topic: str, t: np.ndarray, bodies: list[bytes]) -> Any:
@@ -494,12 +522,30 @@ def summarize(run: Run) -> list[StreamSummary]:
     return out
 
 
-def open_run(path: str | os.PathLike[str]) -> Run:
+def open_run(path: str | os.PathLike[str], recover: bool = False) -> Run:
     """Open a run file for reading (see the module docstring).  Bad input (missing file, not an
-    MCAP file) raises :class:`~cdpr.analysis.errors.ConfigError` naming the file."""
+    MCAP file) raises :class:`~cdpr.analysis.errors.ConfigError` naming the file; a damaged chunk
+    met while reading raises :class:`DamagedRunError`.  ``recover=True`` reads the file through
+    the recovery path (every readable chunk, before and after damage) even when its summary is
+    intact; ``run.recovered`` and ``run.warning`` say so."""
     from .mcap_io import _check_file
 
-    return Run(_check_file(path))
+    return Run(_check_file(path), recover=recover)
+
+
+def _decompress(compression: str, body: bytes, size: int) -> bytes | None:
+    """A chunk's records; None for an unknown compression."""
+    if compression == "zstd":
+        import zstandard
+
+        return zstandard.ZstdDecompressor().decompress(body, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(body))
+    if compression == "":
+        return bytes(body)
+    return None
 
 
 # -------------------------------------------------------------------------------------------------

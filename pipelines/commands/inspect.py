@@ -14,11 +14,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
-def inspect_run(path: str) -> dict[str, Any]:
-    """The summary ``cdpr inspect`` prints, as a dict."""
+def inspect_run(path: str, recover: bool = False) -> dict[str, Any]:
+    """The summary ``cdpr inspect`` prints, as a dict (``recover``: read through the recovery
+    path, for a file with a damaged chunk inside)."""
     from cdpr.daq.run_reader import open_run, summarize
 
-    with open_run(path) as rc:
+    with open_run(path, recover=recover) as rc:
         streams = summarize(rc)
         metadata = rc.metadata
         attachments = {
@@ -79,8 +80,13 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.run).is_dir():
         raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
+    from cdpr.daq.run_reader import DamagedRunError
+
     try:
-        info = inspect_run(args.run)
+        try:
+            info = inspect_run(args.run)
+        except DamagedRunError:  # a damaged chunk inside: summarise what recovery salvages
+            info = inspect_run(args.run, recover=True)
     except CdprError:
         raise
     except Exception as exc:  # a reader failing on damage: one line, never a traceback
