@@ -54,6 +54,8 @@ class TestPointStepper:
     """The operator's place in a list of test points; :meth:`toggle` starts or ends the current
     point and records it as a ``test_point`` event (see the module docstring)."""
 
+    __test__ = False  # not a pytest class
+
     def __init__(self, points: Sequence[Any], event: Any) -> None:
         self.points = list(points)
         self.event = event

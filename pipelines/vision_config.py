@@ -5,7 +5,6 @@ Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the file, the
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
 from cdpr.calibration.intrinsics import BoardSpec, CalibrationSettings
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 
-from .config import load_toml
+from .config import load_json, load_toml
 
 
 def _number(
@@ -205,14 +204,7 @@ def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
 def load_camera(path: str | os.PathLike[str]) -> CameraModel:
     """A camera model JSON file (format in :mod:`cdpr.calibration.camera_model`)."""
     p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(str(p), "", "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(str(p), "", f"invalid JSON: {exc}") from None
-    except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot read: {exc.strerror}") from None
+    data = load_json(p)
     return camera_from_mapping(data, source=str(p))
 
 

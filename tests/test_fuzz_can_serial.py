@@ -119,7 +119,6 @@ def _import(capsys, folder: Path, log: Path, dbc: Path, bad: Path) -> int:
     return check_cli(capsys, argv, folder, bad, [out])
 
 
-@pytest.mark.xfail(strict=True, reason=STORAGE)
 @FUZZ
 @given(data=mutated(CANDUMP, "#"))
 def test_fuzz_candump_log(capsys, data):

@@ -92,7 +92,7 @@ def test_a_bad_line_is_named_by_file_and_line(tmp_path: Path) -> None:
 
 def _import(log: Path, out: Path) -> int:
     return main(["import", "--can-log", str(log), "--dbc", str(DBC), "--rig", str(RIG),
-                 "--out", str(out)])  # fmt: skip
+                 "--raw-only", "--out", str(out)])  # fmt: skip
 
 
 def _same_as_python_can(run_path: Path, log: Path) -> int:

@@ -40,6 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="test-point events CSV (t_ns or t_s, point, phase start|end, kind, optional "
         "target_aoa_deg, target_sideslip_deg, target_airspeed_mps, repeat_of): /events",
     )
+    p.add_argument(
+        "--raw-only",
+        action="store_true",
+        help="keep the log's frames (/can_raw) even when none is a load-cell frame of the DBC "
+        "(without it, a log with no decodable sample is an error)",
+    )
     p.add_argument("--rate", type=float, default=0.0, help="nominal sample rate, Hz (metadata)")
     p.add_argument("--label", default="import", help="label recorded in the metadata")
     p.add_argument("--out", required=True, help="output run file (.mcap, never overwritten)")
@@ -165,6 +171,15 @@ def run(args: argparse.Namespace) -> int:
             for stream, desc in src.describe().items():
                 w.add_stream(stream, desc)
             first_ns, can_stats = _write_can_log(w, src, args.can_log, start_ns)
+            if (
+                can_stats["samples"] == 0 and not args.raw_only
+            ):  # nothing decoded: a wrong DBC, bus or log
+                raise ConfigError(
+                    args.dbc,
+                    "",
+                    f"no load-cell sample decoded from the {can_stats['frames']} frame(s) of "
+                    f"{args.can_log}: the DBC's message ids match no frame of the log",
+                )
             if poses is not None:
                 tcol, tv, q6 = poses
                 if tcol == "t_s":

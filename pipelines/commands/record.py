@@ -117,16 +117,22 @@ def record_run(
 
 
 def _test_points(path: str) -> list[Any]:
-    """The points of a test matrix file (``cdpr.pipelines.campaign.load_test_matrix``)."""
+    """The points of a test matrix file, in run order (``cdpr.pipelines.campaign``)."""
     from cdpr.analysis.errors import ConfigError
 
-    try:
-        from cdpr.pipelines.campaign import load_test_matrix  # type: ignore[import-not-found]
-    except ImportError:
-        raise ConfigError(
-            path, "", "test matrices need cdpr.pipelines.campaign (not in this version)"
-        ) from None
-    points = list(load_test_matrix(path).points)
+    from ..campaign import load_test_matrix
+
+    points = [
+        {
+            "point": p.label,
+            "kind": p.kind,
+            "target_aoa_deg": p.aoa_deg,
+            "target_sideslip_deg": p.sideslip_deg,
+            "target_airspeed_mps": p.airspeed_mps,
+            "repeat_of": p.repeat_of,
+        }
+        for p in load_test_matrix(path).points
+    ]
     if not points:
         raise ConfigError(path, "points", "no test points")
     return points

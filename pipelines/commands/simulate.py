@@ -184,6 +184,11 @@ def run(args: argparse.Namespace) -> int:
         from cdpr.analysis.errors import ConfigError
 
         raise ConfigError(args.rig, "cables", f"{rig.n_cables} cables: {exc}") from None
+    camera_model = layout = None
+    if args.camera:  # checked before anything is created
+        from ..vision_config import load_camera, load_marker_layout
+
+        camera_model, layout = load_camera(args.camera), load_marker_layout(args.markers)
     label = args.label or schedule.name
     path = new_run_path(args.out, label)
     truth_path = path.with_name(path.stem + ".truth.npz")
@@ -241,13 +246,12 @@ def run(args: argparse.Namespace) -> int:
             from cdpr.analysis.rotations import rotation_from_euler
             from cdpr.daq.camera_source import VirtualCameraSource
 
-            from ..vision_config import load_camera, load_marker_layout
-
+            assert camera_model is not None and layout is not None
             sources.append(
                 VirtualCameraSource(
                     "camera",
-                    load_camera(args.camera),
-                    load_marker_layout(args.markers),
+                    camera_model,
+                    layout,
                     pose_at=vr.true_pose_at,
                     rate_hz=args.camera_rate_hz,
                     image_rate_hz=args.image_rate_hz,

@@ -1,0 +1,39 @@
+"""``cdpr record --test-matrix``: the operator steps through the points of the campaign file, and
+each point's start and end become ``test_point`` events with the agreed fields."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cdpr.daq.live import TestPointStepper
+from cdpr.pipelines.commands.record import _test_points
+
+ROOT = Path(__file__).resolve().parents[1]
+MATRIX = ROOT / "data_samples" / "campaign_alpha_sweep.toml"
+
+
+def test_the_matrix_points_become_test_point_events_in_run_order() -> None:
+    points = _test_points(str(MATRIX))
+    # the sample file, by hand: a zero, 6 tares, 6 x 3 wind-on points, a repeat, a closing zero
+    assert len(points) == 1 + 6 + 18 + 1 + 1
+    assert [p["kind"] for p in points[:2]] == ["zero", "tare"]
+    assert points[-2] == {
+        "point": "repeat-a2-v25.51",
+        "kind": "wind_on",
+        "target_aoa_deg": 2.0,
+        "target_sideslip_deg": 0.0,
+        "target_airspeed_mps": 25.51,
+        "repeat_of": "alpha-a2-b0-v25.51",
+    }
+    assert sum(p["target_airspeed_mps"] == 41.42 for p in points) == 6
+
+    said: list[tuple[str, dict]] = []
+    stepper = TestPointStepper(points, lambda msg, **kw: said.append((msg, kw)))
+    for _ in range(4):  # start and end the first two points
+        stepper.toggle()
+    assert [(kw["point"], kw["phase"]) for _, kw in said] == [
+        ("zero-start", "start"), ("zero-start", "end"), ("tare-a-4-b0-v0", "start"),
+        ("tare-a-4-b0-v0", "end"),
+    ]  # fmt: skip
+    assert all(kw["name"] == "test_point" for _, kw in said)
+    assert said[2][1]["target_aoa_deg"] == -4.0 and said[2][1]["kind"] == "tare"
