@@ -492,11 +492,23 @@ def camera_pose_error(run: RunData) -> dict[str, float] | None:
 
 
 def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
+    """tensions.png (min/max envelope of every cable and of the airspeed, test points shaded),
+    wrench.png (per wind-on point, ±2σ), check.png (measured − expected tension per point).  The
+    cost does not grow with the number of samples: 2000 envelope bins, one shading collection per
+    kind; with many points the check plot draws markers and thins its labels."""
     from .plotting import minmax_envelope, png_figure
 
     t0 = run.t_ns[0]
+    t_s = (run.t_ns - t0) * 1e-9
     # min/max envelope over 2000 bins (every spike stays visible), never every sample
-    ts, T_env = minmax_envelope((run.t_ns - t0) * 1e-9, run.tensions_N)
+    ts, T_env = minmax_envelope(t_s, run.tensions_N)
+    tare = df.kind.isin(("tare", "zero")).to_numpy()
+    spans = np.column_stack(
+        [
+            (df.start_ns.to_numpy() - t0) * 1e-9,
+            (df.stop_ns.to_numpy() - df.start_ns.to_numpy()) * 1e-9,
+        ]
+    )
     with png_figure(folder / "tensions.png", 2, 1, (10, 6), sharex=True, height_ratios=[3, 1]) as (
         fig,
         axes,
@@ -504,21 +516,22 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax = axes[:, 0]
         for k, name in enumerate(run.rig.cable_names):
             ax[0].plot(ts, T_env[:, k], lw=0.8, label=name)
-        for _, r in df.iterrows():
-            for a in ax:
-                a.axvspan(
-                    (r.start_ns - t0) * 1e-9,
-                    (r.stop_ns - t0) * 1e-9,
-                    color="0.9" if r.kind in ("tare", "zero") else "#dde8f7",
-                    zorder=0,
-                )
+        for a in ax:  # one collection per kind of point, spanning the axes' height
+            for sel, color in ((tare, "0.9"), (~tare, "#dde8f7")):
+                if sel.any():
+                    a.broken_barh(
+                        spans[sel].tolist(), (0, 1), transform=a.get_xaxis_transform(),
+                        color=color, zorder=0,
+                    )  # fmt: skip
         ax[0].set_ylabel("tension (N)")
         ax[0].legend(fontsize=7, ncol=4, loc="upper left")
         ax[0].set_title(
-            f"{run.path.name}: tensions; shaded = test points ({df['source'].iloc[0]}; grey: tares)"
+            f"{run.path.name}: tensions (min/max envelope); shaded = test points "
+            f"({df['source'].iloc[0]}; grey: tares)"
         )
         if run.tunnel is not None:
-            ax[1].plot(ts, minmax_envelope(run.t_ns, run.tunnel[0])[1], color="k", lw=1)
+            tv, v_env = minmax_envelope(t_s, run.tunnel[0])
+            ax[1].plot(tv, v_env, color="k", lw=1)
         else:
             ax[1].text(0.5, 0.5, "no airspeed data", transform=ax[1].transAxes, ha="center")
         ax[1].set_ylabel("airspeed (m/s)")
@@ -537,22 +550,28 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
             a.set_title(c)
             a.set_xlabel("airspeed (m/s)" if run.tunnel is not None else "point")
             a.grid(alpha=0.3)
-        axes.flat[0].legend(fontsize=7)
+        axes.flat[0].legend(fontsize=7, loc="upper left")
         fig.suptitle("Recovered aerodynamic wrench per test point (at the MRP, {O} axes)")
 
     dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
     with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
         ax = axes[0, 0]
-        width = 0.8 / len(dcols)
         idx = np.arange(len(df))
-        for k, c in enumerate(dcols):
-            ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+        if len(df) <= 40:
+            width = 0.8 / len(dcols)
+            for k, c in enumerate(dcols):
+                ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+            ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
+        else:  # many points: one marker per cable and point, every k-th label
+            for c in dcols:
+                ax.plot(idx, df[c], ".", ms=3, label=c[3:-2])
+            step = int(np.ceil(len(df) / 40))
+            ax.set_xticks(idx[::step], df["point"].iloc[::step], rotation=90, fontsize=6)
         ax.axhline(1.0, color="r", ls="--", lw=1)
         ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
-        ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
         ax.set_ylabel("measured − expected tension (N)")
         ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
-        ax.legend(fontsize=7, ncol=5)
+        ax.legend(fontsize=7, ncol=5, loc="upper left")
 
 
 def _fmt(v: float, sd: float) -> str:
@@ -767,7 +786,8 @@ def analyze_runs(
     force: bool = False,
 ) -> list[dict[str, Any]]:
     """Analyse runs in parallel on Dask (a local cluster of ``workers`` single-threaded processes,
-    unless ``scheduler`` is the address of a running scheduler); a bad run is reported in its
+    unless ``scheduler`` is the address of a running scheduler; with one worker, or one run, and
+    no scheduler: one after the other in this process); a bad run is reported in its
     summary (``error``) without stopping the others.  A run whose result folder records the
     fingerprint of its inputs now is not recomputed (its recorded summary comes back with
     ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr."""
@@ -781,9 +801,10 @@ def analyze_runs(
     todo = [i for i, r in enumerate(results) if r is None]
     bar = _RunsProgress(len(todo), progress)
     try:
-        if len(todo) == 1 and scheduler is None:
-            results[todo[0]] = _safe(paths[todo[0]], out_dir, opts, fps[todo[0]])
-            bar.advance()
+        if scheduler is None and (len(todo) == 1 or workers == 1):
+            for i in todo:  # one worker: in this process, no cluster to start
+                results[i] = _safe(paths[i], out_dir, opts, fps[i])
+                bar.advance()
         elif todo:
             from dask.distributed import Client, LocalCluster, as_completed
 
