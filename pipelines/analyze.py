@@ -110,6 +110,75 @@ def _column(df: pd.DataFrame, name: str, fill: float = np.nan) -> np.ndarray:
     return pd.to_numeric(df[name], errors="coerce").to_numpy(np.float64)
 
 
+TENSION_WINDOW_NS = 300 * 10**9
+"""Tensions are decoded 5 minutes at a time into preallocated arrays (bounded memory)."""
+
+
+def _tension_columns(
+    run: Any, topic: str, rig: Rig, p: Path
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Times (n,), tensions (n, m) (NaN where a field is missing), the status words OR-ed over the
+    cables and the message (n,), the counter ``seq`` (None unless every message has one), read
+    window by window into arrays sized from the stream's message count."""
+    cols = [f"T_{n}_N" for n in rig.cable_names]
+    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
+    n_max = run.streams[topic].count
+    t_ns = np.empty(n_max, np.int64)
+    T = np.empty((n_max, len(cols)))
+    st = np.zeros(n_max, np.int64)
+    seq: np.ndarray | None = np.empty(n_max, np.int64)
+    seen: set[str] = set()
+    i = 0
+    for df in run.iter_tables(topic, TENSION_WINDOW_NS):
+        k = len(df)
+        if i + k > n_max:
+            raise ConfigError(str(p), topic, f"more messages than the summary's {n_max}")
+        seen.update(df.columns)
+        t_ns[i : i + k] = df["t_ns"].to_numpy(np.int64)
+        for j, c in enumerate(cols):
+            T[i : i + k, j] = _column(df, c)
+        for c in scols:
+            if c in df:
+                st[i : i + k] |= np.nan_to_num(_column(df, c)).astype(np.int64)
+        if seq is not None:
+            if "seq" in df and df["seq"].notna().all():
+                seq[i : i + k] = df["seq"].to_numpy(np.int64)
+            else:
+                seq = None
+        i += k
+    missing = [c for c in cols if c not in seen]
+    if missing:
+        raise ConfigError(str(p), topic, f"field {missing[0]} missing for rig {rig.name!r}")
+    return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i]
+
+
+_TUNNEL_COLUMNS = ("airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K")
+_POSE_COLUMNS = (
+    "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "status",
+    *(f"cov_{i}{j}" for i in range(6) for j in range(6)),
+)  # fmt: skip
+
+
+def _slim_table(run: Any, topic: str, names: Sequence[str]) -> pd.DataFrame:
+    """``t_ns`` and the columns ``names`` that the stream has (float64, NaN where a message lacks
+    one), read window by window so that only these columns are kept."""
+    parts: list[dict[str, np.ndarray]] = []
+    seen: set[str] = set()
+    for df in run.iter_tables(topic, TENSION_WINDOW_NS):
+        seen.update(c for c in names if c in df)
+        part = {c: _column(df, c) for c in names if c in df}
+        part["t_ns"] = df["t_ns"].to_numpy(np.int64)
+        parts.append(part)
+    cols = ["t_ns", *[c for c in names if c in seen]]
+    out = {
+        c: np.concatenate([q[c] if c in q else np.full(len(q["t_ns"]), np.nan) for q in parts])
+        if parts
+        else np.empty(0, np.int64 if c == "t_ns" else np.float64)
+        for c in cols
+    }
+    return pd.DataFrame(out)
+
+
 def load_run(path: str | os.PathLike[str]) -> RunData:
     """Read a run file through :func:`cdpr.daq.run_reader.open_run` (only the topics the analysis
     needs): rig attachment, tensions with status, tunnel conditions, pose (camera with its
@@ -132,32 +201,21 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             raise ConfigError(
                 str(p), "/tensions", f"expected a tension stream, got {n_tens} messages"
             )
-        tens = run.table(topic)
+        t_ns, T, st, seq = _tension_columns(run, topic, rig, p)
         tun_topic = _topic(run, "tunnel")
-        tun = run.table(tun_topic) if tun_topic else None
+        tun = _slim_table(run, tun_topic, _TUNNEL_COLUMNS) if tun_topic else None
         pose_topic = _topic(run, "pose")
-        pose_df = run.table(pose_topic) if pose_topic else None
+        pose_df = _slim_table(run, pose_topic, _POSE_COLUMNS) if pose_topic else None
         ev_topic = _topic(run, "events")
         ev_df = run.table(ev_topic) if ev_topic else None
-    cols = [f"T_{n}_N" for n in rig.cable_names]
-    missing = [c for c in cols if c not in tens]
-    if missing:
-        raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
-    t_ns = tens["t_ns"].to_numpy(np.int64)
-    T = np.column_stack([_column(tens, c) for c in cols])
-    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
-    st = np.column_stack([np.nan_to_num(_column(tens, c, 0.0)) for c in scols]).astype(np.int64)
-    seq = None
-    if "seq" in tens and tens["seq"].notna().all():
-        seq = tens["seq"].to_numpy()
-    del tens
-    order = np.argsort(t_ns, kind="stable")
-    t_ns, T, st = t_ns[order], T[order], st[order]
-    keep = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, T, st = t_ns[keep], T[keep], st[keep]
-    counter = None
-    if seq is not None:
-        counter = seq.astype(np.int64)[order][keep]
+    if not np.all(np.diff(t_ns) > 0):  # the reader sorts; a repeated time keeps its first sample
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, T, st = t_ns[order], T[order], st[order]
+        keep = np.concatenate([[True], np.diff(t_ns) > 0])
+        t_ns, T, st = t_ns[keep], T[keep], st[keep]
+        if seq is not None:
+            seq = seq[order][keep]
+    counter = seq
     bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
 
     tunnel = None
@@ -790,7 +848,8 @@ def analyze_runs(
     no scheduler: one after the other in this process); a bad run is reported in its
     summary (``error``) without stopping the others.  A run whose result folder records the
     fingerprint of its inputs now is not recomputed (its recorded summary comes back with
-    ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr."""
+    ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr (when
+    more than one run is to be analysed)."""
     if not paths:
         raise ConfigError("runs", "", "no run files given")
     fps = [run_fingerprint(p, opts) for p in paths]
@@ -799,7 +858,7 @@ def analyze_runs(
         for p, fp in zip(paths, fps, strict=True)
     ]
     todo = [i for i, r in enumerate(results) if r is None]
-    bar = _RunsProgress(len(todo), progress)
+    bar = _RunsProgress(len(todo), progress and len(todo) > 1)
     try:
         if scheduler is None and (len(todo) == 1 or workers == 1):
             for i in todo:  # one worker: in this process, no cluster to start
