@@ -146,6 +146,8 @@ def _tension_columns(
             else:
                 seq = None
         i += k
+    if i != n_max:  # never analyse part of a stream silently
+        raise ConfigError(str(p), topic, f"read {i} of the summary's {n_max} messages")
     missing = [c for c in cols if c not in seen]
     if missing:
         raise ConfigError(str(p), topic, f"field {missing[0]} missing for rig {rig.name!r}")
@@ -169,6 +171,13 @@ def _slim_table(run: Any, topic: str, names: Sequence[str]) -> pd.DataFrame:
         part = {c: _column(df, c) for c in names if c in df}
         part["t_ns"] = df["t_ns"].to_numpy(np.int64)
         parts.append(part)
+    n_read = sum(len(q["t_ns"]) for q in parts)
+    if n_read != run.streams[topic].count:  # never analyse part of a stream silently
+        raise ConfigError(
+            str(run.path),
+            topic,
+            f"read {n_read} of the summary's {run.streams[topic].count} messages",
+        )
     cols = ["t_ns", *[c for c in names if c in seen]]
     out = {
         c: np.concatenate([q[c] if c in q else np.full(len(q["t_ns"]), np.nan) for q in parts])
