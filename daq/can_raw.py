@@ -162,7 +162,9 @@ _byte3 = np.array([list(f"{b:>3d}".encode()) for b in range(256)], dtype=np.uint
 _pow10 = 10 ** np.arange(18, -1, -1, dtype=np.int64)
 
 
-def _template(channel: Any) -> tuple[str, dict[str, int]]:
+def template(channel: Any) -> tuple[str, dict[str, int]]:
+    """The fixed-width body of a classic 8-byte data frame on ``channel`` (``#`` where the numbers
+    go, right-aligned) and the positions of its fields (the reader parses it back)."""
     ch = json.dumps(_channel(channel))
     tpl = (
         '{"arbitration_id":#########,"is_extended":#,"is_remote":0,"is_error_frame":0,"is_fd":0,'
@@ -213,7 +215,7 @@ def encode_columns(
         & (ids < 1_000_000_000)
         & (t_bus >= 0)
     )
-    tpl, pos = _template(channel)
+    tpl, pos = template(channel)
     k = int(ok.sum())
     bodies = np.empty((k, len(tpl)), np.uint8)
     bodies[:] = np.frombuffer(tpl.replace("#", " ").encode(), np.uint8)

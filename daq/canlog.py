@@ -382,9 +382,22 @@ def read_log(
     import can
 
     reader = can.LogReader(str(p))
+    count = 0
     try:
         block: list[Any] = []
-        for m in reader:
+        it = iter(reader)
+        while True:
+            try:
+                m = next(it)
+            except StopIteration:
+                break
+            except (
+                Exception
+            ) as exc:  # python-can raises what its parsers raise: never a silent stop
+                raise ConfigError(
+                    str(p), f"frame {count + 1}", f"python-can cannot read it: {exc}"
+                ) from None
+            count += 1
             block.append(m)
             if len(block) >= block_frames:
                 yield FrameColumns.from_messages(block)

@@ -367,7 +367,13 @@ class Run:
     def _decode(self, topic: str, t: np.ndarray, bodies: list[bytes]) -> Any:
         schema = self.streams[topic].schema_name
         df = None
-        if schema not in ("foxglove.PoseInFrame", "foxglove.Log", "foxglove.CompressedImage"):
+        if "is_fd" in self.streams[topic].fields and "arbitration_id" in self.streams[topic].fields:
+            df = _can_frames(bodies)  # raw CAN frames: the writer's fixed-width rows by numpy
+        if df is None and schema not in (
+            "foxglove.PoseInFrame",
+            "foxglove.Log",
+            "foxglove.CompressedImage",
+        ):
             df = _flat_numeric(bodies, self.streams[topic].fields)
         if df is None:
             rows = json.loads(b"[" + b",".join(bodies) + b"]")
@@ -589,6 +595,96 @@ def _flat_numeric(bodies: list[bytes], types: dict[str, FieldInfo]) -> Any:
         else:
             cols[name] = col
     return pd.DataFrame(cols)
+
+
+def _right_aligned_ints(chars: np.ndarray) -> np.ndarray | None:
+    """int64 of right-aligned, space-padded non-negative decimal integers (n, w); None when a field
+    holds anything else (or a space after a digit)."""
+    d = chars.astype(np.int64) - 48
+    pad = chars == 32
+    if not np.all(((d >= 0) & (d <= 9)) | pad) or np.any(~pad[:, :-1] & pad[:, 1:]):
+        return None
+    if np.any(pad[:, -1]):
+        return None
+    acc = np.zeros(len(chars), np.int64)
+    for c in range(chars.shape[1]):
+        acc = np.where(pad[:, c], acc, acc * 10 + d[:, c])
+    return acc
+
+
+def _can_frames(bodies: list[bytes]) -> Any:
+    """Raw CAN frames written by the writer's batch path (:func:`cdpr.daq.can_raw.encode_columns`:
+    one fixed-width template per channel, numbers right-aligned) parsed with numpy; the other
+    bodies of the chunk with ``json.loads``; None when there is no such row."""
+    import pandas as pd
+
+    from .can_raw import template
+
+    first = json.loads(bodies[0]) if bodies else None
+    if not isinstance(first, dict) or "channel" not in first:
+        return None
+    tpl, pos = template(first["channel"])
+    size = len(tpl)
+    lens = np.fromiter(map(len, bodies), np.int64, len(bodies))
+    cand = np.flatnonzero(lens == size)
+    if not len(cand):
+        return None
+    rows = np.frombuffer(b"".join([bodies[i] for i in cand.tolist()]), np.uint8).reshape(-1, size)
+    const = np.frombuffer(tpl.encode(), np.uint8)
+    fixed = const != ord("#")
+    ok = (rows[:, fixed] == const[fixed]).all(axis=1)
+    if not ok.any():
+        return None
+    rows, cand = rows[ok], cand[ok]
+    ids = _right_aligned_ints(rows[:, pos["id"] : pos["id"] + 9])
+    t_bus = _right_aligned_ints(rows[:, pos["t"] : pos["t"] + 19])
+    ext = rows[:, pos["ext"]].astype(np.int64) - 48
+    rx = rows[:, pos["rx"]].astype(np.int64) - 48
+    data = np.empty((len(rows), 8), np.int64)
+    for j in range(8):
+        a = pos["data"] + 4 * j
+        v = _right_aligned_ints(rows[:, a : a + 3])
+        if v is None:
+            return None
+        data[:, j] = v
+    if (
+        ids is None
+        or t_bus is None
+        or np.any((ext < 0) | (ext > 1) | (rx < 0) | (rx > 1))
+        or np.any(data > 255)
+    ):
+        return None
+    k = len(rows)
+    zeros = np.zeros(k, np.int64)
+    raw = data.astype(np.uint8)
+    payload = np.empty(k, object)
+    payload[:] = [r.tobytes() for r in raw]
+    channel = np.empty(k, object)
+    channel[:] = [first["channel"]] * k
+    fast = pd.DataFrame(
+        {
+            "arbitration_id": ids, "is_extended": ext, "is_remote": zeros,
+            "is_error_frame": zeros, "is_fd": zeros, "bitrate_switch": zeros,
+            "error_state_indicator": zeros, "dlc": zeros + 8, "data": payload,
+            "channel": channel, "is_rx": rx, "t_bus_ns": t_bus, "status": zeros,
+        },
+        index=cand,
+    )  # fmt: skip
+    if k == len(bodies):
+        return fast.reset_index(drop=True)
+    rest = np.setdiff1d(np.arange(len(bodies)), cand)
+    slow = _rows_frame(json.loads(b"[" + b",".join([bodies[i] for i in rest.tolist()]) + b"]"),
+                       "cdpr.can_raw")  # fmt: skip
+    slow.index = rest
+    for c in ("channel", "data"):
+        if c in slow.columns:
+            slow[c] = pd.Series(slow[c].to_numpy(object), dtype=object, index=rest)
+    both = pd.concat([fast, slow], sort=False).sort_index()
+    for c in ("channel", "data"):
+        col = np.empty(len(both), object)
+        col[:] = both[c].tolist()
+        both[c] = pd.Series(col, dtype=object, index=both.index)
+    return both.reset_index(drop=True)
 
 
 def _exact_ints(chars: np.ndarray) -> np.ndarray | None:

@@ -227,3 +227,23 @@ def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
     with open_run(out) as run:
         ten = run.table("/tensions")
     assert ten["status"].astype(bool).sum() > 10  # status bits and the gap sample are there
+
+
+def test_a_real_log_damaged_midway_is_an_error_naming_the_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """python-can's reader raising on a damaged frame of a TRC log: one error line naming the file
+    and the frame, exit 2, no output (never a silent stop with the frames read so far)."""
+    src = (DATA / "test_CanMessage_V2_1.trc").read_text().splitlines()
+    body = [k for k, line in enumerate(src) if line.strip() and not line.lstrip().startswith(";")]
+    src[body[3]] = "     4      17.000 DT 1 0FF Rx - 8 zz zz"
+    log = tmp_path / "bad.trc"
+    log.write_text("\n".join(src) + "\n")
+    good = 0  # the frames python-can reads before it raises
+    with pytest.raises(ValueError):
+        for _ in can.LogReader(str(log)):
+            good += 1
+    assert _import(log, tmp_path / "bad.mcap") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"bad.trc: frame {good + 1}: python-can cannot read it" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]

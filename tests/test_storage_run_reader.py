@@ -171,3 +171,25 @@ def test_bad_files_are_config_errors(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="file not found"):
         open_run(tmp_path / "missing.mcap")
     shutil.rmtree(tmp_path)
+
+
+def test_irregular_flat_bodies_take_the_json_path_with_the_same_values(tmp_path: Path) -> None:
+    """Rows whose keys differ (a field only in some readings, another order), a string and a
+    boolean value: the vectorised decoder steps aside and the values are still the ones written."""
+    p = tmp_path / "run.mcap"
+    w = McapRunWriter(p)
+    rows = [
+        {"airspeed_mps": 20.0, "temperature_K": 293},
+        {"temperature_K": 294, "airspeed_mps": 21.5},  # another order
+        {"airspeed_mps": 22.0, "temperature_K": 295, "note": "gust"},  # a string, an extra key
+        {"airspeed_mps": math.nan, "temperature_K": 296, "valve_open": True},
+    ]
+    for i, v in enumerate(rows):
+        w.write(Reading("tunnel", T0 + i, v))
+    w.finish()
+    with open_run(p) as run:
+        df = run.table("/tunnel")
+    assert df["t_ns"].tolist() == [T0 + i for i in range(4)]
+    assert np.array_equal(df["airspeed_mps"].to_numpy(), [20.0, 21.5, 22.0, np.nan], equal_nan=True)
+    assert df["temperature_K"].tolist() == [293, 294, 295, 296]
+    assert df["note"].tolist()[2] == "gust" and df["valve_open"].tolist()[3] is True
