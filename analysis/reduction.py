@@ -11,9 +11,10 @@ treat, and the decorator appends a :class:`Step` (name, settings, points flagged
 that cannot run for a point leaves NaN and a flag there, never a nominal value in silence.
 
 The order (see ``cdpr.pipelines.reduce``): steady points and masks (upstream, :mod:`.balance`) →
-[zero drift] → structure matrix → weight model → weight tare → [windage] → balance interaction
-matrix → axes and moment transfer → coefficients → tension check.  Bracketed slots are stages
-other modules plug in with the same signature; they read and add the same keys.
+[zero drift] → structure matrix → weight model → weight tare → [windage] → [inertia] → balance
+interaction matrix → axes and moment transfer → [wall corrections] → coefficients → tension
+check.  Bracketed slots are stages other modules plug in with the same signature; they read and add
+the same keys.
 
 Keys in ``Points.arrays`` (s points, m cables):
 
@@ -164,7 +165,9 @@ def _plain(v: Any) -> Any:
     if isinstance(v, ModelGeometry | WeightModel):
         return type(v).__name__
     if isinstance(v, np.ndarray):
-        return v.tolist()
+        return f"<array {v.shape}>" if v.size > 12 else v.tolist()
+    if isinstance(v, list | tuple):
+        return f"<{len(v)} values>" if len(v) > 12 else [_plain(x) for x in v]
     if isinstance(v, float | int | str | bool) or v is None:
         return v
     return repr(v)
