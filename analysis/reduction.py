@@ -222,12 +222,17 @@ def flags_from_masks(p: Points, *, words: list[str] | None = None) -> Points:
 
 @stage("structure_matrix")
 def structure_matrix_stage(p: Points, *, rig: Rig) -> Points:
-    """``A`` (s, 6, m) at each point's measured mean pose; ``-A T`` is the cables' load."""
+    """``A`` (s, 6, m) at each point's measured mean pose; ``-A T`` is the cables' load.  A point
+    without a pose (no usable camera frame) gets NaN and the flag ``no_pose``."""
     q = p["pose"]
     if q.shape[0] and p["tension_N"].shape[1] != rig.n_cables:
         raise InputError(f"tension_N: expected {rig.n_cables} cables for rig {rig.name!r}")
-    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, q[:, :3], rotation_from_euler(q[:, 3:]))
-    return with_updates(p, arrays={"A": A})
+    ok = np.isfinite(q).all(axis=1)
+    A = np.full((p.n, 6, rig.n_cables), np.nan)
+    A[ok] = structure_matrix(
+        rig.anchors_O_m, rig.attach_P_m, q[ok, :3], rotation_from_euler(q[ok, 3:])
+    )
+    return with_updates(p, arrays={"A": A}, flag={"no_pose": ~ok})
 
 
 def _minus_AT(rig: Rig, poses: FloatArray, T: FloatArray) -> FloatArray:
