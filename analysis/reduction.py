@@ -504,7 +504,7 @@ def coefficients(p: Points, *, geometry: ModelGeometry, wind_off_mps: float = 1.
     """Dynamic pressure ``q_Pa = rho V^2 / 2`` and ``CD, CY, CL, Cl, Cm, Cn`` with ``sd_*`` (from
     the total wrench covariance; the attitude's and q's own errors are not included) for wind-on
     points with a finite airspeed above ``wind_off_mps``; NaN elsewhere, flag ``no_airspeed`` on
-    wind-on points without one."""
+    wind-on points without one (``no_density`` without a density)."""
     s = p.n
     V = p["airspeed_mps"]
     rho = p["density_kgpm3"]
@@ -527,7 +527,11 @@ def coefficients(p: Points, *, geometry: ModelGeometry, wind_off_mps: float = 1.
         for k, c in enumerate(COEFFICIENTS):
             out[c][use] = C[:, k]
             out[f"sd_{c}"][use] = sd[:, k]
-    flags = {"no_airspeed": (p["kind"] == "wind_on") & ~okv}
+    wind_on = p["kind"] == "wind_on"
+    flags = {
+        "no_airspeed": wind_on & ~np.isfinite(V),
+        "no_density": wind_on & np.isfinite(V) & ~(np.isfinite(rho) & (rho > 0)),
+    }
     return with_updates(p, arrays={"q_Pa": q, **out}, flag=flags)
 
 
