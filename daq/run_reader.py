@@ -334,13 +334,23 @@ class Run:
         chunks = self._chunks_of(cid, None, None)
         if not chunks:
             return None, None
-        first = min(chunks, key=lambda c: c.message_start_time)
-        last = max(chunks, key=lambda c: c.message_end_time)
-        lo = [int(self._message_index(c, cid)[:, 0].min()) for c in chunks
-              if c.message_start_time == first.message_start_time]  # fmt: skip
-        hi = [int(self._message_index(c, cid)[:, 0].max()) for c in chunks
-              if c.message_end_time == last.message_end_time]  # fmt: skip
-        return min(lo), max(hi)
+        # a chunk's start/end times cover every channel in it: the chunk that ends last may hold
+        # only early messages of this channel (streams written in blocks), so look at chunks in
+        # order of their end (start) time until none can hold a later (earlier) message
+        hi = lo = None
+        for c in sorted(chunks, key=lambda c: -c.message_end_time):
+            if hi is not None and c.message_end_time <= hi:
+                break
+            t = self._message_index(c, cid)[:, 0]
+            if len(t):
+                hi = max(hi or 0, int(t.max()))
+        for c in sorted(chunks, key=lambda c: c.message_start_time):
+            if lo is not None and c.message_start_time >= lo:
+                break
+            t = self._message_index(c, cid)[:, 0]
+            if len(t):
+                lo = int(t.min()) if lo is None else min(lo, int(t.min()))
+        return lo, hi
 
     # -- columnar data --------------------------------------------------------------------------
     def _cid(self, topic: str) -> int:

@@ -111,6 +111,84 @@ def _column(df: pd.DataFrame, name: str, fill: float = np.nan) -> np.ndarray:
     return pd.to_numeric(df[name], errors="coerce").to_numpy(np.float64)
 
 
+TENSION_WINDOW_NS = 300 * 10**9
+"""Tensions are decoded 5 minutes at a time into preallocated arrays (bounded memory)."""
+
+
+def _tension_columns(
+    run: Any, topic: str, rig: Rig, p: Path
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Times (n,), tensions (n, m) (NaN where a field is missing), the status words OR-ed over the
+    cables and the message (n,), the counter ``seq`` (None unless every message has one), read
+    window by window into arrays sized from the stream's message count."""
+    cols = [f"T_{n}_N" for n in rig.cable_names]
+    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
+    n_max = run.streams[topic].count
+    t_ns = np.empty(n_max, np.int64)
+    T = np.empty((n_max, len(cols)))
+    st = np.zeros(n_max, np.int64)
+    seq: np.ndarray | None = np.empty(n_max, np.int64)
+    seen: set[str] = set()
+    i = 0
+    for df in run.iter_tables(topic, TENSION_WINDOW_NS):
+        k = len(df)
+        if i + k > n_max:
+            raise ConfigError(str(p), topic, f"more messages than the summary's {n_max}")
+        seen.update(df.columns)
+        t_ns[i : i + k] = df["t_ns"].to_numpy(np.int64)
+        for j, c in enumerate(cols):
+            T[i : i + k, j] = _column(df, c)
+        for c in scols:
+            if c in df:
+                st[i : i + k] |= np.nan_to_num(_column(df, c)).astype(np.int64)
+        if seq is not None:
+            if "seq" in df and df["seq"].notna().all():
+                seq[i : i + k] = df["seq"].to_numpy(np.int64)
+            else:
+                seq = None
+        i += k
+    if i != n_max:  # never analyse part of a stream silently
+        raise ConfigError(str(p), topic, f"read {i} of the summary's {n_max} messages")
+    missing = [c for c in cols if c not in seen]
+    if missing:
+        raise ConfigError(str(p), topic, f"field {missing[0]} missing for rig {rig.name!r}")
+    return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i]
+
+
+_TUNNEL_COLUMNS = ("airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K")
+_POSE_COLUMNS = (
+    "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "status",
+    *(f"cov_{i}{j}" for i in range(6) for j in range(6)),
+)  # fmt: skip
+
+
+def _slim_table(run: Any, topic: str, names: Sequence[str]) -> pd.DataFrame:
+    """``t_ns`` and the columns ``names`` that the stream has (float64, NaN where a message lacks
+    one), read window by window so that only these columns are kept."""
+    parts: list[dict[str, np.ndarray]] = []
+    seen: set[str] = set()
+    for df in run.iter_tables(topic, TENSION_WINDOW_NS):
+        seen.update(c for c in names if c in df)
+        part = {c: _column(df, c) for c in names if c in df}
+        part["t_ns"] = df["t_ns"].to_numpy(np.int64)
+        parts.append(part)
+    n_read = sum(len(q["t_ns"]) for q in parts)
+    if n_read != run.streams[topic].count:  # never analyse part of a stream silently
+        raise ConfigError(
+            str(run.path),
+            topic,
+            f"read {n_read} of the summary's {run.streams[topic].count} messages",
+        )
+    cols = ["t_ns", *[c for c in names if c in seen]]
+    out = {
+        c: np.concatenate([q[c] if c in q else np.full(len(q["t_ns"]), np.nan) for q in parts])
+        if parts
+        else np.empty(0, np.int64 if c == "t_ns" else np.float64)
+        for c in cols
+    }
+    return pd.DataFrame(out)
+
+
 def load_run(path: str | os.PathLike[str]) -> RunData:
     """Read a run file through :func:`cdpr.daq.run_reader.open_run` (only the topics the analysis
     needs): rig attachment, tensions with status, tunnel conditions, pose (camera with its
@@ -133,32 +211,21 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             raise ConfigError(
                 str(p), "/tensions", f"expected a tension stream, got {n_tens} messages"
             )
-        tens = run.table(topic)
+        t_ns, T, st, seq = _tension_columns(run, topic, rig, p)
         tun_topic = _topic(run, "tunnel")
-        tun = run.table(tun_topic) if tun_topic else None
+        tun = _slim_table(run, tun_topic, _TUNNEL_COLUMNS) if tun_topic else None
         pose_topic = _topic(run, "pose")
-        pose_df = run.table(pose_topic) if pose_topic else None
+        pose_df = _slim_table(run, pose_topic, _POSE_COLUMNS) if pose_topic else None
         ev_topic = _topic(run, "events")
         ev_df = run.table(ev_topic) if ev_topic else None
-    cols = [f"T_{n}_N" for n in rig.cable_names]
-    missing = [c for c in cols if c not in tens]
-    if missing:
-        raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
-    t_ns = tens["t_ns"].to_numpy(np.int64)
-    T = np.column_stack([_column(tens, c) for c in cols])
-    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
-    st = np.column_stack([np.nan_to_num(_column(tens, c, 0.0)) for c in scols]).astype(np.int64)
-    seq = None
-    if "seq" in tens and tens["seq"].notna().all():
-        seq = tens["seq"].to_numpy()
-    del tens
-    order = np.argsort(t_ns, kind="stable")
-    t_ns, T, st = t_ns[order], T[order], st[order]
-    keep = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, T, st = t_ns[keep], T[keep], st[keep]
-    counter = None
-    if seq is not None:
-        counter = seq.astype(np.int64)[order][keep]
+    if not np.all(np.diff(t_ns) > 0):  # the reader sorts; a repeated time keeps its first sample
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, T, st = t_ns[order], T[order], st[order]
+        keep = np.concatenate([[True], np.diff(t_ns) > 0])
+        t_ns, T, st = t_ns[keep], T[keep], st[keep]
+        if seq is not None:
+            seq = seq[order][keep]
+    counter = seq
     bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
 
     tunnel = None
@@ -493,11 +560,23 @@ def camera_pose_error(run: RunData) -> dict[str, float] | None:
 
 
 def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
+    """tensions.png (min/max envelope of every cable and of the airspeed, test points shaded),
+    wrench.png (per wind-on point, ±2σ), check.png (measured − expected tension per point).  The
+    cost does not grow with the number of samples: 2000 envelope bins, one shading collection per
+    kind; with many points the check plot draws markers and thins its labels."""
     from .plotting import minmax_envelope, png_figure
 
     t0 = run.t_ns[0]
+    t_s = (run.t_ns - t0) * 1e-9
     # min/max envelope over 2000 bins (every spike stays visible), never every sample
-    ts, T_env = minmax_envelope((run.t_ns - t0) * 1e-9, run.tensions_N)
+    ts, T_env = minmax_envelope(t_s, run.tensions_N)
+    tare = df.kind.isin(("tare", "zero")).to_numpy()
+    spans = np.column_stack(
+        [
+            (df.start_ns.to_numpy() - t0) * 1e-9,
+            (df.stop_ns.to_numpy() - df.start_ns.to_numpy()) * 1e-9,
+        ]
+    )
     with png_figure(folder / "tensions.png", 2, 1, (10, 6), sharex=True, height_ratios=[3, 1]) as (
         fig,
         axes,
@@ -505,21 +584,22 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax = axes[:, 0]
         for k, name in enumerate(run.rig.cable_names):
             ax[0].plot(ts, T_env[:, k], lw=0.8, label=name)
-        for _, r in df.iterrows():
-            for a in ax:
-                a.axvspan(
-                    (r.start_ns - t0) * 1e-9,
-                    (r.stop_ns - t0) * 1e-9,
-                    color="0.9" if r.kind in ("tare", "zero") else "#dde8f7",
-                    zorder=0,
-                )
+        for a in ax:  # one collection per kind of point, spanning the axes' height
+            for sel, color in ((tare, "0.9"), (~tare, "#dde8f7")):
+                if sel.any():
+                    a.broken_barh(
+                        spans[sel].tolist(), (0, 1), transform=a.get_xaxis_transform(),
+                        color=color, zorder=0,
+                    )  # fmt: skip
         ax[0].set_ylabel("tension (N)")
         ax[0].legend(fontsize=7, ncol=4, loc="upper left")
         ax[0].set_title(
-            f"{run.path.name}: tensions; shaded = test points ({df['source'].iloc[0]}; grey: tares)"
+            f"{run.path.name}: tensions (min/max envelope); shaded = test points "
+            f"({df['source'].iloc[0]}; grey: tares)"
         )
         if run.tunnel is not None:
-            ax[1].plot(ts, minmax_envelope(run.t_ns, run.tunnel[0])[1], color="k", lw=1)
+            tv, v_env = minmax_envelope(t_s, run.tunnel[0])
+            ax[1].plot(tv, v_env, color="k", lw=1)
         else:
             ax[1].text(0.5, 0.5, "no airspeed data", transform=ax[1].transAxes, ha="center")
         ax[1].set_ylabel("airspeed (m/s)")
@@ -538,22 +618,28 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
             a.set_title(c)
             a.set_xlabel("airspeed (m/s)" if run.tunnel is not None else "point")
             a.grid(alpha=0.3)
-        axes.flat[0].legend(fontsize=7)
+        axes.flat[0].legend(fontsize=7, loc="upper left")
         fig.suptitle("Recovered aerodynamic wrench per test point (at the MRP, {O} axes)")
 
     dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
     with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
         ax = axes[0, 0]
-        width = 0.8 / len(dcols)
         idx = np.arange(len(df))
-        for k, c in enumerate(dcols):
-            ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+        if len(df) <= 40:
+            width = 0.8 / len(dcols)
+            for k, c in enumerate(dcols):
+                ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+            ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
+        else:  # many points: one marker per cable and point, every k-th label
+            for c in dcols:
+                ax.plot(idx, df[c], ".", ms=3, label=c[3:-2])
+            step = int(np.ceil(len(df) / 40))
+            ax.set_xticks(idx[::step], df["point"].iloc[::step], rotation=90, fontsize=6)
         ax.axhline(1.0, color="r", ls="--", lw=1)
         ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
-        ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
         ax.set_ylabel("measured − expected tension (N)")
         ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
-        ax.legend(fontsize=7, ncol=5)
+        ax.legend(fontsize=7, ncol=5, loc="upper left")
 
 
 def _fmt(v: float, sd: float) -> str:
@@ -768,10 +854,12 @@ def analyze_runs(
     force: bool = False,
 ) -> list[dict[str, Any]]:
     """Analyse runs in parallel on Dask (a local cluster of ``workers`` single-threaded processes,
-    unless ``scheduler`` is the address of a running scheduler); a bad run is reported in its
+    unless ``scheduler`` is the address of a running scheduler; with one worker, or one run, and
+    no scheduler: one after the other in this process); a bad run is reported in its
     summary (``error``) without stopping the others.  A run whose result folder records the
     fingerprint of its inputs now is not recomputed (its recorded summary comes back with
-    ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr."""
+    ``skipped = "current"``) unless ``force``.  ``progress``: a bar across runs on stderr (when
+    more than one run is to be analysed)."""
     if not paths:
         raise ConfigError("runs", "", "no run files given")
     fps = [run_fingerprint(p, opts) for p in paths]
@@ -780,11 +868,12 @@ def analyze_runs(
         for p, fp in zip(paths, fps, strict=True)
     ]
     todo = [i for i, r in enumerate(results) if r is None]
-    bar = _RunsProgress(len(todo), progress)
+    bar = _RunsProgress(len(todo), progress and len(todo) > 1)
     try:
-        if len(todo) == 1 and scheduler is None:
-            results[todo[0]] = _safe(paths[todo[0]], out_dir, opts, fps[todo[0]])
-            bar.advance()
+        if scheduler is None and (len(todo) == 1 or workers == 1):
+            for i in todo:  # one worker: in this process, no cluster to start
+                results[i] = _safe(paths[i], out_dir, opts, fps[i])
+                bar.advance()
         elif todo:
             from dask.distributed import Client, LocalCluster, as_completed
 
