@@ -34,6 +34,7 @@ from ._checks import as_float_array, check_trailing
 from .conventions import GRAVITY_O_MPS2
 from .errors import InputError
 from .records import CorrectionRecord
+from .rig import Rig
 from .rotations import skew
 
 FloatArray = NDArray[np.float64]
@@ -229,3 +230,64 @@ def spectrum_check(
         flags=flags,
     )
     return SpectrumCheck(freqs, psd, too_few, peak_near, peak_Hz, rec)
+
+
+@dataclass(frozen=True)
+class RigModes:
+    """Modes of a rig at one pose, wind off: tensions_N (m,) from the named distribution method,
+    the stiffness and the modes; method names the tension distribution used."""
+
+    tensions_N: FloatArray
+    stiffness: Stiffness
+    modes: Modes
+    method: str
+
+
+def rig_modes(
+    rig: Rig,
+    position_O_m: ArrayLike | None = None,
+    euler_rad: ArrayLike | None = None,
+    method: str = "improved-closed-form",
+) -> RigModes:
+    """Natural modes of ``rig`` at a pose (default its reference pose) under gravity alone.
+
+    Tensions from :func:`cdpr.analysis.tension.distribute` with ``method`` (``A T = -G``); EA,
+    mass, centre of mass and inertia (platform and model) from the rig.  Raises
+    :class:`~cdpr.analysis.errors.InfeasibleError` if no tension distribution exists there.
+    """
+    from .dynamics import gravity_wrench
+    from .errors import InfeasibleError
+    from .kinematics import structure_matrix
+    from .rotations import rotation_from_euler
+    from .tension import distribute
+
+    p = (
+        rig.reference_position_O_m
+        if position_O_m is None
+        else check_trailing(position_O_m, "position_O_m", (3,))
+    )
+    psi = (
+        rig.reference_euler_rad
+        if euler_rad is None
+        else check_trailing(euler_rad, "euler_rad", (3,))
+    )
+    R = rotation_from_euler(psi)
+    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, p, R)
+    G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+    res = distribute(method, A, -G, rig.t_min_N, rig.t_max_N)
+    if not bool(np.all(res.feasible)):
+        raise InfeasibleError(f"{rig.name}: no feasible tensions at the pose ({method})")
+    T = np.asarray(res.tensions_N, dtype=np.float64)
+    st = stiffness_matrix(
+        rig.anchors_O_m,
+        rig.attach_P_m,
+        p,
+        R,
+        T,
+        rig.cable_EA_N,
+        rig.mass_kg,
+        rig.com_P_m,
+        rig.gravity_O_mps2,
+    )
+    M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R)
+    return RigModes(tensions_N=T, stiffness=st, modes=natural_modes(st.K, M), method=method)

@@ -98,8 +98,9 @@ def cable_windage(
 
     anchors_O_m, attach_P_m: (m, 3) rig geometry; position_O_m: (n, 3); R_O_P: (n, 3, 3);
     tensions_N: (n, m) (for the turn angle only); airspeed_mps, density_kgpm3, viscosity_Pas: (n,);
-    diameter_m: (m,) or scalar; drag_coefficient: (m,) constant CD per cable, or None for
-    :func:`cylinder_drag_coefficient`; sigma_rel: relative sigma of the wrench;
+    diameter_m: (m,) or scalar; drag_coefficient: (m,) constant CD per cable (NaN entries, or None
+    for all: :func:`cylinder_drag_coefficient` of the cable Reynolds number);
+    sigma_rel: relative sigma of the wrench;
     platform_drag_area_m2: C_D A of the bare platform (0 when it sits inside the model).
     """
     b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
@@ -139,13 +140,21 @@ def cable_windage(
     )
     vn = V[:, None] * vn_unit  # (n, m)
     re = rho[:, None] * vn * d[None, :] / mu[:, None]
+    cd = cylinder_drag_coefficient(re)
     if drag_coefficient is None:
-        cd = cylinder_drag_coefficient(re)
         cd_source = "CD = 1 + 10 Re^(-2/3) (White)"
+        given = np.zeros(m, dtype=bool)
     else:
-        cd = np.broadcast_to(as_float_array(drag_coefficient, "drag_coefficient"), (m,))[None, :]
-        cd = np.broadcast_to(cd, (n, m)).copy()
-        cd_source = "CD constant per cable from the rig file"
+        cd_given = np.broadcast_to(as_float_array(drag_coefficient, "drag_coefficient"), (m,))
+        given = ~np.isnan(cd_given)
+        if np.any(cd_given[given] <= 0) or not np.all(np.isfinite(cd_given[given])):
+            raise InputError("drag_coefficient: expected values > 0 (NaN: CD from Re)")
+        cd = np.where(given[None, :], cd_given[None, :], cd)
+        cd_source = (
+            "CD constant per cable from the rig file"
+            if given.all()
+            else "CD from the rig file where given, else 1 + 10 Re^(-2/3) (White)"
+        )
     f = 0.5 * rho[:, None] * vn**2 * d[None, :] * cd  # N/m
     share = f * wetted * (1.0 - (s_a + s_b) / (2.0 * length))
     F = share[..., None] * e_n  # (n, m, 3)
@@ -153,11 +162,13 @@ def cable_windage(
     q = 0.5 * rho * V**2
     W[:, 0] += q * float(platform_drag_area_m2)
     cov = sigma_rel**2 * W[:, :, None] * W[:, None, :]
-    wet_re = re[wetted > 0]
+    wet_re_fit = re[(wetted > 0) & ~given[None, :]]
     outside = bool(
-        np.any((wet_re > WHITE_RE_RANGE[1]) | ((wet_re < WHITE_RE_RANGE[0]) & (wet_re > 0)))
+        np.any(
+            (wet_re_fit > WHITE_RE_RANGE[1]) | ((wet_re_fit < WHITE_RE_RANGE[0]) & (wet_re_fit > 0))
+        )
     )
-    flags = ("cable_re_outside_fit",) if (outside and drag_coefficient is None) else ()
+    flags = ("cable_re_outside_fit",) if outside else ()
     rec = CorrectionRecord(
         name="windage_model",
         source="cross-flow drag on the wetted part of each cable (" + cd_source + "); taut-string "
