@@ -5,42 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.linalg import solve_banded
+from _cable_drag_truth import MU, RHO, D, string_end_force
 
 from cdpr.analysis.errors import InputError
 from cdpr.analysis.rigs import flat_rig
 from cdpr.analysis.test_section import SectionGeometry, rectangle, regular_octagon
 from cdpr.analysis.windage import cable_windage, evaluate_windage_tare, fit_windage_tare
-
-RHO, MU, D = 1.2, 1.81e-5, 1.0e-3
-
-
-def _inside_octagon(x, y, z, apothem, yc, zc, x0, x1):
-    dy, dz = np.abs(y - yc), np.abs(z - zc)
-    return (x >= x0) & (x <= x1) & (dy <= apothem) & (dz <= apothem) & (dy + dz <= apothem * 2**0.5)
-
-
-def _string_truth(start, anchor, T, V, apothem, yc, zc, x0, x1, n=4000):
-    """Own model: load the cable point by point, solve T y'' = -f (y = 0 at both ends) by finite
-    differences and read the end force T y'(0) and the turn y'(0) at the platform end."""
-    lvec = anchor - start
-    length = np.linalg.norm(lvec)
-    u = lvec / length
-    vn = V * np.array([1.0, 0.0, 0.0]) - V * u[0] * u
-    vn_mag = np.linalg.norm(vn)
-    re = RHO * vn_mag * D / MU
-    cd = 1.0 + 10.0 * max(re, 1.0) ** (-2.0 / 3.0)
-    s = np.linspace(0.0, length, n + 1)
-    pts = start + s[:, None] * u
-    f = 0.5 * RHO * vn_mag**2 * D * cd * _inside_octagon(*pts.T, apothem, yc, zc, x0, x1)
-    h = s[1] - s[0]
-    ab = np.zeros((3, n - 1))
-    ab[0, 1:], ab[1, :], ab[2, :-1] = 1.0, -2.0, 1.0
-    y = np.zeros(n + 1)
-    y[1:-1] = solve_banded((1, 1), ab, -f[1:-1] * h * h / T)
-    slope0 = (-3 * y[0] + 4 * y[1] - y[2]) / (2 * h)
-    e_n = vn / vn_mag
-    return T * slope0 * e_n, slope0
 
 
 def test_model_matches_own_string_solution_on_flat_optimum() -> None:
@@ -61,7 +31,7 @@ def test_model_matches_own_string_solution_on_flat_optimum() -> None:
     W = np.zeros(6)
     for i in range(rig.n_cables):
         start = p + R @ rig.attach_P_m[i]
-        F, turn = _string_truth(start, rig.anchors_O_m[i], T[i], V, apothem, yc, zc, x0, x1)
+        F, turn = string_end_force(start, rig.anchors_O_m[i], T[i], V, apothem, yc, zc, x0, x1)
         assert out.end_force_N[0, i] == pytest.approx(np.linalg.norm(F), rel=2e-3, abs=1e-6)
         assert out.turn_rad[0, i] == pytest.approx(turn, rel=2e-3, abs=1e-8)
         W += np.concatenate([F, np.cross(R @ rig.attach_P_m[i], F)])
