@@ -63,7 +63,8 @@ def stiffness_matrix(
     gravity_O_mps2: ArrayLike = GRAVITY_O_MPS2,
 ) -> Stiffness:
     """Stiffness at a batch of poses: position_O_m (..., 3), R_O_P (..., 3, 3), tensions_N (..., m),
-    EA_N (m,) or scalar (N), anchors/attach (m, 3).  ``mass_kg`` > 0 adds gravity's term."""
+    EA_N (m,) or scalar (N), anchors/attach (m, 3) or (..., m, 3) (a batch of rigs).  ``mass_kg``
+    > 0 adds gravity's term."""
     b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
     pp = check_trailing(attach_P_m, "attach_P_m", (3,))
     p = check_trailing(position_O_m, "position_O_m", (3,))
@@ -75,7 +76,7 @@ def stiffness_matrix(
     EA = np.broadcast_to(as_float_array(EA_N, "EA_N"), (m,))
     if np.any(~np.isfinite(EA)) or np.any(EA <= 0):
         raise InputError("EA_N: expected finite values > 0 N")
-    r = np.einsum("...ij,mj->...mi", R, pp)  # (..., m, 3)
+    r = np.matmul(pp, np.swapaxes(R, -1, -2))  # (..., m, 3): R pp_i
     lv = b - p[..., None, :] - r
     length = np.linalg.norm(lv, axis=-1)
     if np.any(length < 1e-12):
@@ -112,14 +113,15 @@ def stiffness_matrix(
 def mass_matrix(
     mass_kg: float, com_P_m: ArrayLike, inertia_P_kgm2: ArrayLike, R_O_P: ArrayLike
 ) -> FloatArray:
-    """Rigid-body mass matrix (..., 6, 6) about P in {O} for ``x = [dp; dtheta]``."""
+    """Rigid-body mass matrix (..., 6, 6) about P in {O} for ``x = [dp; dtheta]``; R_O_P
+    (..., 3, 3) and inertia_P_kgm2 (..., 3, 3) broadcast."""
     if not mass_kg > 0:
         raise InputError(f"mass_kg: expected > 0 kg, got {mass_kg}")
     R = check_trailing(R_O_P, "R_O_P", (3, 3))
     c = np.einsum("...ij,j->...i", R, check_trailing(com_P_m, "com_P_m", (3,)))
     I_P = check_trailing(inertia_P_kgm2, "inertia_P_kgm2", (3, 3))
     I_O = R @ I_P @ np.swapaxes(R, -1, -2)
-    C = mass_kg * skew(c)
+    C = np.broadcast_to(mass_kg * skew(c), I_O.shape)
     top = np.concatenate([np.broadcast_to(mass_kg * np.eye(3), C.shape), -C], axis=-1)
     bottom = np.concatenate([C, I_O], axis=-1)
     return np.concatenate([top, bottom], axis=-2)

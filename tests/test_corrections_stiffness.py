@@ -5,18 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _stiffness_truth import G, fd_stiffness, rigid_mass
 from scipy.integrate import solve_ivp
-from scipy.linalg import eigh, expm
+from scipy.linalg import eigh
 
 from cdpr.analysis.rigs import flat_rig
 from cdpr.analysis.stiffness import mass_matrix, natural_modes, spectrum_check, stiffness_matrix
 
 EA = 7.0e4
-G = np.array([0.0, 0.0, -9.80665])
-
-
-def _sk(v):
-    return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
 def _setup():
@@ -24,34 +20,14 @@ def _setup():
     p0 = rig.reference_position_O_m
     com = np.array([0.004, 0.0, -0.003])  # off P, so gravity's geometric term matters
     m = rig.mass_kg
-
-    def cable_wrench(x, T0=None, l0=None):
-        R = expm(_sk(x[3:]))
-        r = rig.attach_P_m @ R.T
-        lv = rig.anchors_O_m - (p0 + x[:3]) - r
-        L = np.linalg.norm(lv, axis=1)
-        u = lv / L[:, None]
-        A = np.vstack([u.T, np.cross(r, u).T])
-        Wg = np.concatenate([m * G, np.cross(R @ com, m * G)])
-        if T0 is None:
-            return A, Wg, L
-        T = T0 + EA / l0 * (L - l0)  # a linear spring about the equilibrium length
-        return A @ T + Wg
-
-    A, Wg, l0 = cable_wrench(np.zeros(6))
+    lv = rig.anchors_O_m - p0 - rig.attach_P_m
+    u = lv / np.linalg.norm(lv, axis=1)[:, None]
+    A = np.vstack([u.T, np.cross(rig.attach_P_m, u).T])
+    Wg = np.concatenate([m * G, np.cross(com, m * G)])
     t_mid = np.full(8, 160.0)
     T0 = t_mid - np.linalg.pinv(A) @ (A @ t_mid + Wg)  # equilibrium A T0 = -G, closest to T_mid
-    h = 1e-7
-    K_fd = np.zeros((6, 6))
-    for j in range(6):
-        e = np.zeros(6)
-        e[j] = h
-        K_fd[:, j] = -(cable_wrench(e, T0, l0) - cable_wrench(-e, T0, l0)) / (2 * h)
-    M = np.zeros((6, 6))
-    M[:3, :3] = m * np.eye(3)
-    M[:3, 3:] = -m * _sk(com)
-    M[3:, :3] = m * _sk(com)
-    M[3:, 3:] = rig.inertia_P_kgm2
+    K_fd = fd_stiffness(rig.anchors_O_m, rig.attach_P_m, p0, T0, EA, m, com)
+    M = rigid_mass(m, com, rig.inertia_P_kgm2)
     return rig, com, T0, K_fd, M
 
 
