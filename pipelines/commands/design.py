@@ -135,7 +135,7 @@ class Evaluator:
 
         from cdpr.analysis import sensitivity as sens
         from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
-        from cdpr.pipelines import sensitivity_report as sr
+        from cdpr.pipelines import sensitivity_study as sr
 
         self.family, self.o, self.method = family, opts, method
         self.EA_N = DEFAULT_CABLE_EA_N if EA_N is None else float(EA_N)
@@ -285,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
     from .. import __version__
     from ..config import atomic_output, rig_toml, write_table
     from ..plotting import png_figure
-    from ..sensitivity_report import StudyOptions, options_from_toml
+    from ..sensitivity_options import StudyOptions, options_from_toml
 
     if args.method not in METHODS:
         raise InputError(f"--method: expected one of {sorted(METHODS)}, got {args.method!r}")
