@@ -16,6 +16,7 @@ from typing import Any
 
 from cdpr.analysis import sensitivity as sens
 from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
 from cdpr.analysis.tension import METHODS
 
 from .config import load_toml
@@ -90,6 +91,7 @@ class MetricOptions:
     sigma_T_N: float = 0.2
     margin_method: str = "exact"
     near_singular_condition: float = 1e3
+    EA_N: float = DEFAULT_CABLE_EA_N
 
 
 @dataclass
@@ -133,6 +135,8 @@ OPTION_DOCS: dict[str, str] = {
     "feasibility margin covers 0 ... 51 m/s (the tunnel's range) and the mirrored sideslip",
     "study.sigma_T_N": "load-cell noise (1 sigma per reading, N) for the wrench uncertainty; the "
     "tare method reads twice, so the covariance is A (2 sigma^2 I) A^T",
+    "study.EA_N": "cable axial stiffness E*A (N) for the natural frequencies of the paper's optima: "
+    "7e4 N, a 1 mm 7x7 steel rope (assumed; the paper does not give it)",
     "study.margin_method": "method whose tensions define the feasibility margin",
     "study.near_singular_condition": "condition number above which a configuration is reported "
     "as near-singular",
@@ -262,6 +266,7 @@ def validate_options(o: StudyOptions, source: str = "<options>") -> None:
     need(s.margin_method in METHODS, "study.margin_method", f"expected one of {sorted(METHODS)}")
     need(s.sigma_T_N >= 0, "study.sigma_T_N", "expected >= 0 N")
     need(s.near_singular_condition > 1, "study.near_singular_condition", "expected > 1")
+    need(math.isfinite(s.EA_N) and s.EA_N > 0, "study.EA_N", "expected a finite E*A > 0 N")
 
 
 def _cubic_grid(c: CubicOptions) -> Iterator[tuple[float, float, float]]:

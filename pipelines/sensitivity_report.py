@@ -46,6 +46,7 @@ from .sensitivity_study import (
     cubic_loads,
     flat_loads,
     flat_margin_loads,
+    optimum_stiffness,
     run_cubic,
     run_flat,
     singular_scan,
@@ -203,9 +204,16 @@ def _why_flat(p: str, e: pd.DataFrame, ok: bool) -> str:
 
 
 def build_report(
-    o: StudyOptions, cub: dict, flat: dict, scan: pd.DataFrame, files: list[str], meta: dict
+    o: StudyOptions,
+    cub: dict,
+    flat: dict,
+    scan: pd.DataFrame,
+    files: list[str],
+    meta: dict,
+    stiffness: pd.DataFrame | None = None,
 ) -> str:
-    """The reproduction report (Markdown): the paper's conclusions next to ours."""
+    """The reproduction report (Markdown): the paper's conclusions next to ours, and (when given)
+    the paper's optima's natural frequencies beside their sensitivity."""
     c, f = o.cubic, o.flat
     Fmax = max(c.forces_N)
     Vmax = max(o.aero.speeds_mps)
@@ -495,6 +503,8 @@ def build_report(
     for k, v in OPTION_DOCS.items():
         add(f"- `{k}`: {v}")
     add("")
+    if stiffness is not None:
+        add(_stiffness_section(stiffness))
     add("## Files\n")
     for name in files:
         add(f"- [{name}]({name})")
@@ -504,6 +514,26 @@ def build_report(
         if name.endswith(".png"):
             add(f"### {name}\n\n![{name}]({name})\n")
     return "\n".join(L)
+
+
+def _stiffness_section(st: pd.DataFrame) -> str:
+    """Markdown: S beside the six natural frequencies for each of the paper's optima."""
+    EA = float(st.EA_N.iloc[0])
+    lines = [
+        "## Stiffness against sensitivity at the paper's optima (the paper's future work)\n",
+        "The six natural frequencies at the reference pose under gravity alone (cables "
+        f"E*A = {EA:g} N, `study.EA_N`; mass and inertia of the rig files; tensions from the same "
+        "method as S), beside S at the design loads.  A balance must average over many periods of "
+        "its lowest mode, and a mode near a flow frequency rings: a higher S bought with lower "
+        "tensions also lowers the tension-dependent stiffness.\n",
+        "| rig | load | method | S (N) | f1..f6 (Hz) |",
+        "|---|---|---|---|---|",
+    ]
+    for _, r in st.iterrows():
+        freqs = ", ".join(f"{r[f'f{k}_Hz']:.3g}" for k in range(1, 7))
+        lines.append(f"| {r.rig} | {r.load} | {r.method} | {r.S_N:.4g} | {freqs} |")
+    lines.append("")
+    return "\n".join(lines)
 
 
 def gap_values(d: pd.DataFrame) -> np.ndarray:
@@ -529,6 +559,7 @@ def run_study(
     cub = run_cubic(o, progress, source)
     flat = run_flat(o, progress, source)
     scan = singular_scan(o)
+    stiff = optimum_stiffness(o)
     meta = {"version": f"cdpr {version}".strip()}
     tick = progress("writing tables and figures", 4)
     _write_csv(out / "cubic_k_grid.csv", cub["grid"], "cubic k grid (Figs. 6-7)", meta)
@@ -538,6 +569,9 @@ def run_study(
     if "grid" in flat:
         _write_csv(out / "flat_table3_grid.csv", flat["grid"], "flat Table 3 grid", meta)
     _write_csv(out / "singular_scan.csv", scan, "approach to singular configurations", meta)
+    _write_csv(
+        out / "stiffness_optimum.csv", stiff, "S and natural frequencies at the optima", meta
+    )
     tick(1)
     files = plot_cubic(cub, out, o)
     tick(1)
@@ -551,10 +585,11 @@ def run_study(
         "flat_table3_sweeps.csv",
         *(["flat_table3_grid.csv"] if "grid" in flat else []),
         "singular_scan.csv",
+        "stiffness_optimum.csv",
         *files,
     ]
     meta["elapsed_s"] = time.perf_counter() - t0
-    text = build_report(o, cub, flat, scan, files, meta)
+    text = build_report(o, cub, flat, scan, files, meta, stiff)
     with atomic_output(out / "report.md") as fh:
         fh.write(text)
     tick(1)

@@ -351,3 +351,43 @@ def singular_scan(o: StudyOptions) -> pd.DataFrame:
                 )
             )
     return pd.concat(rows, ignore_index=True)
+
+
+def optimum_stiffness(o: StudyOptions) -> pd.DataFrame:
+    """Sensitivity beside stiffness at the paper's optima (flat baseline, cubic baseline_k).
+
+    One row per design load: the rig, the load, S (N, eq. 12) with the first method of the rig's
+    study, and the six natural frequencies (Hz) at the reference pose under gravity alone
+    (:func:`cdpr.analysis.stiffness.rig_modes`, cables E*A = ``study.EA_N``).
+    """
+    import dataclasses
+
+    from cdpr.analysis import rigs
+    from cdpr.analysis.stiffness import rig_modes
+
+    f, c = o.flat, o.cubic
+    flat = rigs.flat_rig(
+        *f.baseline, L_m=f.L_m, l_m=f.l_m, w1_m=f.w1_m, w2_m=f.w2_m, mass_kg=f.mass_kg,
+        t_min_N=f.t_min_N, t_max_N=f.t_max_N, name="flat-paper-optimum",
+    )  # fmt: skip
+    cubic = rigs.cubic_rig(
+        *c.baseline_k, L_m=c.L_m, W_m=c.W_m, H_m=c.H_m, mass_kg=c.mass_kg, t_min_N=c.t_min_N,
+        t_max_N=c.t_max_N, layout=c.layout, name="cubic-paper-optimum",
+    )  # fmt: skip
+    F = max(c.forces_N)
+    cases = [
+        (flat, f.methods[0], [(f"aero {v:g} m/s", w) for v, w in
+                              zip(o.aero.speeds_mps, flat_loads(o.aero, o.aero.speeds_mps), strict=True)]),
+        (cubic, c.methods[0], [(f"{F:g} N along {ax}", np.eye(6)[i] * F) for i, ax in ((0, "x"), (1, "y"))]),
+    ]  # fmt: skip
+    rows = []
+    for rig, method, loads in cases:
+        rig = dataclasses.replace(rig, cable_EA_N=np.full(rig.n_cables, o.study.EA_N))
+        modes = rig_modes(rig, method=method).modes.frequencies_Hz
+        for label, W in loads:
+            res = sens.sensitivity_of_rig(rig, W, method)
+            row = {"rig": rig.name, "load": label, "method": method, "S_N": float(res.S_N)}
+            row.update({f"f{k + 1}_Hz": float(modes[k]) for k in range(6)})
+            row["EA_N"] = o.study.EA_N
+            rows.append(row)
+    return pd.DataFrame(rows)

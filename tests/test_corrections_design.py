@@ -56,3 +56,32 @@ def test_stiffness_objective(tmp_path: Path) -> None:
     s = pd.read_csv(out / "pareto_samples.csv", comment="#")
     best_random = s[s.meets_constraints == 1].f1_Hz.max()
     assert _f1_independent(load_rig(out / "design_rig.toml")) >= best_random * (1 - 1e-6)
+
+
+def test_sensitivity_report_shows_stiffness_beside_sensitivity() -> None:
+    from cdpr.analysis.rigs import flat_rig
+    from cdpr.pipelines.sensitivity_options import StudyOptions
+    from cdpr.pipelines.sensitivity_report import _stiffness_section
+    from cdpr.pipelines.sensitivity_study import optimum_stiffness
+
+    o = StudyOptions()
+    st = optimum_stiffness(o)
+    assert list(st.rig.unique()) == ["flat-paper-optimum", "cubic-paper-optimum"]
+    flat = st[st.rig == "flat-paper-optimum"]
+    assert len(flat) == 3 and flat.S_N.is_monotonic_increasing  # S grows with the speed
+    # the lowest frequency, re-derived: tensions of the same method, own stiffness, scipy eigh
+    rig = flat_rig(51, 28, 0.67, 0.5)
+    T0 = np.asarray(sens.sensitivity_of_rig(rig, np.zeros(6), o.flat.methods[0]).T0_N)
+    K = fd_stiffness(
+        rig.anchors_O_m,
+        rig.attach_P_m,
+        rig.reference_position_O_m,
+        T0,
+        7.0e4,
+        rig.mass_kg,
+        rig.com_P_m,
+    )
+    w2 = eigh(K, rigid_mass(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2), eigvals_only=True)
+    np.testing.assert_allclose(flat.f1_Hz, np.sqrt(w2[0]) / (2 * np.pi), rtol=1e-5)
+    text = _stiffness_section(st)
+    assert text.count("| flat-paper-optimum |") == 3 and "E*A = 70000 N" in text
