@@ -69,3 +69,26 @@ def test_virtual_rig_tensions_carry_the_cable_drag() -> None:
     assert 1.0 < truth[0] < 1.5
     np.testing.assert_allclose(drag, truth, rtol=3e-3, atol=2e-4)
     np.testing.assert_allclose(vr.wrench_cable_drag_O[k], truth, rtol=3e-3, atol=2e-4)
+
+
+def test_simulate_with_tunnel_puts_the_drag_in_the_truth(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    sched = tmp_path / "s.toml"
+    sched.write_text(
+        '[schedule]\nname = "drag"\nrate_hz = 100.0\nseed = 2\n\n'
+        '[[segments]]\nlabel = "v41"\nduration_s = 0.5\nwind_mps = 41.42\n'
+    )
+    cmd = [sys.executable, "-m", "cdpr.pipelines.cli", "simulate", "--rig",
+           str(SAMPLES / "flat_optimum.toml"), "--schedule", str(sched), "--out",
+           str(tmp_path / "runs"), "--transport", "virtual", "--quiet", "--tunnel",
+           str(SAMPLES / "tunnel_section_octagon.toml")]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    (truth,) = (tmp_path / "runs").glob("*.truth.npz")
+    drag = np.load(truth)["wrench_cable_drag_O"]
+    assert 1.0 < drag[-1, 0] < 1.5
+    serial = [("serial" if a == "virtual" else a) for a in cmd]
+    bad = subprocess.run(serial, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--tunnel" in bad.stderr and len(bad.stderr.splitlines()) == 1
