@@ -199,7 +199,9 @@ class Rig:
         def per_cable(key: str, value: Any, default: float, allow_nan: bool = False) -> FloatArray:
             v = np.broadcast_to(np.asarray(default if value is None else value, dtype=float), (m,))
             a = np.array(v, dtype=np.float64)
-            ok = np.isnan(a) | (a > 0) if allow_nan else np.isfinite(a) & (a > 0)
+            ok = np.isfinite(a) & (a > 0)
+            if allow_nan:
+                ok |= np.isnan(a)
             bad_i = np.flatnonzero(~ok)
             if bad_i.size:
                 raise ConfigError(
