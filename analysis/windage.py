@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import as_float_array, check_trailing
 from .errors import InputError
 from .records import CorrectionRecord
+from .rig import Rig
 from .test_section import SectionGeometry, segment_inside
 
 FloatArray = NDArray[np.float64]
@@ -391,3 +392,33 @@ def evaluate_windage_tare(
         flags=flags,
     )
     return WindageTare(tare, sigma, missing, extrap, rec)
+
+
+def windage_of_rig(
+    rig: Rig,
+    section: SectionGeometry,
+    position_O_m: ArrayLike,
+    R_O_P: ArrayLike,
+    tensions_N: ArrayLike,
+    airspeed_mps: ArrayLike,
+    density_kgpm3: ArrayLike,
+    viscosity_Pas: ArrayLike,
+    sigma_rel: float = 0.15,
+) -> CableWindage:
+    """:func:`cable_windage` with the rig's geometry, cable diameters, drag coefficients and
+    platform drag area (the reduction stage's call)."""
+    return cable_windage(
+        rig.anchors_O_m,
+        rig.attach_P_m,
+        position_O_m,
+        R_O_P,
+        tensions_N,
+        airspeed_mps,
+        density_kgpm3,
+        viscosity_Pas,
+        rig.cable_diameter_m,
+        section,
+        rig.cable_drag_coefficient,
+        sigma_rel=sigma_rel,
+        platform_drag_area_m2=rig.platform_drag_area_m2,
+    )

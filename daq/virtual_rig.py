@@ -57,7 +57,7 @@ from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
 from cdpr.analysis.test_section import SectionGeometry
-from cdpr.analysis.windage import cable_windage
+from cdpr.analysis.windage import windage_of_rig
 
 from .aero_model import AeroModel, aero_from_mapping
 from .files import atomic_output, load_toml
@@ -404,26 +404,22 @@ class VirtualRig:
     def _cable_drag_O(self, pos: FloatArray, R: FloatArray, wind: FloatArray) -> FloatArray:
         """Cable (and platform) windage at P in {O} (n, 6), N and N m: zero without a section.
 
-        The one hook of the cable drag: :func:`cdpr.analysis.windage.cable_windage` with the
-        rig's cable diameters and drag coefficients and the aero model's p and T.  The wrench does
+        The one hook of the cable drag: :func:`cdpr.analysis.windage.windage_of_rig` (the rig's
+        cable diameters and drag coefficients) with the aero model's p and T.  The wrench does
         not depend on the tensions (only the cables' turn angles do), so no iteration is needed.
         """
         if self.section is None:
             return np.zeros((pos.shape[0], 6))
         rig, aero = self.rig, self.aero
-        return cable_windage(
-            rig.anchors_O_m,
-            rig.attach_P_m,
+        return windage_of_rig(
+            rig,
+            self.section,
             pos,
             R,
             np.ones((pos.shape[0], rig.n_cables)),
             wind,
             aero.air_density(aero.static_pressure_Pa, aero.temperature_K),
             sutherland_viscosity(aero.temperature_K),
-            rig.cable_diameter_m,
-            self.section,
-            rig.cable_drag_coefficient,
-            platform_drag_area_m2=rig.platform_drag_area_m2,
         ).wrench_N
 
     def _state_at(

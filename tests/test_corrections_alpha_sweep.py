@@ -19,7 +19,7 @@ from cdpr.analysis.flow import flow_conditions
 from cdpr.analysis.kinematics import structure_matrix
 from cdpr.analysis.rigs import paper_rigs
 from cdpr.analysis.rotations import rotation_from_euler
-from cdpr.analysis.windage import cable_windage, evaluate_windage_tare, fit_windage_tare
+from cdpr.analysis.windage import evaluate_windage_tare, fit_windage_tare, windage_of_rig
 from cdpr.analysis.wrench import wrench_absolute
 from cdpr.pipelines.tunnel_section import tunnel_section_from_mapping
 
@@ -89,10 +89,9 @@ def _reduce(model_on: bool, t0_s: float):
     W_raw = wrench_absolute(A, T_meas, G)
     W_drift = wrench_absolute(A, T_meas - d.drift_N, G)
     fc = flow_conditions(V, 101325.0, 293.15, ts.chord_m, relative_humidity=0.0)
-    model = cable_windage(
-        rig.anchors_O_m, rig.attach_P_m, p, R, T_meas - d.drift_N, V, fc.density_kgpm3,
-        fc.viscosity_Pas, rig.cable_diameter_m, ts.geometry, rig.cable_drag_coefficient,
-    )  # fmt: skip
+    model = windage_of_rig(
+        rig, ts.geometry, p, R, T_meas - d.drift_N, V, fc.density_kgpm3, fc.viscosity_Pas
+    )
     W_aero = np.array([r[3] for r in rows])
     return dict(V=V, aoa=aoa, W_raw=W_raw, W_drift=W_drift, model=model, W_aero=W_aero, d=d)
 
