@@ -205,8 +205,9 @@ def solid_blockage(p: WallParameters) -> float:
     """Solid-blockage velocity increment eps_sb (BRP ch. 10, Thom's short form, wing + body).
 
     Closed section: ``eps_sb = (K1 tau1 V_wing + K3 tau1 V_body) / C^1.5``.
-    Open jet: the free boundary gives a blockage of opposite sign and about a quarter the size
-    (AG-336 ch. 1, classical image solution for a circular free jet): ``-0.25 x`` the closed value.
+    Open jet: the image system of a free boundary changes the sign of the blockage and reduces its
+    size (AG-336 ch. 1-2); ``-0.25 x`` the closed value is taken here, an assumption of this code
+    (recorded as ``open_jet_blockage_ratio``), to be replaced by the facility's calibration.
     """
     closed = (p.wing_K1 * p.tau1 * p.wing_volume_m3 + p.body_K3 * p.tau1 * p.body_volume_m3) / (
         p.area_m2**1.5
@@ -285,6 +286,7 @@ def wall_corrections(
             "delta_aoa_rad_max": float(np.max(np.abs(d_alpha))) if d_alpha.size else 0.0,
             "delta_cd_induced_max": float(np.max(np.abs(d_cdi))) if d_cdi.size else 0.0,
             "not_applied": "horizontal buoyancy; tail-downwash moment correction",
+            "open_jet_blockage_ratio": -0.25 if p.kind == "open_jet" else None,
         },
     )
     return WallCorrections(
