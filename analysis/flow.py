@@ -5,9 +5,10 @@ pressure Pa, temperature K, relative humidity as a fraction 0..1, speed m/s, len
 
 Formulas and sources:
 
-- Saturation vapour pressure over water: Buck (1981), J. Appl. Meteor. 20, "New equations for
-  computing vapor pressure and enhancement factor", ``e_s = 611.21 exp((18.678 - t/234.5)
-  t/(257.14 + t))`` with ``t`` in deg C (better than 0.1 % from -40 to 50 deg C).
+- Saturation vapour pressure over water: the Arden Buck equation (Buck 1981, J. Appl. Meteor. 20,
+  "New equations for computing vapor pressure and enhancement factor"; the form and coefficients
+  of Buck's 1996 revision), ``e_s = 611.21 exp((18.678 - t/234.5) t/(257.14 + t))`` with ``t`` in
+  deg C.
 - Moist-air density: ideal mixture of dry air and water vapour,
   ``rho = (p - e)/(R_d T) + e/(R_v T)`` with ``e = RH e_s(T)``, ``R_d = 287.05287``,
   ``R_v = 461.495`` J/(kg K).  With ``RH = 0`` it is :func:`cdpr.analysis.aero.air_density`.
@@ -51,7 +52,7 @@ def _positive(value: ArrayLike, name: str, unit: str) -> FloatArray:
 
 
 def saturation_vapour_pressure(temperature_K: ArrayLike) -> FloatArray:
-    """Saturation vapour pressure over water (Pa) at ``temperature_K`` (K): Buck (1981)."""
+    """Saturation vapour pressure over water (Pa) at ``temperature_K`` (K): the Buck equation."""
     t_C = _positive(temperature_K, "temperature_K", "K") - 273.15
     return np.asarray(611.21 * np.exp((18.678 - t_C / 234.5) * (t_C / (257.14 + t_C))))
 
@@ -146,7 +147,7 @@ def flow_conditions(
     mach = np.asarray(v / a)
     rec = CorrectionRecord(
         name="flow_conditions",
-        source="Buck (1981) vapour pressure; ideal-gas moist air; Sutherland's law (White); "
+        source="Buck equation (1981/1996) vapour pressure; ideal-gas moist air; Sutherland's law (White); "
         "q = rho V^2/2; Re on the reference chord; M = V/sqrt(1.4 R T)",
         values={
             "chord_m": float(chord_m),
