@@ -82,10 +82,13 @@ def _print_modes(rig: Rig) -> None:
     except InfeasibleError as exc:
         print(f"  natural modes: not computed: {exc}")
         return
+    from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
+
     ea = sorted({float(v) for v in rig.cable_EA_N})
+    assumed = " (the default: no EA_N in the rig file)" if ea == [DEFAULT_CABLE_EA_N] else ""
     print(
         f"  natural modes at the reference pose (wind off, tensions by {rm.method}, "
-        f"EA = {', '.join(f'{v:g}' for v in ea)} N):"
+        f"EA = {', '.join(f'{v:g}' for v in ea)} N{assumed}):"
     )
     M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R_ref)
     for k in range(6):
