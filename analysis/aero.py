@@ -10,12 +10,13 @@ Frames (all right-handed):
   ``nose_P = -x_P`` (nose upstream when the platform is level) and ``up_P = +z_P``, which gives
   ``R_P_B = diag(-1, 1, -1)``.
 - {W} AIAA wind axes: x along the model's velocity relative to the air, z in the body x-z plane
-  (down when alpha = beta = 0), y completing the frame.
+  (down at zero angle of attack and sideslip), y completing the frame.
 
 Angles: with ``(u, v, w)`` the components in {B} of the model's velocity relative to the air,
-``alpha = atan2(w, u)`` (angle of attack, positive nose up relative to the wind) and
-``beta = asin(v / V)`` (sideslip, positive with the wind coming from the right).  With the default
-mounting and small angles, ``alpha`` equals the platform pitch and ``beta`` its yaw.
+``aoa = atan2(w, u)`` (angle of attack, positive nose up relative to the wind) and
+``sideslip = asin(v / V)`` (positive with the wind coming from the right).  With the default
+mounting and small angles, ``aoa`` equals the platform pitch and ``sideslip`` its yaw.  The names
+``aoa_rad``/``sideslip_rad`` keep them apart from the pose's roll/pitch/yaw.
 
 Loads: the wrench ``W`` (..., 6) on the model is given at P in {O} axes (as
 :mod:`cdpr.analysis.wrench` recovers it).  It is moved to the moment reference point (MRP, given in
@@ -102,29 +103,58 @@ def body_from_tunnel(
     return np.swapaxes(R_O_B, -1, -2)
 
 
+@dataclass(frozen=True)
+class ModelGeometry:
+    """The model's reference geometry, from one place (the test matrix's ``[model]`` table, or
+    options with ``source = "options"``, which the reduction flags).
+
+    area_m2, span_m, chord_m: reference area S, span b, chord c (> 0); mrp_P_m: (3,) moment
+    reference point in {P} (m); nose_P, up_P: the mounting (see :func:`body_axes_in_platform`).
+    """
+
+    area_m2: float
+    span_m: float
+    chord_m: float
+    mrp_P_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    nose_P: tuple[float, float, float] = (-1.0, 0.0, 0.0)
+    up_P: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    source: str = "test matrix"
+
+    def __post_init__(self) -> None:
+        for name in ("area_m2", "span_m", "chord_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise InputError(f"{name}: expected a finite value > 0, got {v!r}")
+        for name in ("mrp_P_m", "nose_P", "up_P"):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise InputError(f"{name}: expected 3 finite numbers, got {getattr(self, name)!r}")
+        body_axes_in_platform(self.nose_P, self.up_P)
+
+
 def flow_angles(
     R_O_P: ArrayLike, nose_P: ArrayLike = (-1.0, 0.0, 0.0), up_P: ArrayLike = (0.0, 0.0, 1.0)
 ) -> tuple[FloatArray, FloatArray]:
-    """Angle of attack and sideslip ``(alpha_rad, beta_rad)``, each (...,), from the platform attitude.
+    """Angle of attack and sideslip ``(aoa_rad, sideslip_rad)``, each (...,), from the platform attitude.
 
     The free stream blows along +x_O; the model's velocity relative to the air is ``-x_O`` (unit
-    speed).  ``alpha = atan2(w, u)``, ``beta = asin(v)`` with ``(u, v, w)`` its body components.
+    speed).  ``aoa = atan2(w, u)``, ``sideslip = asin(v)`` with ``(u, v, w)`` its body components.
     """
     R_B_O = body_from_tunnel(R_O_P, nose_P, up_P)
     vel_B = -R_B_O[..., :, 0]  # R_B_O @ (-1, 0, 0)
-    alpha = np.arctan2(vel_B[..., 2], vel_B[..., 0]) + 0.0  # + 0.0: no negative zeros
-    beta = np.arcsin(np.clip(vel_B[..., 1], -1.0, 1.0)) + 0.0
-    return alpha, beta
+    aoa = np.arctan2(vel_B[..., 2], vel_B[..., 0]) + 0.0  # + 0.0: no negative zeros
+    sideslip = np.arcsin(np.clip(vel_B[..., 1], -1.0, 1.0)) + 0.0
+    return aoa, sideslip
 
 
-def wind_from_body(alpha_rad: ArrayLike, beta_rad: ArrayLike) -> FloatArray:
+def wind_from_body(aoa_rad: ArrayLike, sideslip_rad: ArrayLike) -> FloatArray:
     """Rotation ``R_W_B`` (..., 3, 3) mapping body-axis components to wind-axis components.
 
     Rows are the wind axes in body components: ``x_W = (ca cb, sb, sa cb)``,
     ``y_W = (-ca sb, cb, -sa sb)``, ``z_W = (-sa, 0, ca)``.
     """
-    a = as_float_array(alpha_rad, "alpha_rad")
-    b = as_float_array(beta_rad, "beta_rad")
+    a = as_float_array(aoa_rad, "aoa_rad")
+    b = as_float_array(sideslip_rad, "sideslip_rad")
     a, b = np.broadcast_arrays(a, b)
     ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
     R = np.empty(a.shape + (3, 3))
@@ -151,15 +181,16 @@ def transfer_moment(wrench: ArrayLike, offset_O_m: ArrayLike) -> FloatArray:
 class AeroResult:
     """Aerodynamic angles, loads and coefficients over a batch of samples (each field (...,) or more).
 
-    alpha_rad, beta_rad: angle of attack and sideslip, rad.
+    aoa_rad, sideslip_rad: angle of attack and sideslip, rad (flow angles, not the pose's
+    roll/pitch/yaw).
     force_B_N, moment_B_Nm: (..., 3) force and moment about the MRP in AIAA body axes.
     drag_N, side_N, lift_N: wind-axis forces ``F_W = (-D, Y, -L)``, N.
     CD, CY, CL: force coefficients (divided by q S); Cl, Cm, Cn: body-axis moment coefficients about
     the MRP (roll and yaw divided by q S b, pitch by q S c).
     """
 
-    alpha_rad: FloatArray
-    beta_rad: FloatArray
+    aoa_rad: FloatArray
+    sideslip_rad: FloatArray
     force_B_N: FloatArray
     moment_B_Nm: FloatArray
     drag_N: FloatArray
@@ -218,13 +249,13 @@ def aero_coefficients(
     R_B_O = body_from_tunnel(R, nose_P, up_P)
     F_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., :3])
     M_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., 3:])
-    alpha, beta = flow_angles(R, nose_P, up_P)
-    F_W = np.einsum("...ij,...j->...i", wind_from_body(alpha, beta), F_B)
+    aoa, sideslip = flow_angles(R, nose_P, up_P)
+    F_W = np.einsum("...ij,...j->...i", wind_from_body(aoa, sideslip), F_B)
     drag, side, lift = -F_W[..., 0], F_W[..., 1], -F_W[..., 2]
     qS = q * float(area_m2)
     return AeroResult(
-        alpha_rad=alpha,
-        beta_rad=beta,
+        aoa_rad=aoa,
+        sideslip_rad=sideslip,
         force_B_N=F_B,
         moment_B_Nm=M_B,
         drag_N=drag,
@@ -262,9 +293,9 @@ def coefficient_matrix(
     """
     R, q, r = _check_reference(R_O_P, dynamic_pressure_Pa, area_m2, span_m, chord_m, mrp_P_m)
     R_B_O = body_from_tunnel(R, nose_P, up_P)
-    alpha, beta = flow_angles(R, nose_P, up_P)
+    aoa, sideslip = flow_angles(R, nose_P, up_P)
     sign = np.array([-1.0, 1.0, -1.0])[:, None]
-    Fmap = sign * (wind_from_body(alpha, beta) @ R_B_O)  # (..., 3, 3): (D, Y, L) from F_O
+    Fmap = sign * (wind_from_body(aoa, sideslip) @ R_B_O)  # (..., 3, 3): (D, Y, L) from F_O
     # moment about the MRP: M - r x F = M + skew(F) r = M - skew(r) F
     rx = np.zeros(r.shape[:-1] + (3, 3))
     rx[..., 0, 1], rx[..., 0, 2] = -r[..., 2], r[..., 1]

@@ -1,16 +1,18 @@
-"""Batch post-processing of recorded runs (``cdpr analyze`` / ``make analyze``).
+"""Batch post-processing of recorded runs (``cdpr analyze`` / ``make analyze``) on the reduction core.
 
-For every run (an MCAP file written by the recorder): the embedded rig, the tension, tunnel and pose
-streams; steady segments (test points and wind-off tares, :mod:`cdpr.analysis.balance`); per segment
-the structure matrix at the measured pose, the recovered wrench (absolute method, and the tare method
-when a wind-off segment at the same pose exists) with its covariance, the aerodynamic coefficients,
-and the paper's check: the tensions the distribution method would command for that wrench against
-the measured ones.  When the virtual rig's truth file sits beside the run, the true wrench is
-compared too.  Runs are processed in parallel on a Dask cluster (local by default, or an address).
+For every run (an MCAP file written by the recorder): the embedded rig, the tension stream with its
+status bits and counter, the tunnel and pose streams (with the camera's per-frame covariance) and the
+test-point events; the test points (from the ``/events`` stream where the run has one, detected
+steady points otherwise, :mod:`cdpr.analysis.balance`); then the reduction core
+(:mod:`cdpr.pipelines.reduce`): weight model and weight tares, balance interaction matrix, wrench
+and σ, axes, moment transfer, coefficients, the tension check.  When the virtual rig's truth file
+sits beside the run, the true wrench is compared too.  Runs are processed in parallel on a Dask
+cluster (local by default, or an address).
 
 Outputs per run, in ``OUT/<run stem>/`` (written to a temporary folder, then renamed):
-``segments.csv``, ``summary.json`` (inputs with SHA-256, options, software version), ``report.md``,
-``tensions.png``, ``wrench.png``, ``check.png``.  ``OUT/index.md`` lists every run.
+``points.csv`` (the per-point table, docs/analysis.md), ``summary.json`` (inputs with SHA-256,
+options, stage log, weight model, warnings, software version), ``report.md``, ``tensions.png``,
+``wrench.png``, ``check.png``.  ``OUT/index.md`` lists every run.
 """
 
 from __future__ import annotations
@@ -28,62 +30,70 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cdpr.analysis.aero import aero_coefficients, air_density, dynamic_pressure
+from cdpr.analysis.aero import ModelGeometry, air_density, transfer_moment
 from cdpr.analysis.balance import (
-    SegmentRule,
+    MASK_NAMES,
+    SteadyRule,
     interpolate_at,
-    nearest_tare,
-    segment_stats,
-    steady_segments,
+    points_from_events,
+    sample_mask,
+    steady_points,
 )
 from cdpr.analysis.conventions import WRENCH_COLUMNS
-from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import CdprError, ConfigError
-from cdpr.analysis.kinematics import structure_matrix
+from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.rig import Rig, rig_from_mapping
-from cdpr.analysis.rotations import euler_from_quaternion, rotation_from_euler
-from cdpr.analysis.tension import distribute
-from cdpr.analysis.uncertainty import wrench_covariance
-from cdpr.analysis.wrench import wrench_absolute, wrench_tare
+from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix, rotation_from_euler
 
 from . import __version__
 from .config import file_sha256
+from .reduce import ReduceSettings, points_table, reduce_points, reduction_stages, steps_log
+
+PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
+"""The paper's camera precision (0.5 mm, 0.1 deg): the pose σ fallback, used only with a flag."""
+
+INFO_FLAGS: frozenset[str] = frozenset(
+    {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
+     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options"}
+)  # fmt: skip
+"""Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
 
 @dataclass(frozen=True)
 class AnalyzeOptions:
     """Settings of the analysis (all recorded in every summary).
 
-    method: tension distribution the controller used (for the expected tensions).
-    pose_sd: camera pose standard deviations (m, m, m, rad, rad, rad) -- the paper's 0.5 mm, 0.1 deg.
-    area_m2, span_m, chord_m: reference area, span and chord for the coefficients (SDM-like model).
-    check_limit_N: the pass mark of the measured-vs-simulated tension check (the paper's ~1 N).
+    geometry: the model's reference geometry (from the test matrix, or options: flagged); None:
+        no coefficients (flag ``no_geometry`` on wind-on points).
+    pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
+    balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
     """
 
-    method: str = "exact"
-    pose_sd: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
-    area_m2: float = 0.2441 * 0.060
-    span_m: float = 0.2441
-    chord_m: float = 0.060
-    check_limit_N: float = 1.0
-    rule: SegmentRule = field(default_factory=SegmentRule)
+    geometry: ModelGeometry | None = None
+    pose_sd_fallback: tuple[float, ...] = PAPER_POSE_SD
+    balance_file: str | None = None
+    rule: SteadyRule = field(default_factory=SteadyRule)
+    reduce: ReduceSettings = field(default_factory=ReduceSettings)
 
 
 @dataclass
 class RunData:
-    """The arrays of one run that the analysis needs."""
+    """The arrays of one run that the analysis needs (what ``open_run`` will hand over)."""
 
     path: Path
     rig: Rig
     t_ns: np.ndarray  # (n,) tension sample times
-    tensions_N: np.ndarray  # (n, m)
-    poses: np.ndarray  # (n, 6) interpolated at t_ns
+    tensions_N: np.ndarray  # (n, m), NaN where a frame was missing
+    mask_bits: np.ndarray  # (n,) sample_mask bits (status, counter gaps, NaN)
+    tunnel: tuple[np.ndarray, np.ndarray] | None  # airspeed, density on t_ns; None: no stream
+    pose_t_ns: np.ndarray  # (k,)
+    poses: np.ndarray  # (k, 6)
+    pose_cov: np.ndarray | None  # (k, 6, 6) in [position, Euler angles], or None
+    pose_bad: np.ndarray  # (k,) bool
     pose_source: str
-    airspeed_mps: np.ndarray  # (n,)
-    density_kgpm3: np.ndarray  # (n,)
+    events: list[tuple[int, dict[str, Any]]]
     truth: dict[str, np.ndarray] | None
-    camera_t_ns: np.ndarray | None = None  # (k,) camera pose times, when the pose is the camera's
-    camera_poses: np.ndarray | None = None  # (k, 6) camera poses
+    camera: bool = False
 
 
 def _topic(messages: dict[str, list], suffix: str) -> list[tuple[int, dict[str, Any]]]:
@@ -91,9 +101,16 @@ def _topic(messages: dict[str, list], suffix: str) -> list[tuple[int, dict[str, 
     return messages[hits[0]] if hits else []
 
 
+def _float(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 def load_run(path: str | os.PathLike[str]) -> RunData:
-    """Read a run file: rig attachment, tensions, tunnel conditions, pose (camera, else the truth
-    file beside the run, else the rig's reference pose)."""
+    """Read a run file: rig attachment, tensions with status, tunnel conditions, pose (camera with
+    its covariance, else the truth file beside the run, else the rig's reference pose), events."""
     from cdpr.daq.mcap_io import read_run
 
     p = Path(path)
@@ -112,28 +129,49 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             str(p), "/tensions", f"expected a tension stream, got {len(tens)} messages"
         )
     cols = [f"T_{n}_N" for n in rig.cable_names]
-    missing = [c for c in cols if c not in tens[0][1]]
+    missing = [c for c in cols if not any(c in b for _, b in tens[:50])]
     if missing:
         raise ConfigError(str(p), "/tensions", f"field {missing[0]} missing for rig {rig.name!r}")
     t_ns = np.fromiter((t for t, _ in tens), dtype=np.int64, count=len(tens))
-    T = pd.DataFrame.from_records([b for _, b in tens], columns=cols).to_numpy(dtype=np.float64)
+    df = pd.DataFrame.from_records([b for _, b in tens])
+    T = df.reindex(columns=cols).apply(pd.to_numeric, errors="coerce").to_numpy(np.float64)
+    scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
+    st = df.reindex(columns=scols).fillna(0).to_numpy(np.int64)
+    seq = df["seq"].to_numpy() if "seq" in df and df["seq"].notna().all() else None
     order = np.argsort(t_ns, kind="stable")
-    t_ns, T = t_ns[order], T[order]
+    t_ns, T, st = t_ns[order], T[order], st[order]
     keep = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, T = t_ns[keep], T[keep]
+    t_ns, T, st = t_ns[keep], T[keep], st[keep]
+    counter = None
+    if seq is not None:
+        counter = seq.astype(np.int64)[order][keep]
+    bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
 
     tun = _topic(contents.messages, "tunnel")
+    tunnel = None
     if tun:
         tt = np.array([t for t, _ in tun], dtype=np.int64)
-        v = interpolate_at(t_ns, tt, [b.get("airspeed_mps", 0.0) for _, b in tun])
-        rho_src = [
-            b.get("density_kgpm3")
-            or float(air_density(b["static_pressure_Pa"], b["temperature_K"]))
-            for _, b in tun
-        ]
-        rho = interpolate_at(t_ns, tt, rho_src)
-    else:
-        v, rho = np.zeros(len(t_ns)), np.full(len(t_ns), 1.204)
+        v = np.array([_float(b.get("airspeed_mps")) for _, b in tun])
+        rho_src = np.array(
+            [
+                _float(b["density_kgpm3"])
+                if b.get("density_kgpm3") is not None
+                else float(air_density(b["static_pressure_Pa"], b["temperature_K"]))
+                if b.get("static_pressure_Pa") and b.get("temperature_K")
+                else np.nan
+                for _, b in tun
+            ]
+        )
+        good = np.isfinite(v)
+        if good.sum() >= 1:
+            vi = interpolate_at(t_ns, tt[good], v[good])
+            rg = np.isfinite(rho_src)
+            ri = (
+                interpolate_at(t_ns, tt[rg], rho_src[rg])
+                if rg.any()
+                else np.full(len(t_ns), np.nan)
+            )
+            tunnel = (vi, ri)
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -142,139 +180,295 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             truth = {k: z[k] for k in z.files}
 
     pose_msgs = _topic(contents.messages, "pose")
-    cam_t = cam_q = None
+    camera = False
+    pose_cov = None
     if pose_msgs:
         tp = np.array([t for t, _ in pose_msgs], dtype=np.int64)
-        pos = np.array([[b["pose"]["position"][k] for k in "xyz"] for _, b in pose_msgs])
-        quat = np.array([[b["pose"]["orientation"][k] for k in "wxyz"] for _, b in pose_msgs])
-        good = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
-        if good.sum() >= 2:
-            q6 = np.concatenate([pos[good], euler_from_quaternion(quat[good])], axis=1)
-            poses, src = interpolate_at(t_ns, tp[good], q6), "camera (/pose stream)"
-            cam_t, cam_q = tp[good], q6
-        else:
-            pose_msgs = []
-    if not pose_msgs and truth is not None and "position_O_m" in truth:
-        q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
-        poses = interpolate_at(t_ns, truth["t_ns"], q6)
-        src = f"virtual-rig truth ({truth_path.name}); no camera stream in the run"
-    elif not pose_msgs:
-        ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
-        poses, src = np.tile(ref, (len(t_ns), 1)), "rig reference pose (no pose stream)"
-    return RunData(p, rig, t_ns, T, poses, src, v, rho, truth, cam_t, cam_q)
-
-
-def _diag_cov(sd: np.ndarray) -> np.ndarray:
-    """(n_seg, n) standard deviations -> (n_seg, n, n) diagonal covariances (independent cables)."""
-    return sd[..., None] * np.eye(sd.shape[-1]) * sd[:, None, :]
-
-
-def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
-    """One row per steady segment with the recovered wrench, its standard deviations, the
-    coefficients and the tension check."""
-    rig = run.rig
-    segs = steady_segments(run.t_ns, run.airspeed_mps, run.poses, opts.rule)
-    if not segs:
-        raise ConfigError(str(run.path), "/tensions", "no steady segment found (run too short?)")
-    st = segment_stats(run.t_ns, run.tensions_N, run.poses, run.airspeed_mps, segs)
-    s = len(segs)
-    rho = np.array([run.density_kgpm3[a:b].mean() for a, b in segs])
-    is_tare = st.airspeed_mps < opts.rule.wind_off_mps
-    tare_idx = nearest_tare(
-        st.pose_mean, is_tare, st.start_ns, opts.rule.position_tol_m, opts.rule.angle_tol_rad
-    )
-    R = rotation_from_euler(st.pose_mean[:, 3:])
-    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, st.pose_mean[:, :3], R)
-    G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
-    W_abs = wrench_absolute(A, st.tension_mean_N, G)
-    sem = st.tension_sd_N / np.sqrt(st.n)[:, None]
-    cov_abs = wrench_covariance(
-        rig,
-        st.pose_mean,
-        st.tension_mean_N,
-        _diag_cov(sem),
-        np.array(opts.pose_sd),
-    )
-    has_tare = tare_idx >= 0
-    T0 = np.where(has_tare[:, None], st.tension_mean_N[np.maximum(tare_idx, 0)], np.nan)
-    W_tare = np.where(
-        has_tare[:, None],
-        wrench_tare(A, tensions_wind_on_N=st.tension_mean_N, tensions_wind_off_N=np.nan_to_num(T0)),
-        np.nan,
-    )
-    sem0 = np.where(has_tare[:, None], sem[np.maximum(tare_idx, 0)], 0.0)
-    cov_tare = wrench_covariance(
-        rig,
-        st.pose_mean,
-        st.tension_mean_N,
-        _diag_cov(sem),
-        np.array(opts.pose_sd),
-        tare_tensions_N=np.nan_to_num(T0),
-        tare_tension_cov=_diag_cov(sem0),
-    )
-    W_best = np.where(has_tare[:, None], W_tare, W_abs)
-    # The paper's check: tensions the method commands for the recovered wrench vs the measured ones.
-    expected = distribute(opts.method, A, -(G + W_best), rig.t_min_N, rig.t_max_N)
-    err = st.tension_mean_N - expected.tensions_N
-
-    rows: dict[str, Any] = {
-        "segment": np.arange(s),
-        "start_ns": st.start_ns,
-        "stop_ns": st.stop_ns,
-        "n_samples": st.n,
-        "airspeed_mps": st.airspeed_mps,
-        "density_kgpm3": rho,
-        "wind_off": is_tare.astype(int),
-        "tare_segment": tare_idx,
-    }
-    for k, c in enumerate(("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")):
-        rows[c] = st.pose_mean[:, k]
-    for k, name in enumerate(rig.cable_names):
-        rows[f"T_{name}_N"] = st.tension_mean_N[:, k]
-        rows[f"sd_T_{name}_N"] = st.tension_sd_N[:, k]
-        rows[f"dT_{name}_N"] = err[:, k]
-    for k, c in enumerate(WRENCH_COLUMNS):
-        rows[f"abs_{c}"] = W_abs[:, k]
-        rows[f"abs_sd_{c}"] = cov_abs.std[:, k]
-        rows[f"tare_{c}"] = W_tare[:, k]
-        rows[f"tare_sd_{c}"] = np.where(has_tare, cov_tare.std[:, k], np.nan)
-    rows["check_max_abs_dT_N"] = np.abs(err).max(axis=1)
-    rows["check_pass"] = (rows["check_max_abs_dT_N"] <= opts.check_limit_N).astype(int)
-    rows["expected_feasible"] = expected.feasible.astype(int)
-    wind_on = ~is_tare
-    coef = {
-        k: np.full(s, np.nan) for k in ("alpha_rad", "beta_rad", "CD", "CY", "CL", "Cl", "Cm", "Cn")
-    }
-    if wind_on.any():
-        qd = dynamic_pressure(rho[wind_on], st.airspeed_mps[wind_on])
-        res = aero_coefficients(
-            W_best[wind_on], R[wind_on], qd, opts.area_m2, opts.span_m, opts.chord_m
+        pos = np.array([[_float(b["pose"]["position"][k]) for k in "xyz"] for _, b in pose_msgs])
+        quat = np.array(
+            [[_float(b["pose"]["orientation"][k]) for k in "wxyz"] for _, b in pose_msgs]
         )
-        for k in coef:
-            coef[k][wind_on] = getattr(res, k)
-    rows.update(coef)
+        bad = ~(np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1))
+        bad |= np.array([int(b.get("status", 0) or 0) != 0 for _, b in pose_msgs])
+        eul = np.full((len(tp), 3), np.nan)
+        if (~bad).any():
+            eul[~bad] = euler_from_quaternion(quat[~bad])
+        poses = np.concatenate([pos, eul], axis=1)
+        covs = [b.get("covariance") for _, b in pose_msgs]
+        if all(c is not None and len(c) == 36 for c in covs):
+            C = np.array(covs, dtype=np.float64).reshape(-1, 6, 6)
+            # the camera reports [position, rotation vector in {O}]; Euler angles: dpsi = H^-1 dtheta
+            Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
+            J = np.zeros((len(tp), 6, 6))
+            J[:, :3, :3] = np.eye(3)
+            J[:, 3:, 3:] = Hinv
+            pose_cov = J @ C @ np.swapaxes(J, 1, 2)
+            bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
+        if (~bad).sum() >= 2:
+            camera = True
+            src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
+            return RunData(
+                p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src,
+                _events(contents.messages), truth, camera,
+            )  # fmt: skip
+    if truth is not None and "position_O_m" in truth:
+        q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
+        src = f"virtual-rig truth ({truth_path.name}); no camera stream in the run"
+        tp = np.asarray(truth["t_ns"], dtype=np.int64)
+        return RunData(
+            p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
+            _events(contents.messages), truth,
+        )  # fmt: skip
+    ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
+    return RunData(
+        p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
+        np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)",
+        _events(contents.messages), truth,
+    )  # fmt: skip
+
+
+def _events(messages: dict[str, list]) -> list[tuple[int, dict[str, Any]]]:
+    out = []
+    for topic in ("/events", "events"):
+        out += [(t, b) for t, b in messages.get(topic, []) if b.get("name") == "test_point"]
+    return sorted(out, key=lambda e: e[0])
+
+
+@dataclass
+class PointPlan:
+    """The test points of a run: index ranges into the tension samples and what is known of each."""
+
+    ranges: list[tuple[int, int]]
+    labels: list[str]
+    kind: list[str]
+    source: str  # "events" | "detected"
+    flags: list[str]
+    targets: dict[str, list[Any]]
+
+
+def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
+    """Test points from the ``/events`` stream when the run has one, else detected steady points."""
+    if run.events:
+        opened: dict[str, tuple[int, dict[str, Any]]] = {}
+        pts: list[tuple[int, int, dict[str, Any], str]] = []
+        for t, b in run.events:
+            label = str(b.get("point", ""))
+            phase = b.get("phase")
+            if phase == "start":
+                for t0, b0 in opened.values():  # a point never ended closes here
+                    pts.append((t0, t - 1, b0, "no_end_event"))
+                opened = {label: (t, b)}
+            elif phase == "end" and label in opened:
+                t0, b0 = opened.pop(label)
+                pts.append((t0, t, b0, ""))
+        for t0, b0 in opened.values():
+            pts.append((t0, int(run.t_ns[-1]), b0, "no_end_event"))
+        pts.sort(key=lambda x: x[0])
+        ranges = points_from_events(run.t_ns, [x[0] for x in pts], [x[1] for x in pts])
+        targets = {
+            k: [x[2].get(k, np.nan) for x in pts]
+            for k in ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps", "repeat_of")
+        }
+        return PointPlan(
+            ranges,
+            [str(x[2].get("point", "")) for x in pts],
+            [str(x[2].get("kind", "wind_on")) for x in pts],
+            "events",
+            [x[3] for x in pts],
+            targets,
+        )
+    q = interpolate_at(run.t_ns, run.pose_t_ns[~run.pose_bad], run.poses[~run.pose_bad])
+    v = run.tunnel[0] if run.tunnel is not None else None
+    ranges = steady_points(run.t_ns, v, q, run.mask_bits == 0, rule)
+    if v is None:
+        kind = ["unknown"] * len(ranges)
+    else:
+        vm = np.array([np.nanmean(v[a:b]) for a, b in ranges])
+        kind = ["tare" if x < rule.wind_off_mps else "wind_on" for x in vm]
+    return PointPlan(
+        ranges,
+        [f"d{i:02d}" for i in range(len(ranges))],
+        kind,
+        "detected",
+        [""] * len(ranges),
+        {},
+    )
+
+
+def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
+    """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
+    model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
+    if path is None:
+        return None, None
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "", f"cannot read the balance calibration: {exc}") from None
+    K = np.asarray(doc.get("interaction_matrix", []), dtype=np.float64)
+    if K.shape != (6, 6) or not np.all(np.isfinite(K)):
+        raise ConfigError(
+            path, "interaction_matrix", f"expected a finite 6x6 matrix, got {K.shape}"
+        )
+    so = doc.get("second_order")
+    if so is None:
+        return K, None
+    K1 = np.asarray(so.get("K1", []), dtype=np.float64)
+    K2 = np.asarray(so.get("K2", []), dtype=np.float64)
+    if K1.shape != (6, 6) or K2.shape != (6, 21):
+        raise ConfigError(
+            path, "second_order", f"expected K1 (6, 6), K2 (6, 21), got {K1.shape}, {K2.shape}"
+        )
+    if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(K2))):
+        raise ConfigError(path, "second_order", "expected finite values")
+    return K, (K1, K2)
+
+
+def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The per-point table of one run and the summary parts of the reduction (stage log, weight
+    model, warnings)."""
+    rig = run.rig
+    plan = plan_points(run, opts.rule)
+    if not plan.ranges:
+        raise ConfigError(
+            str(run.path),
+            "/tensions",
+            f"no test point ({plan.source}): run too short or never steady?",
+        )
+    fallback = None if run.pose_cov is not None else np.array(opts.pose_sd_fallback)
+    airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
+    pts, extra = points_from_samples(
+        kind=plan.kind,
+        ranges=plan.ranges,
+        t_ns=run.t_ns,
+        tensions_N=run.tensions_N,
+        mask_bits=run.mask_bits,
+        airspeed_mps=airspeed,
+        density_kgpm3=density,
+        pose_t_ns=run.pose_t_ns,
+        poses=run.poses,
+        pose_cov=run.pose_cov,
+        pose_sd_fallback=fallback,
+        pose_bad=run.pose_bad,
+    )
+    from cdpr.analysis.reduction import flags_from_masks
+
+    run_words = []
+    if not run.camera:
+        run_words.append("pose_from_truth" if run.truth is not None else "no_pose_stream")
+    if run.tunnel is None:
+        run_words.append("no_airspeed")
+    words = [";".join(filter(None, [f, *run_words])) for f in plan.flags]
+    pts = flags_from_masks(pts, words=words)
+    K, second = read_balance_calibration(opts.balance_file)
+    stages = reduction_stages(rig, opts.geometry, opts.reduce, interaction=K, second_order=second)
+    out = reduce_points(pts, stages)
+    if opts.geometry is None:
+        on = np.isin(out["kind"], ("wind_on", "unknown"))
+        out = flags_from_masks(out, words=["no_geometry" if o else "" for o in on])
+    before = {"run": [run.path.name] * out.n}
+    after: dict[str, Any] = {
+        "source": [plan.source] * out.n,
+        "start_ns": extra["start_ns"],
+        "stop_ns": extra["stop_ns"],
+        "n_samples": extra["n_samples"],
+        "n_masked": extra["n_masked"],
+        "n_pose_frames": extra["n_pose_frames"],
+    }
+    for k, vals in plan.targets.items():
+        after[k] = vals
+    df = points_table(out, rig, plan.labels, before, after)
+    # order: identification first
+    first = [
+        "run",
+        "point",
+        "kind",
+        "source",
+        "start_ns",
+        "stop_ns",
+        "n_samples",
+        "n_masked",
+        "flags",
+    ]
+    df = df[first + [c for c in df.columns if c not in first]]
     if run.truth is not None and "wrench_aero_O" in run.truth:
-        mid = (st.start_ns + st.stop_ns) // 2
+        mid = (extra["start_ns"] + extra["stop_ns"]) // 2
         W_true = interpolate_at(mid, run.truth["t_ns"], run.truth["wrench_aero_O"])
+        mrp = np.zeros(3) if opts.geometry is None else np.asarray(opts.geometry.mrp_P_m)
+        R = rotation_from_euler(np.nan_to_num(out["pose"][:, 3:]))
+        W_true = transfer_moment(W_true, R @ mrp)
         for k, c in enumerate(WRENCH_COLUMNS):
-            rows[f"true_{c}"] = W_true[:, k]
-            rows[f"err_{c}"] = W_best[:, k] - W_true[:, k]
-    return pd.DataFrame(rows)
+            df[f"true_{c}"] = W_true[:, k]
+            df[f"err_{c}"] = df[c] - W_true[:, k]
+    flag_sets = [set(filter(None, f.split(";"))) for f in df["flags"]]
+    warn_words = sorted(set().union(*flag_sets) - INFO_FLAGS) if flag_sets else []
+    wm = out.meta.get("weight_model")
+    info: dict[str, Any] = {
+        "points": int(out.n),
+        "point_source": plan.source,
+        "warnings": warn_words,
+        "points_with_warnings": int(sum(bool(f - INFO_FLAGS) for f in flag_sets)),
+        "stages": steps_log(out),
+        "weight_model": None
+        if wm is None
+        else {
+            "mass_kg": wm.mass_kg,
+            "com_P_m": wm.com_P_m.tolist(),
+            "theta_cov": wm.theta_cov.tolist(),
+            "n_tares": wm.n_tares,
+            "chi2_per_dof": wm.chi2_per_dof,
+            "left_to_prior": list(wm.weak),
+        },
+        "lines": _warning_lines(run, plan, warn_words),
+    }
+    return df, info
+
+
+def _warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]:
+    """One sentence per run-level problem (the CLI and the report print them)."""
+    lines = []
+    if run.tunnel is None:
+        lines.append(
+            "no airspeed data in the run: no coefficient; "
+            + (
+                "points come from events"
+                if plan.source == "events"
+                else "wind-on and wind-off cannot be told apart, so no wrench is reported"
+            )
+        )
+    if "pose_cov_nominal" in words:
+        lines.append(
+            "the pose stream carries no covariance: pose σ from the configured constant "
+            "(flag pose_cov_nominal)"
+        )
+    if "no_pose_stream" in words:
+        lines.append("no pose stream: the rig's reference pose is used (flag no_pose_stream)")
+    if "no_tare" in words:
+        lines.append("wind-on points without a tare or weight model: no wrench (flag no_tare)")
+    if "masked" in words:
+        lines.append("samples masked (status bits, counter gaps, NaN): see n_masked and flags")
+    if "no_geometry" in words:
+        lines.append("no model geometry given: no coefficients (flag no_geometry)")
+    if "check_fail" in words:
+        lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"no_airspeed"} | set(MASK_NAMES.values())
+    rest = [w for w in words if w not in said]
+    if rest:
+        lines.append(f"other flags: {', '.join(rest)} (see the flags column)")
+    return lines
 
 
 def camera_pose_error(run: RunData) -> dict[str, float] | None:
     """RMS position (mm) and rotation (deg) error of the camera poses against the virtual rig's
     truth, when the run has both."""
-    if run.camera_t_ns is None or run.camera_poses is None or run.truth is None:
+    if not run.camera or run.truth is None or "position_O_m" not in run.truth:
         return None
-    if "position_O_m" not in run.truth:
-        return None
+    good = ~run.pose_bad
+    cam_t, cam_q = run.pose_t_ns[good], run.poses[good]
     q_true = np.concatenate([run.truth["position_O_m"], run.truth["euler_rad"]], axis=1)
-    tq = interpolate_at(run.camera_t_ns, run.truth["t_ns"], q_true)
-    pos_err = np.linalg.norm(run.camera_poses[:, :3] - tq[:, :3], axis=1)
-    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(
-        run.camera_poses[:, 3:]
-    )
+    tq = interpolate_at(cam_t, run.truth["t_ns"], q_true)
+    pos_err = np.linalg.norm(cam_q[:, :3] - tq[:, :3], axis=1)
+    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(cam_q[:, 3:])
     cos = np.clip((np.trace(R_rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     ang = np.degrees(np.arccos(cos))
     return {
@@ -303,78 +497,96 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
                 a.axvspan(
                     (r.start_ns - t0) * 1e-9,
                     (r.stop_ns - t0) * 1e-9,
-                    color="0.9" if r.wind_off else "#dde8f7",
+                    color="0.9" if r.kind in ("tare", "zero") else "#dde8f7",
                     zorder=0,
                 )
         ax[0].set_ylabel("tension (N)")
         ax[0].legend(fontsize=7, ncol=4, loc="upper left")
         ax[0].set_title(
-            f"{run.path.name}: tensions; shaded = steady segments (grey: wind-off tares)"
+            f"{run.path.name}: tensions; shaded = test points ({df['source'].iloc[0]}; grey: tares)"
         )
-        ax[1].plot(ts, run.airspeed_mps, color="k", lw=1)
+        if run.tunnel is not None:
+            ax[1].plot(ts, run.tunnel[0], color="k", lw=1)
+        else:
+            ax[1].text(0.5, 0.5, "no airspeed data", transform=ax[1].transAxes, ha="center")
         ax[1].set_ylabel("airspeed (m/s)")
         ax[1].set_xlabel("time (s)")
 
-    on = df[df.wind_off == 0]
+    on = df[~df.kind.isin(("tare", "zero"))]
+    x = on["airspeed_mps"] if run.tunnel is not None else np.arange(len(on))
     with png_figure(folder / "wrench.png", 2, 3, (11, 6)) as (fig, axes):
         for k, c in enumerate(WRENCH_COLUMNS):
             a = axes.flat[k]
-            use_tare = on["tare_segment"] >= 0
-            y = np.where(use_tare, on[f"tare_{c}"], on[f"abs_{c}"])
-            e = np.where(use_tare, on[f"tare_sd_{c}"], on[f"abs_sd_{c}"])
             a.errorbar(
-                on["airspeed_mps"], y, yerr=2 * e, fmt="o", capsize=3, label="recovered (±2σ)"
+                x, on[c], yerr=2 * on[f"sd_{c}"], fmt="o", capsize=3, label="recovered (±2σ)"
             )
             if f"true_{c}" in on:
-                a.plot(
-                    on["airspeed_mps"], on[f"true_{c}"], "x", color="C3", label="virtual-rig truth"
-                )
+                a.plot(x, on[f"true_{c}"], "x", color="C3", label="virtual-rig truth")
             a.set_title(c)
-            a.set_xlabel("airspeed (m/s)")
+            a.set_xlabel("airspeed (m/s)" if run.tunnel is not None else "point")
             a.grid(alpha=0.3)
         axes.flat[0].legend(fontsize=7)
-        fig.suptitle(
-            "Recovered aerodynamic wrench per test point (tare method where a tare exists)"
-        )
+        fig.suptitle("Recovered aerodynamic wrench per test point (at the MRP, {O} axes)")
 
     dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
     with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
         ax = axes[0, 0]
         width = 0.8 / len(dcols)
+        idx = np.arange(len(df))
         for k, c in enumerate(dcols):
-            ax.bar(df["segment"] + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+            ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
         ax.axhline(1.0, color="r", ls="--", lw=1)
         ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
-        ax.set_xlabel("segment")
+        ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
         ax.set_ylabel("measured − expected tension (N)")
         ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
         ax.legend(fontsize=7, ncol=5)
 
 
+def _fmt(v: float, sd: float) -> str:
+    return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
+
+
 def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
+    red = summary["reduction"]
     lines = [
         f"# Analysis of `{run.path.name}`",
         "",
         f"- rig: **{run.rig.name}** ({run.rig.n_cables} cables); pose from: {run.pose_source}",
-        f"- {len(df)} steady segments, {int(df.wind_off.sum())} wind-off tares; method for the "
-        f"expected tensions: `{summary['options']['method']}`",
+        f"- {len(df)} test points from **{red['point_source']}**"
+        f" ({'the /events stream' if red['point_source'] == 'events' else 'steady-point detection'})"
+        f", {int(df.kind.isin(('tare', 'zero')).sum())} wind-off",
         f"- measured vs simulated tensions: max |ΔT| = {summary['check_max_abs_dT_N']:.3f} N "
         f"(paper: about 1 N) → **{'pass' if summary['check_pass'] else 'FAIL'}**",
+    ]
+    wm = red["weight_model"]
+    if wm:
+        lines.append(
+            f"- weight model from {wm['n_tares']} wind-off points: mass {wm['mass_kg']:.5f} kg, "
+            f"CoM_P {np.round(np.array(wm['com_P_m']) * 1e3, 3).tolist()} mm"
+            + (
+                f" (left to the prior: {', '.join(wm['left_to_prior'])})"
+                if wm["left_to_prior"]
+                else ""
+            )
+        )
+    if red["lines"]:
+        lines += ["", "**Warnings**", ""] + [f"- {w}" for w in red["lines"]]
+    lines += [
         "",
-        "| seg | V (m/s) | tare | Fx (N) | Fy (N) | Fz (N) | Mx (N m) | My (N m) | Mz (N m) "
-        "| CL | CD | max ΔT (N) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| point | kind | V (m/s) | Fx (N) | Fy (N) | Fz (N) | Mx (N m) | My (N m) | Mz (N m) "
+        "| CL | CD | max ΔT (N) | masked | flags |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for _, r in df.iterrows():
-        pre = "tare_" if r.tare_segment >= 0 else "abs_"
-        w = [f"{r[pre + c]:.3f} ± {r[pre + 'sd_' + c]:.3f}" for c in WRENCH_COLUMNS]
-        tare = int(r.tare_segment) if r.tare_segment >= 0 else "-"
+        w = [_fmt(r[c], r["sd_" + c]) for c in WRENCH_COLUMNS]
+        coef = ["–" if not np.isfinite(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD")]
         lines.append(
-            f"| {int(r.segment)} | {r.airspeed_mps:.2f} | {tare} | "
+            f"| {r.point} | {r.kind} | {r.airspeed_mps:.2f} | "
             + " | ".join(w)
             + " | "
-            + " | ".join("-" if np.isnan(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD"))
-            + f" | {r.check_max_abs_dT_N:.3f} |"
+            + " | ".join(coef)
+            + f" | {r.check_max_abs_dT_N:.3f} | {int(r.n_masked)} | {r['flags']} |"
         )
     pe = summary.get("camera_pose_error_vs_truth")
     if pe:
@@ -382,17 +594,20 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
             "",
             f"Camera pose against the virtual rig's truth ({pe['n_poses']} poses): position RMS "
             f"{pe['position_rms_mm']:.3f} mm (max {pe['position_max_mm']:.3f}), rotation RMS "
-            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°); the paper's camera: "
-            "0.5 mm and 0.1°.",
+            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°).",
         ]
-    if "true_fx_N" in df:
-        on = df[df.wind_off == 0]
-        errs = ", ".join(f"{c} {np.abs(on['err_' + c]).max():.3g}" for c in WRENCH_COLUMNS)
+    if "max_abs_error_vs_truth" in summary:
+        errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
+    lines += ["", "Stages of the reduction:", ""]
+    for st in red["stages"]:
+        note = f": {st['note']}" if st["note"] else ""
+        lines.append(f"1. `{st['stage']}` — {st['points_flagged']} points flagged{note}")
     lines += [
         "",
-        "Uncertainty: ±1σ from load-cell noise (segment standard error) and the camera pose "
-        "precision (0.5 mm, 0.1°) through the structure matrix (`cdpr.analysis.uncertainty`).",
+        "σ: load-cell noise (standard error of each point's mean), the pose covariance (the camera's "
+        "per frame, else the configured constant, flagged), the weight model's covariance and the "
+        "tare-to-point pose difference, linearised (`cdpr.analysis.reduction`).",
         "",
         "![tensions](tensions.png)",
         "",
@@ -404,36 +619,52 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _options_json(opts: AnalyzeOptions) -> Any:
+    return json.loads(
+        json.dumps(asdict(opts), default=lambda o: list(o) if isinstance(o, tuple) else str(o))
+    )
+
+
 def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]:
     """Analyse one run and write its folder atomically; returns the summary."""
-    run = load_run(path)
-    df = analyze_arrays(run, opts)
+    try:
+        run = load_run(path)
+        df, red = analyze_arrays(run, opts)
+    except ConfigError:
+        raise
+    except CdprError as exc:  # name the file in the one line
+        raise ConfigError(str(path), "", str(exc)) from None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     final = out / run.path.name.removesuffix(".mcap")
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=out))
     try:
-        summary = {
+        dmax = df["check_max_abs_dT_N"]
+        summary: dict[str, Any] = {
             "run": str(run.path),
             "run_sha256": file_sha256(run.path),
             "software_version": __version__,
             "rig": run.rig.name,
             "pose_source": run.pose_source,
-            "options": json.loads(json.dumps(asdict(opts), default=float)),
-            "segments": len(df),
-            "check_max_abs_dT_N": float(df["check_max_abs_dT_N"].max()),
-            "check_pass": bool((df["check_max_abs_dT_N"] <= opts.check_limit_N).all()),
+            "options": _options_json(opts),
+            "balance_file": None
+            if opts.balance_file is None
+            else f"{opts.balance_file} sha256={file_sha256(opts.balance_file)}",
+            "points": len(df),
+            "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
+            "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
+            "reduction": red,
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:
             summary["camera_pose_error_vs_truth"] = pose_err
         if "err_fx_N" in df:
-            on = df[df.wind_off == 0]
+            on = df[df.kind == "wind_on"]
             summary["max_abs_error_vs_truth"] = {
                 c: float(np.abs(on[f"err_{c}"]).max()) for c in WRENCH_COLUMNS
             }
-        df.to_csv(tmp / "segments.csv", index=False)
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        df.to_csv(tmp / "points.csv", index=False)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
@@ -494,16 +725,18 @@ def analyze_runs(
     lines = [
         "# Analysed runs",
         "",
-        "| run | segments | max ΔT (N) | check | report |",
-        "|---|---|---|---|---|",
+        "| run | points | source | warnings | max ΔT (N) | check | report |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in results:
         if "error" in r:
-            lines.append(f"| {Path(r['run']).name} | - | - | error: {r['error']} | - |")
+            lines.append(f"| {Path(r['run']).name} | - | - | - | - | error: {r['error']} | - |")
         else:
             rel = Path(r["folder"]).name
+            red = r["reduction"]
             lines.append(
-                f"| {Path(r['run']).name} | {r['segments']} | {r['check_max_abs_dT_N']:.3f} | "
+                f"| {Path(r['run']).name} | {r['points']} | {red['point_source']} | "
+                f"{', '.join(red['warnings']) or '-'} | {r['check_max_abs_dT_N']:.3f} | "
                 f"{'pass' if r['check_pass'] else 'FAIL'} | [{rel}/report.md]({rel}/report.md) |"
             )
     index = Path(out_dir) / "index.md"

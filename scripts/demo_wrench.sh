@@ -41,7 +41,7 @@ echo "== tare method (paper eq. 7), 0.05 N load cells, 0.5 mm / 0.1 deg pose noi
     --airspeed-mps 25.51 --pressure-Pa 101325 --temperature-K 293.15 \
     --area-m2 0.0174 --span-m 0.2441 --chord-m 0.0713 --out "$D/wrench_tare.csv"
 show "$D/wrench_tare.csv" label,fx_N,fz_N,my_Nm,sd_fx_N,sd_fz_N,sd_my_Nm
-show "$D/wrench_tare.csv" label,alpha_rad,beta_rad,CD,CY,CL,Cm,sd_CD,sd_CL,sd_Cm
+show "$D/wrench_tare.csv" label,aoa_rad,sideslip_rad,CD,CY,CL,Cm,sd_CD,sd_CL,sd_Cm
 echo
 echo "== absolute method (mass model), same noise: the pose error on the pretension dominates"
 "$CDPR" wrench --rig "$RIG" --poses "$D/poses.csv" --tensions "$D/Tw.csv" \

@@ -41,8 +41,8 @@ def test_pure_drag_at_zero_angles() -> None:
     q, S, b, c = 500.0, 0.02, 0.25, 0.08
     D = 3.0
     res = aero_coefficients([D, 0, 0, 0, 0, 0], np.eye(3), q, S, b, c)
-    assert res.alpha_rad == pytest.approx(0.0, abs=1e-15)
-    assert res.beta_rad == pytest.approx(0.0, abs=1e-15)
+    assert res.aoa_rad == pytest.approx(0.0, abs=1e-15)
+    assert res.sideslip_rad == pytest.approx(0.0, abs=1e-15)
     assert res.drag_N == pytest.approx(D)
     assert res.CD == pytest.approx(D / (q * S))
     for k in ("CY", "CL", "Cl", "Cm", "Cn"):
@@ -81,8 +81,8 @@ def test_ninety_degree_yaw() -> None:
     R = rotation_from_euler([0, 0, np.pi / 2])
     np.testing.assert_allclose(body_from_tunnel(R) @ [-1.0, 0, 0], [0, 1, 0], atol=1e-15)
     res = aero_coefficients([4.0, 0, 0, 0, 0, 0], R, 100.0, 0.1, 1.0, 0.1)
-    assert res.beta_rad == pytest.approx(np.pi / 2)
-    assert res.alpha_rad == pytest.approx(0.0, abs=1e-12)
+    assert res.sideslip_rad == pytest.approx(np.pi / 2)
+    assert res.aoa_rad == pytest.approx(0.0, abs=1e-12)
     # a force along the free stream is still pure drag in wind axes
     assert res.drag_N == pytest.approx(4.0)
     assert res.side_N == pytest.approx(0.0, abs=1e-12)
@@ -151,7 +151,7 @@ def test_batched_and_custom_nose() -> None:
     )
     assert res.CD.shape == (3, 2)
     # the model faces downstream: it "flies" backwards, alpha = 180 deg
-    np.testing.assert_allclose(np.abs(res.alpha_rad), np.pi)
+    np.testing.assert_allclose(np.abs(res.aoa_rad), np.pi)
     np.testing.assert_allclose(res.drag_N, 1.0)
     with pytest.raises(InputError, match="up_P"):
         body_axes_in_platform([1, 0, 0], [2, 0, 0])

@@ -267,8 +267,8 @@ def test_aero_coefficients_by_hand(tmp_path: Path) -> None:
     args += ["--area-m2", str(S), "--span-m", str(b), "--chord-m", str(c)]
     assert main([*args, "--out", str(tmp_path / "aero.csv")]) == 0
     df = _read(tmp_path / "aero.csv")
-    np.testing.assert_allclose(df["alpha_rad"], 0.0, atol=1e-12)
-    np.testing.assert_allclose(df["beta_rad"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(df["aoa_rad"], 0.0, atol=1e-12)
+    np.testing.assert_allclose(df["sideslip_rad"], 0.0, atol=1e-12)
     np.testing.assert_allclose(df["CD"], 2.0 / (q * S), rtol=1e-6)
     np.testing.assert_allclose(df["CL"], 3.0 / (q * S), rtol=1e-6)
     np.testing.assert_allclose(df["Cm"], 0.01 / (q * S * c), rtol=1e-5)

@@ -126,6 +126,7 @@ def run_balance(args: argparse.Namespace) -> int:
     import numpy as np
 
     from cdpr.analysis.balance import nearest_tare
+    from cdpr.analysis.balance_model import fit_second_order
     from cdpr.analysis.conventions import POSE_COLUMNS, WRENCH_COLUMNS, WRENCH_NAMES
     from cdpr.analysis.dynamics import gravity_wrench
     from cdpr.analysis.errors import ConfigError, InputError
@@ -182,6 +183,20 @@ def run_balance(args: argparse.Namespace) -> int:
         "interaction_matrix": res.interaction.tolist(),
         "corrected_rms_error": res.corrected_rms_error.tolist(),
     }
+    second, why = fit_second_order(rec[loaded], W[loaded])
+    doc["second_order"] = (
+        None
+        if second is None
+        else {
+            "K1": second.K1.tolist(),
+            "K2": second.K2.tolist(),
+            "quadratic_terms": "W_i W_j, i <= j, row-major upper triangle (21)",
+            "rms_error_first_order": second.rms_first.tolist(),
+            "rms_error_second_order": second.rms_second.tolist(),
+            "p_value": second.p_value.tolist(),
+        }
+    )
+    doc["second_order_note"] = why
     _check_plot(res, Path(args.out).with_suffix(".png"))
     with atomic_output(args.out) as fh:
         fh.write(json.dumps(doc, indent=2) + "\n")
@@ -193,6 +208,7 @@ def run_balance(args: argparse.Namespace) -> int:
         + (f" (never loaded: {', '.join(never)})" if never else "")
         + f" -> {args.out}"
     )
+    print(f"  {why}")
     return 0
 
 

@@ -1,4 +1,9 @@
-"""``cdpr analyze``: batch post-processing of recorded runs (see :mod:`cdpr.pipelines.analyze`)."""
+"""``cdpr analyze``: batch post-processing of recorded runs (see :mod:`cdpr.pipelines.analyze`).
+
+Exit codes: 0 every run reduced without a warning; 1 reduced, but some point carries a warning flag
+(masked samples, no tare, no airspeed, a nominal fallback, ... — one line each on stdout, all in the
+reports); 2 a run could not be analysed (one line on stderr naming the file and the problem).
+"""
 
 from __future__ import annotations
 
@@ -11,8 +16,9 @@ METHOD_NAMES = ("closed-form", "improved-closed-form", "penalty", "exact")
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "analyze",
-        help="post-process runs: wrench, coefficients, uncertainty, the 1 N check, reports",
+        help="post-process runs: test points, weight tares, wrench ± σ, coefficients, reports",
         description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("runs", nargs="+", help="run files (.mcap) or folders holding them")
     p.add_argument("--out", required=True, help="output folder (one sub-folder per run + index.md)")
@@ -22,7 +28,55 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--check-limit-N", type=float, default=1.0, help="pass mark of the tension check"
     )
+    p.add_argument("--balance", help="balance calibration (cdpr calibrate balance output, JSON)")
+    geo = p.add_argument_group(
+        "model geometry (for runs without a test matrix; the points are flagged geometry_from_options)"
+    )
+    geo.add_argument("--area-m2", dest="area_m2", type=float, help="reference area S")
+    geo.add_argument("--span-m", dest="span_m", type=float, help="reference span b")
+    geo.add_argument("--chord-m", dest="chord_m", type=float, help="reference chord c")
+    geo.add_argument(
+        "--mrp-P-m",
+        dest="mrp_P_m",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="moment reference point in {P} (m, default P)",
+    )
     p.set_defaults(func=run)
+
+
+def geometry_from_args(args: argparse.Namespace, need: bool) -> object | None:
+    """A ``ModelGeometry`` (source "options") from ``--area-m2 --span-m --chord-m --mrp-P-m``
+    (and ``--nose-P --up-P`` where the command has them); None when none is given and not needed."""
+    import math
+
+    from cdpr.analysis.aero import ModelGeometry
+    from cdpr.analysis.errors import ConfigError, InputError
+
+    vals = {f: getattr(args, f) for f in ("area_m2", "span_m", "chord_m")}
+    if all(v is None for v in vals.values()) and not need:
+        return None
+    for f, v in vals.items():
+        flag = "--" + f.replace("_", "-")
+        if v is None:
+            raise ConfigError("command line", flag, "required for the aerodynamic coefficients")
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError("command line", flag, f"expected a finite value > 0, got {v}")
+    try:
+        return ModelGeometry(
+            area_m2=vals["area_m2"],
+            span_m=vals["span_m"],
+            chord_m=vals["chord_m"],
+            mrp_P_m=tuple(args.mrp_P_m),
+            nose_P=tuple(getattr(args, "nose_P", (-1.0, 0.0, 0.0))),
+            up_P=tuple(getattr(args, "up_P", (0.0, 0.0, 1.0))),
+            source="options",
+        )
+    except InputError as exc:
+        flag = "--mrp-P-m" if "mrp_P_m" in str(exc) else "--nose-P/--up-P"
+        raise ConfigError("command line", flag, str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.errors import ConfigError, InputError
 
     from ..analyze import AnalyzeOptions, analyze_runs
+    from ..reduce import ReduceSettings
 
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
@@ -39,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"--check-limit-N: expected a finite number > 0 N, got {args.check_limit_N}"
         )
+    if args.balance is not None and not Path(args.balance).is_file():
+        raise ConfigError(args.balance, "", "no such balance calibration file")
+    geometry = geometry_from_args(args, need=False)
     paths: list[str] = []
     for r in args.runs:
         p = Path(r)
@@ -52,17 +110,27 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(r, "", "no such run file or folder")
     if not paths:
         raise ConfigError(" ".join(args.runs), "", "no .mcap run files found")
-    opts = AnalyzeOptions(method=args.method, check_limit_N=args.check_limit_N)
+    opts = AnalyzeOptions(
+        geometry=geometry,  # type: ignore[arg-type]
+        balance_file=args.balance,
+        reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
+    )
     results = analyze_runs(paths, args.out, opts, scheduler=args.scheduler, workers=args.workers)
     bad = [r for r in results if "error" in r]
+    warned = False
     for r in results:
         if "error" in r:
             print(f"cdpr analyze: error: {r['error']}", file=sys.stderr)
-        else:
-            verdict = "pass" if r["check_pass"] else "FAIL"
-            print(
-                f"{Path(r['run']).name}: {r['segments']} segments, max |dT| "
-                f"{r['check_max_abs_dT_N']:.3f} N ({verdict}) -> {r['folder']}/report.md"
-            )
+            continue
+        red = r["reduction"]
+        verdict = "pass" if r["check_pass"] else "FAIL"
+        print(
+            f"{Path(r['run']).name}: {r['points']} points ({red['point_source']}), "
+            f"{red['points_with_warnings']} with warnings, max |dT| "
+            f"{r['check_max_abs_dT_N']:.3f} N ({verdict}) -> {r['folder']}/report.md"
+        )
+        for line in red["lines"]:
+            print(f"  warning: {line}")
+        warned |= bool(red["warnings"])
     print(f"index: {Path(args.out) / 'index.md'}")
-    return 2 if bad else 0
+    return 2 if bad else (1 if warned else 0)

@@ -58,6 +58,20 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="pose angle noise, standard deviation per Euler angle (rad, default 0.1 deg)",
     )
     p.add_argument(
+        "--mass-sd-rel",
+        dest="mass_sd_rel",
+        type=float,
+        default=0.0,
+        help="absolute method: relative sd of the rig file's mass, in σ (default 0)",
+    )
+    p.add_argument(
+        "--com-sd-m",
+        dest="com_sd_m",
+        type=float,
+        default=0.0,
+        help="absolute method: sd of the rig file's centre of mass per axis (m, default 0)",
+    )
+    p.add_argument(
         "--dynamic",
         action="store_true",
         help="subtract M qdd + C from the pose time series (needs a t_ns column)",
@@ -101,8 +115,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
-def _aero_setup(args: argparse.Namespace) -> tuple[float, str] | None:
-    """Dynamic pressure (Pa) and a provenance note, or None without ``--airspeed-mps``."""
+def _aero_setup(args: argparse.Namespace) -> tuple[float, str, float] | None:
+    """Dynamic pressure (Pa), a provenance note and the density (kg/m^3), or None without
+    ``--airspeed-mps``."""
     from cdpr.analysis.aero import air_density, dynamic_pressure
     from cdpr.analysis.errors import ConfigError
 
@@ -156,31 +171,38 @@ def _aero_setup(args: argparse.Namespace) -> tuple[float, str] | None:
         f"b {args.span_m:g} m, c {args.chord_m:g} m; MRP_P {list(args.mrp_P_m)} m; "
         f"nose_P {list(args.nose_P)}, up_P {list(args.up_P)}; AIAA body/wind axes"
     )
-    return q, note
+    return q, note, rho
 
 
 def run(args: argparse.Namespace) -> int:
+    import functools
+
     import numpy as np
 
     from cdpr.analysis.conventions import WRENCH_COLUMNS
-    from cdpr.analysis.errors import ConfigError, InputError
+    from cdpr.analysis.errors import ConfigError
     from cdpr.analysis.kinematics import cable_vectors
+    from cdpr.analysis.reduction import COEFFICIENTS, new_points, subtract_wrench
     from cdpr.analysis.rotations import rotation_from_euler
-    from cdpr.analysis.uncertainty import wrench_covariance
-    from cdpr.analysis.wrench import inertia_wrench_from_poses, recover_wrench
+    from cdpr.analysis.wrench import inertia_wrench_from_poses
 
     from .. import __version__
     from ..config import file_sha256, load_rig, read_poses, read_tensions, write_table
+    from ..reduce import ReduceSettings, reduce_points, reduction_stages
+    from .analyze import geometry_from_args
 
     for flag, v in (
         ("--tension-sigma-N", args.tension_sigma_N),
         ("--pose-sigma-m", args.pose_sigma_m),
         ("--pose-sigma-rad", args.pose_sigma_rad),
+        ("--mass-sd-rel", args.mass_sd_rel),
+        ("--com-sd-m", args.com_sd_m),
     ):
         if not (math.isfinite(v) and v >= 0):
             raise ConfigError("command line", flag, f"expected a finite value >= 0, got {v}")
 
     aero = _aero_setup(args)
+    geometry = geometry_from_args(args, need=True) if aero is not None else None
     rig = load_rig(args.rig)
     table, poses = read_poses(args.poses)
     n = len(poses)
@@ -230,37 +252,65 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(args.poses, "rows", f"--dynamic needs at least 3 poses, got {n}")
         D = inertia_wrench_from_poses(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, poses, t_ns)
 
-    W = recover_wrench(rig, poses, Tw, tare_tensions_N=T0, inertia_wrench_N=D)
-    pose_sd = np.array([args.pose_sigma_m] * 3 + [args.pose_sigma_rad] * 3)
-    cov = wrench_covariance(rig, poses, Tw, args.tension_sigma_N, pose_sd, tare_tensions_N=T0)
-    sd = cov.std
+    # every row is a test point; with --tare, its tare is a wind-off point at the same pose, placed
+    # next to it in time so that the core pairs them (rows 3i and 3i + 1)
+    m = rig.n_cables
+    pose_cov = np.diag([args.pose_sigma_m**2] * 3 + [args.pose_sigma_rad**2] * 3)
+    t_cov = np.eye(m) * args.tension_sigma_N**2
+    speed = args.airspeed_mps if aero is not None else np.nan
+    rho = aero[2] if aero is not None else np.nan
+    kind = ["wind_on"] * n
+    T_all, q_all, start = Tw, poses, 3 * np.arange(n)
+    if T0 is not None:
+        kind += ["tare"] * n
+        T_all = np.concatenate([Tw, np.broadcast_to(T0, Tw.shape)])
+        q_all = np.concatenate([poses, poses])
+        start = np.concatenate([start, start + 1])
+    k = len(kind)
+    pts = new_points(
+        kind=kind,
+        start_ns=start,
+        tension_N=T_all,
+        tension_cov_N2=np.broadcast_to(t_cov, (k, m, m)),
+        pose=q_all,
+        pose_cov=np.broadcast_to(pose_cov, (k, 6, 6)),
+        airspeed_mps=np.full(k, speed),
+        density_kgpm3=np.full(k, rho),
+    )
+    settings = ReduceSettings(
+        allow_nominal_weight=True,
+        prior_mass_rel_sd=args.mass_sd_rel,
+        prior_com_sd_m=args.com_sd_m,
+        fit_weight_model=False,
+        tare_shares_pose=True,
+    )
+    extra = {}
+    if D is not None:
+        D_all = np.concatenate([D, np.zeros_like(D)]) if T0 is not None else D
+        extra["inertia"] = [functools.partial(subtract_wrench, what="inertia", wrench_N=D_all)]
+    stages = reduction_stages(rig, geometry, settings, extra=extra)  # type: ignore[arg-type]
+    res = reduce_points(pts, stages)
+    rows = np.arange(n)
+    W = res["wrench_N"][rows]
+    sd = np.sqrt(np.clip(np.diagonal(res.wrench_cov[rows], axis1=1, axis2=2), 0.0, None))
 
     out = table.copy()
-    for k, col in enumerate(WRENCH_COLUMNS):
-        out[col] = W[:, k]
-    for k, col in enumerate(WRENCH_COLUMNS):
-        out[f"sd_{col}"] = sd[:, k]
+    out["flags"] = res.flag_text()[:n]
+    for k_, col in enumerate(WRENCH_COLUMNS):
+        out[col] = W[:, k_]
+    for k_, col in enumerate(WRENCH_COLUMNS):
+        out[f"sd_{col}"] = sd[:, k_]
     if aero is not None:
-        from cdpr.analysis.aero import COEFFICIENT_NAMES, aero_coefficients, coefficient_matrix
-
-        q_Pa, aero_note = aero
-        R = rotation_from_euler(poses[:, 3:])
-        ref = (q_Pa, args.area_m2, args.span_m, args.chord_m, args.mrp_P_m, args.nose_P, args.up_P)
-        try:
-            res = aero_coefficients(W, R, *ref)
-            K = coefficient_matrix(R, *ref)
-        except InputError as exc:
-            flag = "--mrp-P-m" if "mrp_P_m" in str(exc) else "--nose-P/--up-P"
-            raise ConfigError("command line", flag, str(exc)) from None
-        out["alpha_rad"] = res.alpha_rad
-        out["beta_rad"] = res.beta_rad
-        for name in COEFFICIENT_NAMES:
-            out[name] = getattr(res, name)
-        cov_c = K @ cov.total @ np.swapaxes(K, -1, -2)
-        sd_c = np.sqrt(np.clip(np.diagonal(cov_c, axis1=-2, axis2=-1), 0.0, None))
-        for k, name in enumerate(COEFFICIENT_NAMES):
-            out[f"sd_{name}"] = sd_c[:, k]
-    method = "tare: W_ext = A (T0 - Tw)" if T0 is not None else "absolute: W_ext = -A Tw - G"
+        out["aoa_rad"] = res["aoa_rad"][rows]
+        out["sideslip_rad"] = res["sideslip_rad"][rows]
+        for name in COEFFICIENTS:
+            out[name] = res[name][rows]
+        for name in COEFFICIENTS:
+            out[f"sd_{name}"] = res[f"sd_{name}"][rows]
+    if T0 is not None:
+        method = "tare: W_ext = A (T0 - Tw)"
+    else:
+        method = "absolute: W_ext = -A Tw - G with the rig file's mass (flag weight_nominal)"
     if D is not None:
         method += " - (M qdd + C)"
     header = {
@@ -274,11 +324,17 @@ def run(args: argparse.Namespace) -> int:
             f"tension sd {args.tension_sigma_N:g} N per cable"
             + (" (wind-on and tare)" if T0 is not None else "")
             + f"; pose sd {args.pose_sigma_m:g} m, {args.pose_sigma_rad:g} rad; linearised"
+            + (
+                f"; rig mass sd {args.mass_sd_rel:g} (relative), CoM sd {args.com_sd_m:g} m"
+                if T0 is None
+                else ""
+            )
         ),
+        "core": " -> ".join(st.name for st in res.steps),
         "units": "W_ext on the platform at P, {O} axes; N and N m; sd_* standard deviations",
     }
     if aero is not None:
-        header["aero"] = aero_note
+        header["aero"] = aero[1]
     write_table(args.out, out, header)
     print(f"cdpr wrench: {n} poses, {method.split(':')[0]} method, wrote {args.out}")
     return 0
