@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 VPATH_ := PATH="$(abspath $(VENV))/bin:$$PATH"
 OUT    ?= out
 
-.PHONY: demo test lint bench analyze install clean
+.PHONY: demo test lint bench analyze install clean chromium
 RUNS   ?= $(OUT)/runs
 
 install: $(STAMP)
@@ -17,7 +17,16 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
 	cd tools/mcap-check && $(VPATH_) npm ci --silent --no-audit --no-fund
+	@$(MAKE) --no-print-directory chromium
 	@touch $(STAMP)
+
+# headless Chromium renders the HTML reports in the tests (Debian package `chromium`)
+chromium:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || { \
+	  echo "installing chromium (Debian package) for the HTML report test"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
+	    --no-install-recommends chromium || echo "could not install chromium: the report test will fail"; }
 
 demo: $(STAMP)
 	@$(VPATH_) OUT=$(OUT) VENV=$(VENV) bash scripts/demo.sh

@@ -309,3 +309,23 @@ def coefficient_matrix(
     qS = (q * float(area_m2))[..., None, None]
     scale = np.array([1.0, 1.0, 1.0, 1 / float(span_m), 1 / float(chord_m), 1 / float(span_m)])
     return np.asarray(K * scale[:, None] / qS, dtype=np.float64)
+
+
+def attitude_from_flow_angles(
+    aoa_rad: ArrayLike,
+    sideslip_rad: ArrayLike,
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+) -> FloatArray:
+    """Platform attitude ``R_O_P`` (..., 3, 3) that sets the model at ``(aoa_rad, sideslip_rad)``.
+
+    The inverse of :func:`flow_angles` on the wings-level family: the wind axes {W} sit in {O} as
+    ``x_W = -x_O`` (the model's velocity relative to the air), ``z_W = -z_O`` (down), so
+    ``R_O_B = diag(-1, 1, -1) R_W_B`` with ``R_W_B`` from :func:`wind_from_body`, and
+    ``R_O_P = R_O_B R_P_B^T``.  With the default mounting (nose upstream, up along +z_P) this is
+    roll 0, pitch ``aoa``, yaw ``sideslip`` exactly (Z-Y-X Euler angles, ``Rz(yaw) Ry(pitch)``).
+    """
+    R_W_B = wind_from_body(aoa_rad, sideslip_rad)
+    R_O_W = np.diag([-1.0, 1.0, -1.0])
+    R_O_B = R_O_W @ R_W_B
+    return np.asarray(R_O_B @ body_axes_in_platform(nose_P, up_P).T, dtype=np.float64)

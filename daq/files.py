@@ -10,10 +10,12 @@ from __future__ import annotations
 import os
 import tempfile
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+import tomli_w
 
 from cdpr.analysis.errors import ConfigError
 
@@ -66,3 +68,25 @@ def atomic_output(path: str | os.PathLike[str], mode: str = "w") -> Iterator[Any
         except FileNotFoundError:
             pass
         raise
+
+
+def toml_inline_arrays(data: Mapping[str, Any]) -> str:
+    """TOML text with short arrays on one line (tomli_w writes one element per line)."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return tomli_w.dumps({"v": v})[4:].strip()
+
+    lines: list[str] = []
+    for sec, body in data.items():
+        if isinstance(body, list):
+            for item in body:
+                lines.append(f"\n[[{sec}]]")
+                lines += [f"{k} = {value(v)}" for k, v in item.items()]
+        else:
+            lines.append(f"\n[{sec}]")
+            lines += [f"{k} = {value(v)}" for k, v in body.items()]
+    text = "\n".join(lines).lstrip("\n") + "\n"
+    tomllib.loads(text)  # what we write must read back
+    return text

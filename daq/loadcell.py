@@ -14,8 +14,10 @@ allowed fraction of the bit rate, naming the configuration key at fault.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -193,4 +195,123 @@ def calibration_from_mapping(
     ``gain_N_per_count``."""
     return calibration_from_settings(
         origin, key_prefix, n_channels, data.get("offset_counts"), data.get("gain_N_per_count")
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# the load-cell calibration file: one format, written by `cdpr calibrate loadcells` (and the
+# virtual rig), read by record, import, simulate and the campaign file
+# --------------------------------------------------------------------------------------------
+CALIBRATION_FILE_KIND = "loadcells"
+_CAL_KEYS_REQUIRED = ("offset_counts", "gain_N_per_count")
+
+
+@dataclass(frozen=True)
+class LoadCellCalibrationFile:
+    """A load-cell calibration file: ``[calibration]`` with ``kind = "loadcells"``, ``id``,
+    ``cables`` (names, optional), ``offset_counts`` and ``gain_N_per_count`` (one value or one per
+    cable) and any fit statistics (``sd_*``, ``residual_rms_N``, ...: kept in ``extra``)."""
+
+    path: str
+    id: str
+    cables: tuple[str, ...] | None
+    offset_counts: Any
+    gain_N_per_count: Any
+    extra: Mapping[str, Any]
+
+    def for_cables(self, cables: Sequence[str]) -> Calibration:
+        """The calibration of ``cables`` in that order (matched by name when the file names its
+        cables; a missing or extra cable is a :class:`ConfigError` naming the file)."""
+        names = list(cables)
+        off, gain = self.offset_counts, self.gain_N_per_count
+        if self.cables is not None:
+            if sorted(self.cables) != sorted(names):
+                raise ConfigError(
+                    self.path,
+                    "calibration.cables",
+                    f"calibrates {list(self.cables)}, the rig has {names}",
+                )
+            order = [self.cables.index(n) for n in names]
+            off = off if np.ndim(off) == 0 else [off[i] for i in order]
+            gain = gain if np.ndim(gain) == 0 else [gain[i] for i in order]
+        return calibration_from_settings(self.path, "calibration", len(names), off, gain)
+
+    def settings(self, cables: Sequence[str]) -> dict[str, list[float]]:
+        """``offset_counts`` / ``gain_N_per_count`` driver settings for ``cables``."""
+        return self.for_cables(cables).to_mapping()
+
+
+def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFile:
+    """Read a load-cell calibration file (errors name the file and key)."""
+    from .files import load_toml
+
+    p = str(path)
+    data = load_toml(p)
+    other = sorted(set(data) - {"calibration"})
+    if other:
+        raise ConfigError(
+            p, other[0], "unknown key: a load-cell calibration file has one [calibration] table"
+        )
+    cal = data.get("calibration")
+    if not isinstance(cal, Mapping):
+        raise ConfigError(
+            p,
+            "calibration",
+            "missing [calibration] table (write the file with `cdpr calibrate loadcells`)",
+        )
+    kind = cal.get("kind", CALIBRATION_FILE_KIND)
+    if kind != CALIBRATION_FILE_KIND:
+        raise ConfigError(
+            p, "calibration.kind", f"expected {CALIBRATION_FILE_KIND!r}, got {kind!r}"
+        )
+    for k in _CAL_KEYS_REQUIRED:
+        if k not in cal:
+            raise ConfigError(p, f"calibration.{k}", "missing")
+    cables = cal.get("cables")
+    if cables is not None:
+        if not isinstance(cables, list) or not all(isinstance(c, str) for c in cables):
+            raise ConfigError(p, "calibration.cables", "expected a list of cable names")
+        if len(set(cables)) != len(cables):
+            raise ConfigError(p, "calibration.cables", "a cable is named twice")
+        cables = tuple(cables)
+    n = len(cables) if cables is not None else None
+    for k in _CAL_KEYS_REQUIRED:
+        v = cal[k]
+        if isinstance(v, list) and n is not None and len(v) != n:
+            raise ConfigError(
+                p, f"calibration.{k}", f"expected {n} values (one per cable), got {len(v)}"
+            )
+    if n is not None:  # validate values now, not at first use
+        calibration_from_settings(
+            p, "calibration", n, cal["offset_counts"], cal["gain_N_per_count"]
+        )
+    extra = {k: v for k, v in cal.items() if k not in (*_CAL_KEYS_REQUIRED, "cables", "id", "kind")}
+    return LoadCellCalibrationFile(
+        p,
+        str(cal.get("id", Path(p).name)),
+        cables,
+        cal["offset_counts"],
+        cal["gain_N_per_count"],
+        extra,
+    )
+
+
+def calibration_file_text(
+    cables: Sequence[str],
+    calibration: Calibration,
+    cal_id: str,
+    extra: Mapping[str, Any] | None = None,
+) -> str:
+    """The TOML text of a load-cell calibration file (the one format; see
+    :func:`read_calibration_file`)."""
+    from .files import toml_inline_arrays
+
+    if len(cables) != calibration.n_channels:
+        raise ValueError(f"{len(cables)} cables for {calibration.n_channels} channels")
+    body: dict[str, Any] = {"id": cal_id, "kind": CALIBRATION_FILE_KIND, **dict(extra or {})}
+    body["cables"] = list(cables)
+    body.update(calibration.to_mapping())
+    return (
+        "# Load-cell calibration: T_N = (counts - offset_counts) * gain_N_per_count\n"
+        + toml_inline_arrays({"calibration": body})
     )

@@ -96,6 +96,15 @@ class Segment:
     euler_rad: tuple[float, float, float]
     transition_s: float = 0.0
     tare: bool = False
+    kind: str = ""
+    target_aoa_deg: float = 0.0
+    target_sideslip_deg: float = 0.0
+    repeat_of: str = ""
+
+    @property
+    def is_test_point(self) -> bool:
+        """A segment from a test matrix (it has a kind): the rig emits its test-point events."""
+        return self.kind != ""
 
 
 @dataclass(frozen=True)
@@ -130,7 +139,7 @@ class SensorModel:
     latency_s: float = 0.002
     slack_threshold_N: float = 2.0
     offset_counts: tuple[float, ...] | None = None
-    gain_N_per_count: float = 5.0e-5
+    gain_N_per_count: float | tuple[float, ...] = 5.0e-5
     tunnel_airspeed_sd_mps: float = 0.05
     tunnel_pressure_sd_Pa: float = 2.0
     tunnel_temperature_sd_K: float = 0.02
@@ -167,7 +176,12 @@ _SEG_KEYS = {
     "euler_deg",
     "transition_s",
     "tare",
+    "kind",
+    "target_aoa_deg",
+    "target_sideslip_deg",
+    "repeat_of",
 }
+POINT_KINDS = ("wind_on", "tare", "zero", "windage")
 _FAULT_KEYS = {"kind", "start_s", "duration_s", "cable", "factor", "value_N"}
 _TOP = {"schedule", "segments", "faults", "sensor", "aero"}
 
@@ -237,7 +251,14 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
             raise ConfigError(source, f"{k}.duration_s", "missing")
         dur = _f(source, f"{k}.duration_s", s["duration_s"], 0.0, True)
         wind = _f(source, f"{k}.wind_mps", s.get("wind_mps", 0.0), 0.0)
-        tare = bool(s.get("tare", False))
+        kind = s.get("kind", "")
+        if kind != "" and kind not in POINT_KINDS:
+            raise ConfigError(
+                source, f"{k}.kind", f"expected one of {list(POINT_KINDS)}, got {kind!r}"
+            )
+        tare = bool(s.get("tare", False)) or kind in ("tare", "zero")
+        if kind in ("wind_on", "windage") and wind == 0:
+            raise ConfigError(source, f"{k}.wind_mps", f"a {kind} point needs wind > 0")
         if tare and wind != 0:
             raise ConfigError(source, f"{k}.wind_mps", "a tare segment is wind-off: must be 0")
         pos = (
@@ -255,7 +276,24 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
         trans = _f(source, f"{k}.transition_s", s.get("transition_s", 0.0), 0.0)
         if trans > dur:
             raise ConfigError(source, f"{k}.transition_s", f"longer than the segment ({dur:g} s)")
-        segs.append(Segment(str(s.get("label", f"seg{i}")), dur, wind, pos, eul, trans, tare))
+        repeat_of = s.get("repeat_of", "")
+        if not isinstance(repeat_of, str):
+            raise ConfigError(source, f"{k}.repeat_of", f"expected a label, got {repeat_of!r}")
+        segs.append(
+            Segment(
+                str(s.get("label", f"seg{i}")),
+                dur,
+                wind,
+                pos,
+                eul,
+                trans,
+                tare,
+                kind,
+                _f(source, f"{k}.target_aoa_deg", s.get("target_aoa_deg", 0.0)),
+                _f(source, f"{k}.target_sideslip_deg", s.get("target_sideslip_deg", 0.0)),
+                repeat_of,
+            )
+        )
         prev_p, prev_e = pos, eul
     total = sum(s.duration_s for s in segs)
     faults = []
@@ -317,15 +355,13 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
             raise ConfigError(
                 source, f"sensor.{key}", f"unknown key (allowed: {sorted(sens_fields)})"
             )
-        if key == "offset_counts":
+        if key == "offset_counts" or (key == "gain_N_per_count" and isinstance(v, list)):
             if not isinstance(v, list) or len(v) != rig.n_cables:
-                raise ConfigError(
-                    source, "sensor.offset_counts", f"expected {rig.n_cables} numbers"
-                )
-            kw[key] = tuple(_f(source, "sensor.offset_counts", x) for x in v)
+                raise ConfigError(source, f"sensor.{key}", f"expected {rig.n_cables} numbers")
+            kw[key] = tuple(_f(source, f"sensor.{key}", x) for x in v)
         else:
             kw[key] = _f(source, f"sensor.{key}", v, 0.0)
-    if kw.get("gain_N_per_count", 1.0) <= 0:
+    if np.any(np.asarray(kw.get("gain_N_per_count", 1.0)) <= 0):
         raise ConfigError(source, "sensor.gain_N_per_count", "must be > 0")
     seed = sch.get("seed", 0)
     if not isinstance(seed, int):
@@ -396,7 +432,8 @@ class VirtualRig:
             off = np.asarray(sens.offset_counts, dtype=np.float64)
         else:
             off = rng.integers(-60_000, 60_000, size=m).astype(np.float64)
-        self.calibration = Calibration(off, np.full(m, sens.gain_N_per_count))
+        gain = np.broadcast_to(np.asarray(sens.gain_N_per_count, dtype=np.float64), (m,))
+        self.calibration = Calibration(off, gain.copy())
         self.drift_rate_N_per_s = sens.drift_N_per_s * rng.uniform(-1.0, 1.0, size=m)
         self._compute_truth(rng)
 
@@ -447,6 +484,27 @@ class VirtualRig:
         wind = V_prev[idx] + frac * (V[idx] - V_prev[idx])
         return pos, eul, wind, idx
 
+    def physics(
+        self,
+        position_O_m: FloatArray,
+        R_O_P: FloatArray,
+        airspeed_mps: FloatArray,
+        model_on: NDArray[np.bool_],
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The loads on the platform at P in {O} (each (n, 6), N and N m): ``(W_aero, G, D)``.
+
+        W_aero: the model's aero wrench at the airspeed (zero where ``model_on`` is False: a
+        model-off windage point); G: gravity of platform + model from the rig file; D: the
+        cable (and platform) windage from :meth:`_cable_drag_O` (zero without a test section;
+        present on model-off points too, which is what a measured windage tare sees).  The
+        cables carry ``A T = -(G + W_aero + D)``.  Every load the twin simulates is added here.
+        """
+        rig = self.rig
+        W = self.aero.wrench_O(airspeed_mps, R_O_P) * model_on[:, None]
+        G = gravity_wrench(rig.mass_kg, rig.com_P_m, R_O_P, rig.gravity_O_mps2)
+        D = self._cable_drag_O(position_O_m, R_O_P, airspeed_mps)
+        return W, G, D
+
     def _compute_truth(self, rng: np.random.Generator) -> None:
         sch, rig, sens = self.schedule, self.rig, self.schedule.sensor
         n = max(1, int(round(sch.duration_s * sch.rate_hz)))
@@ -455,14 +513,13 @@ class VirtualRig:
         t_s = self.t_rel_ns.astype(np.float64) * 1e-9
         pos, eul, wind, seg = self._state_at(t_s)
         # tensions at the unique states only (a few per segment), then broadcast
-        state = np.concatenate([pos, eul, wind[:, None]], axis=1)
+        model_on = np.array([s.kind != "windage" for s in sch.segments], dtype=np.float64)[seg]
+        state = np.concatenate([pos, eul, wind[:, None], model_on[:, None]], axis=1)
         uniq, inv = np.unique(np.round(state, 12), axis=0, return_inverse=True)
         inv = inv.reshape(-1)
         R_u = rotation_from_euler(uniq[:, 3:6])
         A_u = structure_matrix(rig.anchors_O_m, rig.attach_P_m, uniq[:, :3], R_u)
-        G_u = gravity_wrench(rig.mass_kg, rig.com_P_m, R_u, rig.gravity_O_mps2)
-        W_u = self.aero.wrench_O(uniq[:, 6], R_u)
-        D_u = self._cable_drag_O(uniq[:, :3], R_u, uniq[:, 6])
+        W_u, G_u, D_u = self.physics(uniq[:, :3], R_u, uniq[:, 6], uniq[:, 7] > 0.5)
         res = distribute(sch.method, A_u, -(G_u + W_u + D_u), rig.t_min_N, rig.t_max_N)
         bad = np.flatnonzero(~np.asarray(res.feasible))
         if bad.size:
@@ -619,6 +676,51 @@ class VirtualRig:
             t += s.duration_s
         return out
 
+    def test_point_events(self) -> list[dict[str, Any]]:
+        """The ``test_point`` events of the schedule's test-matrix segments, in time order.
+
+        A point starts when its ramp ends (``transition_s`` into the segment) and ends with its
+        segment.  Each: ``t_rel_ns`` and the event fields agreed for ``/events``: ``name``
+        ("test_point"), ``point``, ``phase`` ("start" | "end"), ``kind``, ``target_aoa_deg``,
+        ``target_sideslip_deg``, ``target_airspeed_mps``, ``repeat_of``, ``message``.
+        """
+        out = []
+        t = 0.0
+        for s in self.schedule.segments:
+            if s.is_test_point:
+                for phase, t_s in (("start", t + s.transition_s), ("end", t + s.duration_s)):
+                    out.append(
+                        {
+                            "t_rel_ns": int(round(t_s * 1e9)),
+                            "message": f"test point {s.label} {phase}",
+                            "name": "test_point",
+                            "point": s.label,
+                            "phase": phase,
+                            "kind": s.kind,
+                            "target_aoa_deg": s.target_aoa_deg,
+                            "target_sideslip_deg": s.target_sideslip_deg,
+                            "target_airspeed_mps": s.wind_mps,
+                            "repeat_of": s.repeat_of,
+                        }
+                    )
+            t += s.duration_s
+        return out
+
+    def write_calibration(self, path: str | os.PathLike[str]) -> Path:
+        """Write the amplifiers' true calibration as a load-cell calibration file (the format
+        ``cdpr calibrate loadcells`` writes), atomically: what ``cdpr import`` of this rig's CAN
+        frames needs."""
+        from .loadcell import calibration_file_text
+
+        text = calibration_file_text(
+            self.cable_names,
+            self.calibration,
+            f"virtual-rig:{self.schedule.name}:seed{self.seed}",
+            {"source": f"virtual rig {self.rig.name}, schedule {self.schedule.name}"},
+        )
+        _atomic_write_bytes(path, text.encode())
+        return Path(path)
+
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
         """Write the truth atomically: ``.npz`` (all arrays plus ``cable_names``, ``segment_labels``)
         or ``.csv`` (one row per sample: times, pose, wind, wrench, true and sensor tensions)."""
@@ -629,6 +731,7 @@ class VirtualRig:
             arrays: dict[str, Any] = {
                 "cable_names": np.array(self.cable_names),
                 "segment_labels": np.array([s.label for s in self.schedule.segments]),
+                "segment_kinds": np.array([s.kind for s in self.schedule.segments]),
                 **tr,
             }
             np.savez(buf, allow_pickle=False, **arrays)

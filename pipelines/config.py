@@ -8,18 +8,17 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-import tomli_w
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import Rig, rig_from_mapping, rig_to_mapping
 from cdpr.daq.files import atomic_output, load_toml  # defined there, used by every pipeline
+from cdpr.daq.files import toml_inline_arrays as _toml_inline_arrays
 
 
 def load_rig(path: str | os.PathLike[str]) -> Rig:
@@ -32,28 +31,6 @@ def rig_toml(rig: Rig, header: str = "") -> str:
     text = _toml_inline_arrays(rig_to_mapping(rig))
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + "\n" + text
-    return text
-
-
-def _toml_inline_arrays(data: Mapping[str, Any]) -> str:
-    """TOML text with short arrays on one line (tomli_w writes one element per line)."""
-
-    def value(v: Any) -> str:
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        return tomli_w.dumps({"v": v})[4:].strip()
-
-    lines: list[str] = []
-    for sec, body in data.items():
-        if isinstance(body, list):
-            for item in body:
-                lines.append(f"\n[[{sec}]]")
-                lines += [f"{k} = {value(v)}" for k, v in item.items()]
-        else:
-            lines.append(f"\n[{sec}]")
-            lines += [f"{k} = {value(v)}" for k, v in body.items()]
-    text = "\n".join(lines).lstrip("\n") + "\n"
-    tomllib.loads(text)  # what we write must read back
     return text
 
 

@@ -204,20 +204,18 @@ def _apply_calibration_file(settings: dict[str, Any], origin: str, prefix: str) 
         raise ConfigError(
             origin, f"{prefix}.{both[0]}", "given both inline and by calibration_file"
         )
-    cal = load_toml(path).get("calibration")
-    if not isinstance(cal, dict):
-        raise ConfigError(path, "calibration", "missing [calibration] table")
-    for k in ("offset_counts", "gain_N_per_count"):
-        if k not in cal:
-            raise ConfigError(path, f"calibration.{k}", "missing")
-        settings[k] = cal[k]
+    from cdpr.daq.loadcell import read_calibration_file
+
+    cal = read_calibration_file(path)
     cables = settings.get("cables")
-    if cables is not None and "cables" in cal and list(cal["cables"]) != list(cables):
+    if cables is not None and cal.cables is not None and list(cal.cables) != list(cables):
         raise ConfigError(
             origin,
             f"{prefix}.calibration_file",
-            f"its cables {cal['cables']} differ from {prefix}.cables {list(cables)}",
+            f"its cables {list(cal.cables)} differ from {prefix}.cables {list(cables)}",
         )
+    settings["offset_counts"] = cal.offset_counts
+    settings["gain_N_per_count"] = cal.gain_N_per_count
 
 
 def build_sources(cfg: DaqConfig) -> list[Any]:

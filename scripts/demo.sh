@@ -9,7 +9,11 @@
 #      wrench, coefficients, uncertainty, the paper's 1 N check, report with plots);
 #   4. wrench recovery from CSV files and a CASPR robot (scripts/demo_wrench.sh);
 #   5. vision: poses from rendered camera frames against the truth (scripts/demo_vision.sh);
-#   6. the force-sensitivity study of the paper and a rig design (scripts/demo_sensitivity.sh).
+#   6. the force-sensitivity study of the paper and a rig design (scripts/demo_sensitivity.sh);
+#   7. a campaign rehearsed on the virtual rig: the aoa sweep of data_samples/campaign_alpha_sweep.toml
+#      (zero, tare polar, three speeds, a repeat point; ~41 s in real time), analysed, and the
+#      campaign table and report (scripts/demo_campaign.sh); it ends with the report's path and
+#      the recovered-vs-true table.
 set -euo pipefail
 export VENV=${VENV:-.venv}
 export OUT=${OUT:-out}
@@ -51,4 +55,7 @@ fi
 banner "6. Force-sensitivity study and rig design"
 bash scripts/demo_sensitivity.sh
 
-banner "Done. Outputs in $OUT/: runs/ (MCAP, HDF5, truth), analysis/index.md, wrench_demo/, sensitivity/report.md, design/"
+banner "7. The campaign: an aoa sweep rehearsed on the virtual rig"
+bash scripts/demo_campaign.sh
+
+banner "Done. Outputs in $OUT/: runs/ (MCAP, HDF5, truth), analysis/index.md, wrench_demo/, sensitivity/report.md, design/, campaign/report/campaign.html"

@@ -74,6 +74,7 @@ def test_import_can_log_and_poses(tmp_path: Path, suffix: str, rig_frames, capsy
     poses.write_text("\n".join(rows) + "\n")
     cal = tmp_path / "cal.toml"
     cal.write_text(
+        "[calibration]\n"
         "offset_counts = [" + ", ".join(str(float(x)) for x in truth["offset_counts"]) + "]\n"
         "gain_N_per_count = [" + ", ".join(str(float(x)) for x in truth["gain_N_per_count"]) + "]\n"
     )

@@ -166,9 +166,11 @@ def test_import_calibration_error_names_the_calibration_file(
     tmp_path: Path, can_log, capsys
 ) -> None:
     cal = tmp_path / "cal.toml"
-    cal.write_text("offset_counts = [1.0, 2.0, 3.0]\ngain_N_per_count = 1.0\n")
+    cal.write_text("[calibration]\noffset_counts = [1.0, 2.0, 3.0]\ngain_N_per_count = 1.0\n")
     assert _import(tmp_path, can_log, "--calibration", str(cal)) == 2
-    line = _one_error_line(capsys, "cal.toml: offset_counts:", "expected 8 values, got 3")
+    line = _one_error_line(
+        capsys, "cal.toml: calibration.offset_counts:", "expected 8 values, got 3"
+    )
     assert "run.log" not in line  # it used to blame the CAN log's "sources.can.offset_counts"
     assert _files(tmp_path) == ["cal.toml"]
 

@@ -50,9 +50,10 @@ def run_loadcells(args: argparse.Namespace) -> int:
 
     from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.calibration.balance_fit import fit_load_cell
+    from cdpr.daq.loadcell import Calibration, calibration_file_text
 
     from .. import __version__
-    from ..config import _toml_inline_arrays, atomic_output, file_sha256, load_rig, read_table
+    from ..config import atomic_output, file_sha256, load_rig, read_table
 
     df = read_table(args.points, ["load_N", "counts"], "load-cell calibration table")
     if "channel" not in df.columns:
@@ -73,27 +74,26 @@ def run_loadcells(args: argparse.Namespace) -> int:
         except InputError as exc:
             raise ConfigError(args.points, f"channel {name}", str(exc)) from None
     sha = file_sha256(args.points)
-    doc = {
-        "calibration": {
-            "id": f"loadcells@{sha[:12]}",
-            "kind": "loadcells",
+    text = calibration_file_text(
+        names,
+        Calibration(
+            np.array([f.offset_counts for f in fits]), np.array([f.gain_N_per_count for f in fits])
+        ),
+        f"loadcells@{sha[:12]}",
+        {
             "source": f"{Path(args.points).name} sha256={sha}",
             "created_utc": _stamp(),
             "software_version": __version__,
-            "cables": names,
-            "offset_counts": [f.offset_counts for f in fits],
-            "gain_N_per_count": [f.gain_N_per_count for f in fits],
             "sd_offset_counts": [f.sd_offset_counts for f in fits],
             "sd_gain_N_per_count": [f.sd_gain_N_per_count for f in fits],
             "residual_rms_N": [f.residual_rms_N for f in fits],
             "nonlinearity_pct": [f.nonlinearity_pct for f in fits],
             "n_points": [f.n_points for f in fits],
-        }
-    }
+        },
+    )
     _residual_plot(df, names, fits, Path(args.out).with_suffix(".png"))
     with atomic_output(args.out) as fh:
-        fh.write("# Load-cell calibration: T_N = (counts - offset_counts) * gain_N_per_count\n")
-        fh.write(_toml_inline_arrays(doc))
+        fh.write(text)
     worst = max(fits, key=lambda f: f.nonlinearity_pct)
     print(
         f"cdpr calibrate loadcells: {len(names)} channels, residual RMS <= "

@@ -28,7 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--rig", required=True, help="rig file (TOML); cable names come from it")
     p.add_argument(
         "--calibration",
-        help="TOML with offset_counts and gain_N_per_count (one value or one per cable)",
+        help="load-cell calibration file (written by `cdpr calibrate loadcells`)",
+    )
+    p.add_argument(
+        "--tunnel",
+        help="tunnel conditions CSV (t_ns or t_s, airspeed_mps, density_kgpm3 or "
+        "static_pressure_Pa + temperature_K): the /tunnel stream",
+    )
+    p.add_argument(
+        "--events",
+        help="test-point events CSV (t_ns or t_s, point, phase start|end, kind, optional "
+        "target_aoa_deg, target_sideslip_deg, target_airspeed_mps, repeat_of): /events",
     )
     p.add_argument("--rate", type=float, default=0.0, help="nominal sample rate, Hz (metadata)")
     p.add_argument("--label", default="import", help="label recorded in the metadata")
@@ -51,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
     from .. import __version__
-    from ..config import file_sha256, load_rig, load_toml, read_table
+    from ..config import file_sha256, load_rig, read_table
 
     out = Path(args.out)
     if out.exists():
@@ -64,16 +74,10 @@ def run(args: argparse.Namespace) -> int:
     _check_can_log(args.can_log)
     rig = load_rig(args.rig)
     cal: dict[str, object] = {}
-    if args.calibration:
-        data = load_toml(args.calibration)
-        unknown = set(data) - {"offset_counts", "gain_N_per_count"}
-        if unknown:
-            raise ConfigError(
-                args.calibration,
-                sorted(unknown)[0],
-                "unknown key (expected offset_counts, gain_N_per_count)",
-            )
-        cal = dict(data)
+    if args.calibration:  # the file `cdpr calibrate loadcells` writes
+        from cdpr.daq.loadcell import read_calibration_file
+
+        cal = dict(read_calibration_file(args.calibration).settings(rig.cable_names))
     poses = None
     if args.poses:
         df = read_table(args.poses, POSE_COLUMNS, "pose table")
@@ -85,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(args.poses, "column t_ns", "missing: need a t_ns or t_s column")
         tv = _pose_times(args.poses, df, tcol)
         poses = (tcol, tv, df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64))
+
+    side = _read_side_tables(args)
 
     try:
         src = CanReplaySource(
@@ -139,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
                     "can_log_sha256": file_sha256(args.can_log),
                     "poses": Path(args.poses).name if args.poses else "",
                     "poses_sha256": file_sha256(args.poses) if args.poses else "",
+                    **_side_provenance(args),
                 },
             )
             w.add_metadata("run", md)
@@ -203,6 +210,7 @@ def run(args: argparse.Namespace) -> int:
                             },
                         )
                     )
+            _write_side_tables(w, args, side, first_ns)
             counts = dict(w.counts)
             w.add_metadata(
                 "run_end",
@@ -249,41 +257,50 @@ def _check_can_log(path: str) -> None:
 
 def _pose_times(path: str, df: Any, tcol: str) -> Any:
     """The pose time column: finite numbers that never decrease; ``t_ns`` must be integers."""
-    import numpy as np
-    import pandas as pd
+    from ..import_tables import table_times
 
-    from cdpr.analysis.errors import ConfigError
-
-    raw = df[tcol]
-    num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
-    bad = np.flatnonzero(~np.isfinite(num))
-    if bad.size:
-        i = int(bad[0])
-        raise ConfigError(
-            path,
-            f"row {i + 2}, column {tcol}",
-            f"expected a finite number, got {_text(raw.iloc[i])}",
-        )
-    if tcol == "t_ns":
-        if not pd.api.types.is_integer_dtype(raw):
-            i = int(np.flatnonzero(num != np.round(num))[0]) if np.any(num != np.round(num)) else 0
-            raise ConfigError(
-                path,
-                f"row {i + 2}, column t_ns",
-                f"expected integer ns since the Unix epoch, got {_text(raw.iloc[i])}",
-            )
-        tv = raw.to_numpy(dtype=np.int64)
-    else:
-        tv = num
-    back = np.flatnonzero(np.diff(tv) < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise ConfigError(
-            path, f"row {i + 2}, column {tcol}", f"time goes backwards ({tv[i]} after {tv[i - 1]})"
-        )
-    return tv
+    return table_times(path, df)[1]
 
 
-def _text(value: Any) -> str:
-    """A CSV cell for a message: quoted text, plain numbers."""
-    return repr(value) if isinstance(value, str) else str(value)
+def _read_side_tables(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``--tunnel`` and ``--events`` tables, checked before anything is written."""
+    from ..import_tables import read_events_csv, read_tunnel_csv
+
+    side: dict[str, Any] = {}
+    if args.tunnel:
+        side["tunnel"] = read_tunnel_csv(args.tunnel)
+    if args.events:
+        side["events"] = read_events_csv(args.events)
+    return side
+
+
+def _side_provenance(args: argparse.Namespace) -> dict[str, str]:
+    from ..config import file_sha256
+
+    out = {}
+    for key in ("tunnel", "events"):
+        f = getattr(args, key)
+        out[key] = Path(f).name if f else ""
+        out[f"{key}_sha256"] = file_sha256(f) if f else ""
+    return out
+
+
+def _write_side_tables(
+    w: Any, args: argparse.Namespace, side: dict[str, Any], first_ns: Any
+) -> None:
+    """Attach the side tables and write ``/tunnel`` and ``/events`` (times from the first CAN
+    frame for ``t_s`` columns)."""
+    from cdpr.daq.recorder import Attachment
+
+    from ..import_tables import event_stream, tunnel_stream
+
+    for key, make in (("tunnel", tunnel_stream), ("events", event_stream)):
+        if key not in side:
+            continue
+        f = getattr(args, key)
+        a = Attachment.from_file(f, f"{key}/" + Path(f).name)
+        w.add_attachment(a.name, a.data, a.media_type)
+        desc, readings = make(side[key], first_ns)
+        w.add_stream(key, desc)
+        for r in readings:
+            w.write(r)

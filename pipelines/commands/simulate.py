@@ -29,8 +29,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "simulate",
         help="run the virtual rig through a real transport and record it (MCAP run + truth)",
     )
-    p.add_argument("--rig", required=True, help="rig file (TOML)")
-    p.add_argument("--schedule", required=True, help="virtual-rig schedule (TOML)")
+    p.add_argument("--rig", help="rig file (TOML); with --campaign, the campaign's rig")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--schedule", help="virtual-rig schedule (TOML)")
+    what.add_argument(
+        "--campaign",
+        help="test matrix (TOML, docs/campaign.md): rehearse the campaign; the run carries "
+        "the test-point events on /events",
+    )
     p.add_argument("--out", required=True, help="output folder for the run")
     p.add_argument(
         "--transport",
@@ -44,6 +50,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default=[],
         metavar="KIND:START_S:DURATION_S[:CABLE]",
         help="add a fault to the schedule (kinds: docs/daq_drivers.md), repeatable",
+    )
+    p.add_argument(
+        "--loadcell-calibration",
+        help="load-cell calibration file (cdpr calibrate loadcells): the virtual amplifiers' "
+        "offsets and gains (default: the campaign's, else random offsets from the seed); the "
+        "rig's calibration is always written beside the run as <run>.loadcells.toml",
     )
     p.add_argument("--label", help="test-point label (default: the schedule's name)")
     p.add_argument("--duration", type=float, help="stop recording after this many seconds")
@@ -114,6 +126,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--speed must be > 0, got {args.speed}")
     if (args.camera is None) != (args.markers is None):
         raise InputError("--camera and --markers go together")
+    matrix = None
+    if args.campaign is not None:
+        from ..campaign import load_test_matrix, schedule_mapping
+
+        matrix = load_test_matrix(args.campaign)
+        if args.rig is not None:
+            raise InputError("--rig: the campaign file names its rig (campaign.rig)")
+        args.rig = str(matrix.rig_path)
+        if args.camera is None and matrix.camera is not None:
+            args.camera, args.markers = str(matrix.camera), str(matrix.markers)
+        sched_data = schedule_mapping(matrix)
+        args.schedule = args.campaign
+    elif args.rig is None:
+        raise InputError("--rig is required with --schedule")
+    else:
+        sched_data = load_toml(args.schedule)
     rig = load_rig(args.rig)
     section = None
     if args.tunnel is not None:
@@ -124,7 +152,28 @@ def run(args: argparse.Namespace) -> int:
         from ..tunnel_section import tunnel_section_from_mapping
 
         section = tunnel_section_from_mapping(load_toml(args.tunnel), str(args.tunnel)).geometry
-    sched_data = load_toml(args.schedule)
+    cal_file = args.loadcell_calibration
+    if cal_file is None and matrix is not None and matrix.loadcell_calibration is not None:
+        cal_file = str(matrix.loadcell_calibration)
+    if cal_file is not None:
+        from cdpr.daq.loadcell import read_calibration_file
+
+        lc = read_calibration_file(cal_file).for_cables(rig.cable_names)
+        sensor = sched_data.setdefault("sensor", {})
+        if "offset_counts" in sensor or "gain_N_per_count" in sensor:
+            from cdpr.analysis.errors import ConfigError
+
+            raise ConfigError(
+                str(args.schedule), "sensor.offset_counts", f"given both here and by {cal_file}"
+            )
+        sensor["offset_counts"] = lc.offset_counts.tolist()
+        sensor["gain_N_per_count"] = lc.gain_N_per_count.tolist()
+        if matrix is not None:  # the matrix's schedule is rebuilt from the matrix
+            import dataclasses
+
+            vr_tab = dict(matrix.virtual_rig)
+            vr_tab["sensor"] = {**dict(vr_tab.get("sensor", {})), **sensor}
+            matrix = dataclasses.replace(matrix, virtual_rig=vr_tab)
     faults = [_parse_fault(f) for f in args.fault]
     if faults:
         sched_data.setdefault("faults", [])
@@ -136,7 +185,12 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None:
         sched_data.setdefault("schedule", {})["seed"] = args.seed
     try:
-        schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
+        if matrix is not None:
+            from ..campaign import schedule_from_matrix
+
+            schedule = schedule_from_matrix(matrix, rig, faults)
+        else:
+            schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
         vr = VirtualRig(rig, schedule, section=section)
     except (
         InputError
@@ -147,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
     label = args.label or schedule.name
     path = new_run_path(args.out, label)
     truth_path = path.with_name(path.stem + ".truth.npz")
+    cal_out = path.with_name(path.stem + ".loadcells.toml")
     try:  # before any source opens: a bad --out must not leave a bus or a child process behind
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -218,6 +273,14 @@ def run(args: argparse.Namespace) -> int:
                 )
             )
             settings["camera"] = ("virtual_camera", sources[-1].settings())
+        events = vr.test_point_events()
+        if events:
+            from cdpr.daq.vrig_events import TestPointEventSource
+
+            sources.append(
+                TestPointEventSource("events", events, clock=lambda: (vr.t0_ns, vr.speed))
+            )
+            settings["events"] = ("test_point_events", sources[-1].settings())
         if args.transport == "virtual":
             # the transports exist once the RigRun is built; it sends only after start()
             rig_run = RigRun(vr, "virtual", channel, None, tunnel_link, 0.0, args.speed)
@@ -245,11 +308,18 @@ def run(args: argparse.Namespace) -> int:
             software_version=__version__,
             rig=rig.name,
             rig_sha256=file_sha256(args.rig),
-            calibration_ids={"loadcell": f"virtual-rig:{schedule.name}:seed{schedule.seed}"},
+            calibration_ids={
+                "loadcell": (
+                    f"{Path(cal_file).name}@{file_sha256(cal_file)[:12]}"
+                    if cal_file
+                    else f"virtual-rig:{schedule.name}:seed{schedule.seed}"
+                )
+            },
             config={
                 "command": "simulate",
                 "transport": args.transport,
                 "schedule_file": str(args.schedule),
+                "campaign_file": str(args.campaign) if args.campaign else None,
                 "schedule": sched_data,
                 "faults_added": faults,
                 "speed": args.speed,
@@ -270,6 +340,12 @@ def run(args: argparse.Namespace) -> int:
         if args.tunnel is not None:
             attachments.append(
                 Attachment.from_file(args.tunnel, "tunnel/" + Path(args.tunnel).name)
+            )
+        if cal_file:
+            attachments.append(Attachment.from_file(cal_file, "calibration/" + Path(cal_file).name))
+        if args.campaign:
+            attachments.append(
+                Attachment.from_file(args.campaign, "campaign/" + Path(args.campaign).name)
             )
         dbc = getattr(sources[0], "dbc_path", None)
         if dbc:
@@ -300,6 +376,8 @@ def run(args: argparse.Namespace) -> int:
             rig_run.stop()
             if path.exists():
                 vr.write_truth(truth_path)
+        if path.exists():
+            vr.write_calibration(cal_out)
         if child is not None:
             if child.poll() is None:
                 child.terminate()
@@ -308,5 +386,5 @@ def run(args: argparse.Namespace) -> int:
             except subprocess.TimeoutExpired:
                 child.kill()
         shutil.rmtree(work, ignore_errors=True)
-    print(f"truth written to {truth_path}")
+    print(f"truth written to {truth_path}; load-cell calibration to {cal_out}")
     return 0

@@ -1,0 +1,447 @@
+"""The test matrix: one TOML file describes a campaign (model, rig, calibrations, test points).
+
+:func:`load_test_matrix` reads and validates the file and expands its sweeps into an ordered list of
+:class:`TestPoint`; :func:`schedule_mapping` turns a matrix into the virtual rig's schedule, so a
+campaign is rehearsed on the virtual rig (``cdpr simulate --campaign FILE``) with the same file the
+tunnel uses.  Format (every key and its unit: ``docs/campaign.md``)::
+
+    [campaign]
+    name = "flat-alpha-sweep"
+    rig = "flat_experiment2.toml"          # paths relative to this file
+    loadcell_calibration = "..."           # optional; also balance_calibration, camera, markers
+
+    [model]
+    name = "SDM"
+    area_m2 = 0.01465
+    span_m = 0.2441
+    chord_m = 0.060
+    mrp_P_m = [0.0, 0.0, 0.0]              # moment reference point in {P}
+    # volume_m3 = ...                      # optional
+
+    [defaults]                             # optional: per-point defaults
+    duration_s = 1.2
+    transition_s = 0.3
+
+    [[points]]                             # in the order the tunnel runs them
+    label = "zero-start"
+    kind = "zero"                          # "wind_on" | "tare" | "zero" | "windage"
+
+    [[points]]                             # a list in aoa_deg, sideslip_deg or airspeed_mps
+    label = "tare"                         # is a sweep: airspeed outer, sideslip, aoa inner;
+    kind = "tare"                          # labels become tare-a-4-b0-v0, ...
+    aoa_deg = [-4.0, -2.0, 0.0, 2.0]
+
+    [[points]]
+    label = "rep"
+    kind = "wind_on"
+    repeat_of = "alpha-a2-b0-v25.51"       # an earlier point with the same target
+
+Conventions: the flow is along +x of {O}; the model sits on the platform nose upstream (-x_P), up
+along +z_P (:mod:`cdpr.analysis.aero`); a test point's angle of attack and sideslip set the platform
+attitude through :func:`cdpr.analysis.aero.attitude_from_flow_angles` (roll 0, pitch = aoa,
+yaw = sideslip for this mounting).  Wind-off kinds ("tare", "zero") have airspeed 0, "zero" points
+are level (aoa = sideslip = 0); "windage" points are model-off wind-on points.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdpr.analysis.aero import attitude_from_flow_angles
+from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.rig import Rig
+from cdpr.analysis.rotations import euler_from_rotation
+from cdpr.daq.files import load_toml
+from cdpr.daq.virtual_rig import Schedule, schedule_from_mapping
+
+KINDS = ("wind_on", "tare", "zero", "windage")
+WIND_OFF_KINDS = ("tare", "zero")
+
+_TOP = {"campaign", "model", "defaults", "points", "virtual_rig"}
+_CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
+_MODEL = {"name", "area_m2", "span_m", "chord_m", "mrp_P_m", "volume_m3"}
+_DEFAULTS = {"duration_s", "transition_s", "position_O_m"}
+_POINT = {
+    "label",
+    "kind",
+    "aoa_deg",
+    "sideslip_deg",
+    "airspeed_mps",
+    "duration_s",
+    "transition_s",
+    "repeat_of",
+    "position_O_m",
+}
+_VRIG = {"rate_hz", "tunnel_rate_hz", "method", "seed", "bitrate", "sensor", "aero", "faults"}
+_AERO_FROM_MODEL = ("c_ref_m", "b_ref_m", "s_ref_m2", "mrp_P_m")
+
+
+@dataclass(frozen=True)
+class ModelGeometry:
+    """Reference geometry of the model: area (m^2), span and chord (m), MRP in {P} (m)."""
+
+    name: str
+    area_m2: float
+    span_m: float
+    chord_m: float
+    mrp_P_m: tuple[float, float, float]
+    volume_m3: float | None = None
+
+
+@dataclass(frozen=True)
+class TestPoint:
+    """One test point of the matrix, in run order.
+
+    kind: "wind_on" | "tare" | "zero" | "windage"; targets in degrees and m/s; duration_s: time
+    held at the target after a ramp of transition_s; repeat_of: label of the point it repeats or "".
+    """
+
+    __test__ = False  # not a pytest class
+
+    label: str
+    kind: str
+    aoa_deg: float
+    sideslip_deg: float
+    airspeed_mps: float
+    duration_s: float
+    transition_s: float
+    repeat_of: str = ""
+    position_O_m: tuple[float, float, float] | None = None
+
+    @property
+    def euler_rad(self) -> tuple[float, float, float]:
+        """Platform attitude (roll, pitch, yaw), rad, that puts the model at the target angles."""
+        R = attitude_from_flow_angles(math.radians(self.aoa_deg), math.radians(self.sideslip_deg))
+        e = euler_from_rotation(R)
+        return (float(e[0]), float(e[1]), float(e[2]))
+
+
+@dataclass(frozen=True)
+class TestMatrix:
+    """A loaded test matrix: ``points`` in run order, ``model``, resolved paths."""
+
+    __test__ = False
+
+    name: str
+    source: str
+    rig_path: Path
+    model: ModelGeometry
+    points: list[TestPoint]
+    loadcell_calibration: Path | None = None
+    balance_calibration: Path | None = None
+    camera: Path | None = None
+    markers: Path | None = None
+    virtual_rig: Mapping[str, Any] = field(default_factory=dict)
+
+    def point(self, label: str) -> TestPoint:
+        for p in self.points:
+            if p.label == label:
+                return p
+        raise KeyError(label)
+
+    def missing_tares(self) -> list[str]:
+        """Labels of wind-on points with no wind-off tare point at the same attitude."""
+        tares = {(p.aoa_deg, p.sideslip_deg) for p in self.points if p.kind == "tare"}
+        return [
+            p.label
+            for p in self.points
+            if p.kind == "wind_on" and (p.aoa_deg, p.sideslip_deg) not in tares
+        ]
+
+
+# --------------------------------------------------------------------------------------------
+# validation helpers: every error is ConfigError(file, key, problem)
+# --------------------------------------------------------------------------------------------
+def _num(src: str, key: str, v: Any, lo: float | None = None, strict: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ConfigError(src, key, f"expected a number, got {v!r}")
+    x = float(v)
+    if not math.isfinite(x):
+        raise ConfigError(src, key, "expected a finite number")
+    if lo is not None and (x < lo or (strict and x == lo)):
+        raise ConfigError(src, key, f"must be {'>' if strict else '>='} {lo:g}, got {x:g}")
+    return x
+
+
+def _nums(src: str, key: str, v: Any, lo: float | None = None) -> list[float]:
+    """A number or a non-empty list of distinct numbers, as a list."""
+    if isinstance(v, list):
+        if not v:
+            raise ConfigError(src, key, "expected a number or a non-empty list of numbers")
+        out = [_num(src, f"{key}[{i}]", x, lo) for i, x in enumerate(v)]
+        if len(set(out)) != len(out):
+            raise ConfigError(src, key, "repeated value in a sweep (use repeat_of for repeats)")
+        return out
+    return [_num(src, key, v, lo)]
+
+
+def _vec3(src: str, key: str, v: Any) -> tuple[float, float, float]:
+    if not isinstance(v, list) or len(v) != 3:
+        raise ConfigError(src, key, f"expected 3 numbers, got {v!r}")
+    a, b, c = (_num(src, key, x) for x in v)
+    return (a, b, c)
+
+
+def _table(src: str, key: str, v: Any, allowed: set[str]) -> Mapping[str, Any]:
+    if not isinstance(v, Mapping):
+        raise ConfigError(src, key, "expected a table")
+    for k in v:
+        if k not in allowed:
+            raise ConfigError(src, f"{key}.{k}", f"unknown key (allowed: {sorted(allowed)})")
+    return v
+
+
+def _str(src: str, key: str, v: Any) -> str:
+    if not isinstance(v, str) or not v.strip():
+        raise ConfigError(src, key, f"expected a non-empty string, got {v!r}")
+    return v
+
+
+def _path(src: str, key: str, v: Any, base: Path) -> Path:
+    p = base / _str(src, key, v)
+    if not p.is_file():
+        raise ConfigError(src, key, f"file not found: {p}")
+    return p
+
+
+def _fmt(x: float) -> str:
+    return f"{x:g}"
+
+
+# --------------------------------------------------------------------------------------------
+# loader
+# --------------------------------------------------------------------------------------------
+def model_geometry_from_mapping(data: Any, src: str) -> ModelGeometry:
+    """The ``[model]`` table of a test matrix (also as attached to a run by ``cdpr simulate
+    --campaign``: ``campaign/<file>.toml``), checked; errors name ``src`` and ``model.<key>``."""
+    mod = _table(src, "model", data, _MODEL)
+    for k in ("area_m2", "span_m", "chord_m", "mrp_P_m"):
+        if k not in mod:
+            raise ConfigError(src, f"model.{k}", "missing")
+    return ModelGeometry(
+        name=_str(src, "model.name", mod.get("name", "model")),
+        area_m2=_num(src, "model.area_m2", mod["area_m2"], 0.0, True),
+        span_m=_num(src, "model.span_m", mod["span_m"], 0.0, True),
+        chord_m=_num(src, "model.chord_m", mod["chord_m"], 0.0, True),
+        mrp_P_m=_vec3(src, "model.mrp_P_m", mod["mrp_P_m"]),
+        volume_m3=(
+            _num(src, "model.volume_m3", mod["volume_m3"], 0.0, True)
+            if "volume_m3" in mod
+            else None
+        ),
+    )
+
+
+def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -> TestMatrix:
+    """Validate a parsed test-matrix file and expand its sweeps (paths relative to ``base``)."""
+    src = source
+    unknown = sorted(set(data) - _TOP)
+    if unknown:
+        raise ConfigError(src, unknown[0], f"unknown key (allowed: {sorted(_TOP)})")
+    if "campaign" not in data:
+        raise ConfigError(src, "campaign", "missing [campaign] table")
+    camp = _table(src, "campaign", data["campaign"], _CAMPAIGN)
+    if "rig" not in camp:
+        raise ConfigError(src, "campaign.rig", "missing (the rig file, relative to this file)")
+    rig_path = _path(src, "campaign.rig", camp["rig"], base)
+    optional = {
+        k: (_path(src, f"campaign.{k}", camp[k], base) if k in camp else None)
+        for k in ("loadcell_calibration", "balance_calibration", "camera", "markers")
+    }
+    if (optional["camera"] is None) != (optional["markers"] is None):
+        raise ConfigError(src, "campaign.camera", "camera and markers go together")
+
+    if "model" not in data:
+        raise ConfigError(src, "model", "missing [model] table")
+    model = model_geometry_from_mapping(data["model"], src)
+
+    dft = _table(src, "defaults", data.get("defaults", {}), _DEFAULTS)
+    dft_dur = _num(src, "defaults.duration_s", dft.get("duration_s", 1.0), 0.0, True)
+    dft_tr = _num(src, "defaults.transition_s", dft.get("transition_s", 0.3), 0.0)
+    dft_pos = (
+        _vec3(src, "defaults.position_O_m", dft["position_O_m"]) if "position_O_m" in dft else None
+    )
+
+    raw = data.get("points")
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError(src, "points", "expected a non-empty array of [[points]] tables")
+    points: list[TestPoint] = []
+    seen: dict[str, int] = {}
+    for i, entry in enumerate(raw):
+        key = f"points[{i}]"
+        t = _table(src, key, entry, _POINT)
+        if "label" not in t:
+            raise ConfigError(src, f"{key}.label", "missing")
+        label = _str(src, f"{key}.label", t["label"])
+        if "kind" not in t:
+            raise ConfigError(src, f"{key}.kind", f"missing (one of {list(KINDS)})")
+        kind = t["kind"]
+        if kind not in KINDS:
+            raise ConfigError(src, f"{key}.kind", f"expected one of {list(KINDS)}, got {kind!r}")
+        aoas = _nums(src, f"{key}.aoa_deg", t.get("aoa_deg", 0.0))
+        betas = _nums(src, f"{key}.sideslip_deg", t.get("sideslip_deg", 0.0))
+        speeds = _nums(src, f"{key}.airspeed_mps", t.get("airspeed_mps", 0.0), 0.0)
+        for name, vals in (("aoa_deg", aoas), ("sideslip_deg", betas)):
+            if any(abs(v) >= 90.0 for v in vals):
+                raise ConfigError(src, f"{key}.{name}", "expected angles within (-90, 90) degrees")
+        if kind in WIND_OFF_KINDS and any(v != 0.0 for v in speeds):
+            raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point is wind-off: must be 0")
+        if kind in ("wind_on", "windage") and any(v == 0.0 for v in speeds):
+            raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point needs airspeed > 0")
+        if kind == "zero" and any(v != 0.0 for v in aoas + betas):
+            raise ConfigError(src, f"{key}.aoa_deg", "a zero point is level: aoa and sideslip 0")
+        dur = _num(src, f"{key}.duration_s", t.get("duration_s", dft_dur), 0.0, True)
+        tr = _num(src, f"{key}.transition_s", t.get("transition_s", dft_tr), 0.0)
+        pos = (
+            _vec3(src, f"{key}.position_O_m", t["position_O_m"]) if "position_O_m" in t else dft_pos
+        )
+        repeat_of = t.get("repeat_of", "")
+        if not isinstance(repeat_of, str):
+            raise ConfigError(src, f"{key}.repeat_of", f"expected a label, got {repeat_of!r}")
+        sweep = len(aoas) * len(betas) * len(speeds) > 1
+        if sweep and repeat_of:
+            raise ConfigError(src, f"{key}.repeat_of", "a sweep cannot repeat one point")
+        for v in speeds:
+            for b in betas:
+                for a in aoas:
+                    lab = f"{label}-a{_fmt(a)}-b{_fmt(b)}-v{_fmt(v)}" if sweep else label
+                    if lab in seen:
+                        raise ConfigError(
+                            src,
+                            f"{key}.label",
+                            f"label {lab!r} already used by points[{seen[lab]}]",
+                        )
+                    seen[lab] = i
+                    points.append(TestPoint(lab, kind, a, b, v, dur, tr, repeat_of, pos))
+        if repeat_of:
+            _check_repeat(src, key, points[-1], points[:-1])
+    vrig = _table(src, "virtual_rig", data.get("virtual_rig", {}), _VRIG)
+    aero = vrig.get("aero", {})
+    if isinstance(aero, Mapping):
+        for k in _AERO_FROM_MODEL:
+            if k in aero:
+                raise ConfigError(
+                    src, f"virtual_rig.aero.{k}", "the model geometry comes from [model] only"
+                )
+    name = camp.get("name", Path(src).stem)
+    return TestMatrix(
+        name=_str(src, "campaign.name", name),
+        source=src,
+        rig_path=rig_path,
+        model=model,
+        points=points,
+        virtual_rig=dict(vrig),
+        **optional,
+    )
+
+
+def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint]) -> None:
+    ref = next((q for q in before if q.label == p.repeat_of), None)
+    if ref is None:
+        raise ConfigError(src, f"{key}.repeat_of", f"no earlier point labelled {p.repeat_of!r}")
+    if (ref.kind, ref.aoa_deg, ref.sideslip_deg, ref.airspeed_mps) != (
+        p.kind,
+        p.aoa_deg,
+        p.sideslip_deg,
+        p.airspeed_mps,
+    ):
+        raise ConfigError(
+            src,
+            f"{key}.repeat_of",
+            f"{ref.label!r} has another target ({ref.kind}, aoa {ref.aoa_deg:g} deg, "
+            f"sideslip {ref.sideslip_deg:g} deg, {ref.airspeed_mps:g} m/s)",
+        )
+    if ref.repeat_of:
+        raise ConfigError(src, f"{key}.repeat_of", f"{ref.label!r} is itself a repeat")
+
+
+def load_test_matrix(path: str | os.PathLike[str]) -> TestMatrix:
+    """Read a test-matrix TOML file; errors are ``ConfigError(file, key, problem)``."""
+    p = Path(path)
+    return test_matrix_from_mapping(load_toml(p), str(p), p.parent)
+
+
+# --------------------------------------------------------------------------------------------
+# the virtual rig's schedule
+# --------------------------------------------------------------------------------------------
+def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
+    """The virtual-rig schedule (a TOML mapping for :func:`cdpr.daq.virtual_rig.schedule_from_mapping`)
+    that runs the matrix: one segment per point (ramp ``transition_s`` then ``duration_s`` held),
+    carrying the point's label, kind and targets so the rig emits the test-point events.
+
+    The aero model takes its reference geometry and MRP from ``[model]``; ``[virtual_rig]`` sets
+    rates, method, seed, the sensor and aero tables and faults.
+    """
+    vr = dict(matrix.virtual_rig)
+    m = matrix.model
+    aero = dict(vr.pop("aero", {}))
+    aero.update(c_ref_m=m.chord_m, b_ref_m=m.span_m, s_ref_m2=m.area_m2, mrp_P_m=list(m.mrp_P_m))
+    out: dict[str, Any] = {
+        "schedule": {
+            "name": matrix.name,
+            **{k: v for k, v in vr.items() if k not in ("sensor", "faults")},
+        },
+        "aero": aero,
+    }
+    if "sensor" in vr:
+        out["sensor"] = dict(vr["sensor"])
+    if "faults" in vr:
+        out["faults"] = list(vr["faults"])
+    segs = []
+    for p in matrix.points:
+        seg: dict[str, Any] = {
+            "label": p.label,
+            "kind": p.kind,
+            "duration_s": p.transition_s + p.duration_s,
+            "transition_s": p.transition_s,
+            "wind_mps": p.airspeed_mps,
+            "euler_rad": list(p.euler_rad),
+            "target_aoa_deg": p.aoa_deg,
+            "target_sideslip_deg": p.sideslip_deg,
+            "repeat_of": p.repeat_of,
+        }
+        if p.position_O_m is not None:
+            seg["position_O_m"] = list(p.position_O_m)
+        segs.append(seg)
+    out["segments"] = segs
+    return out
+
+
+def total_duration_s(matrix: TestMatrix) -> float:
+    """Run time of the whole matrix (ramps included), s."""
+    return float(np.sum([p.transition_s + p.duration_s for p in matrix.points]))
+
+
+def schedule_from_matrix(
+    matrix: TestMatrix, rig: Rig, extra_faults: Sequence[Mapping[str, Any]] = ()
+) -> Schedule:
+    """The validated virtual-rig :class:`~cdpr.daq.virtual_rig.Schedule` of a matrix (plus
+    ``extra_faults``, as ``--fault`` adds them); an error names the matrix file and its own key
+    (``virtual_rig.sensor.noise_sd_N``, ``points (label).wind_mps``)."""
+    data = schedule_mapping(matrix)
+    if extra_faults:
+        data["faults"] = list(data.get("faults", [])) + [dict(f) for f in extra_faults]
+    try:
+        return schedule_from_mapping(data, matrix.source, rig)
+    except ConfigError as exc:
+        key = exc.key
+        if key.startswith("segments["):
+            i = int(key[len("segments[") : key.index("]")])
+            key = f"points ({matrix.points[i].label})" + key[key.index("]") + 1 :]
+        elif key.split(".")[0].split("[")[0] in ("schedule", "sensor", "aero", "faults"):
+            key = (
+                "virtual_rig" + key[len("schedule") :]
+                if key.startswith("schedule")
+                else ("virtual_rig." + key)
+            )
+        raise ConfigError(exc.source, key, exc.problem) from None
+
+
+test_matrix_from_mapping.__test__ = False  # type: ignore[attr-defined]  # not a pytest test

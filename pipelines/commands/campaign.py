@@ -1,0 +1,145 @@
+"""``cdpr campaign``: the campaign outputs from the per-point tables of ``cdpr analyze``.
+
+``cdpr campaign ANALYSIS_DIR... --out DIR [--matrix campaign.toml] [--runs RUNS_DIR]`` finds every
+``points.csv`` under the analysis folders and writes into ``DIR``: ``campaign.csv`` and
+``campaign.h5`` (one row per test point), the sweep plots, ``campaign.html`` (self-contained) and
+``campaign.md``, and per run ``run_<run>.html`` / ``.md`` (its points, plots and, with ``--runs``,
+its cable tensions from the run file).  Exit code 0 when every matrix point has data and no point is
+flagged or masked; 1 when the reports carry flags (each said in the report and on one line here);
+2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "campaign",
+        help="campaign table, sweep plots and HTML/Markdown reports from analyze's points.csv",
+    )
+    p.add_argument(
+        "analysis", nargs="+", help="analysis folders (cdpr analyze --out) or points.csv"
+    )
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--matrix", help="test matrix (TOML): point order and missing points")
+    p.add_argument("--runs", help="folder of the run files (.mcap): tension plots per run")
+    p.set_defaults(func=run)
+
+
+def _points_files(args: argparse.Namespace) -> list[Path]:
+    from cdpr.analysis.errors import ConfigError
+
+    files: list[Path] = []
+    for a in args.analysis:
+        p = Path(a)
+        if p.is_file():
+            files.append(p)
+        elif p.is_dir():
+            files += sorted(p.rglob("points.csv"))
+        else:
+            raise ConfigError(a, "", "not found (an analysis folder or a points.csv)")
+    if not files:
+        raise ConfigError(
+            ", ".join(args.analysis), "points.csv", "no per-point table found (run cdpr analyze)"
+        )
+    return files
+
+
+def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
+    """(t_ns, tensions (n, m), cable names) of a run file's ``/tensions`` stream, or None."""
+    import numpy as np
+    import pandas as pd
+
+    from cdpr.daq.mcap_io import read_run
+
+    msgs = read_run(path).messages.get("/tensions", [])
+    if not msgs:
+        return None
+    names = [k[2:-2] for k in msgs[0][1] if k.startswith("T_") and k.endswith("_N")]
+    t = np.fromiter((t for t, _ in msgs), dtype=np.int64, count=len(msgs))
+    cols = [f"T_{n}_N" for n in names]
+    T = pd.DataFrame.from_records([b for _, b in msgs], columns=cols).to_numpy(dtype=np.float64)
+    return t, T, names
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    import numpy as np
+
+    from .. import __version__
+    from ..config import file_sha256
+    from ..report import (
+        CampaignTable,
+        campaign_table,
+        report_content,
+        sweep_figures,
+        tension_figure,
+        write_campaign_table,
+        write_report,
+    )
+
+    files = _points_files(args)
+    labels = None
+    title = "Campaign"
+    prov: dict[str, str] = {"software": f"cdpr {__version__}"}
+    if args.matrix:
+        from ..campaign import load_test_matrix
+
+        m = load_test_matrix(args.matrix)
+        labels = [p.label for p in m.points]
+        title = f"Campaign {m.name} (model {m.model.name})"
+        prov["test matrix"] = f"{args.matrix} sha256={file_sha256(args.matrix)}"
+    from .. import analyze as analyze_module
+
+    # flag words that describe what was done, not a problem: defined once, by the analysis
+    info = frozenset(getattr(analyze_module, "INFO_FLAGS", frozenset()))
+    table = campaign_table(files, labels, info)
+    for p, sha in table.inputs:
+        prov[f"points {p}"] = f"sha256={sha}"
+    prov["written"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    out = Path(args.out)
+    written = write_campaign_table(table, out)
+    figs = sweep_figures(table, out / "plots")
+    rc = report_content(title, table, figs, prov)
+    written += write_report(rc, out, "campaign")
+    # per run
+    runs_dir = Path(args.runs) if args.runs else None
+    for run_name, d in table.df.groupby("run", sort=False):
+        stem = Path(str(run_name)).stem
+        sub = CampaignTable(
+            d.reset_index(drop=True),
+            [i for i in table.inputs if i[0] in set(d["points_file"])],
+            info_flags=info,
+        )
+        rfigs = sweep_figures(sub, out / "plots" / stem)
+        if runs_dir is not None and (runs_dir / f"{stem}.mcap").is_file():
+            tens = _run_tensions(runs_dir / f"{stem}.mcap")
+            if tens is not None:
+                windows = [
+                    (str(r.point), int(r.start_ns), int(r.stop_ns))
+                    for r in d.itertuples()
+                    if np.isfinite(r.start_ns) and np.isfinite(r.stop_ns)
+                ]
+                rfigs.append(
+                    tension_figure(out / "plots" / stem / "tensions.png", *tens, windows=windows)
+                )
+        rprov = {**prov, "run": str(run_name)}
+        written += write_report(
+            report_content(f"Run {run_name}", sub, rfigs, rprov), out, f"run_{stem}"
+        )
+    print(
+        f"campaign table: {written[0]} ({len(table.df)} points from {len(files)} run(s)), {written[1]}"
+    )
+    if rc.truth is not None and len(rc.truth):
+        t = rc.truth
+        print("recovered - true wrench, wind-on points (N, N m):")
+        print(t.to_string(index=False, float_format=lambda v: f"{v:+.4f}"))
+    print(f"campaign report: {out / 'campaign.html'}")
+    for w in rc.warnings:
+        print(f"cdpr campaign: {w}")
+    return 1 if rc.warnings else 0

@@ -1,0 +1,251 @@
+"""Side tables of ``cdpr import``: tunnel conditions and test-point events from other tools' CSVs.
+
+Both files have a time column, ``t_ns`` (integer ns since the Unix epoch) or ``t_s`` (seconds from
+the first CAN frame of the imported log), non-decreasing; ``#`` lines are comments.
+
+- tunnel CSV: ``airspeed_mps`` and either ``density_kgpm3`` or ``static_pressure_Pa`` +
+  ``temperature_K`` (density then ``p / (R T)``); each row becomes a ``/tunnel`` message.
+- events CSV: ``point`` (label), ``phase`` (``start`` | ``end``), ``kind`` (``wind_on`` | ``tare`` |
+  ``zero`` | ``windage``), optional ``target_aoa_deg``, ``target_sideslip_deg``,
+  ``target_airspeed_mps`` (empty cell: unknown, written as null) and ``repeat_of``; each row
+  becomes a ``test_point`` event on ``/events``.  Every point starts, then ends, before the next
+  starts.
+
+Errors are ``ConfigError(file, "row N, column C", problem)`` with N counted as a spreadsheet shows
+it (the header is row 1), raised before anything is written.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from cdpr.analysis.aero import air_density
+from cdpr.analysis.errors import ConfigError
+from cdpr.daq.source import FieldDescription, Reading, StreamDescription
+
+from .campaign import KINDS
+from .config import read_table
+
+EVENT_TARGETS = ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps")
+
+
+@dataclass(frozen=True)
+class TimedTable:
+    """A side table: its time column name (``t_ns`` or ``t_s``), times, and columns."""
+
+    path: str
+    time_column: str
+    times: NDArray[Any]
+    columns: dict[str, NDArray[Any]]
+
+    def t_ns(self, first_can_ns: int | None) -> NDArray[np.int64]:
+        """Epoch ns of every row (``t_s`` rows are counted from the first CAN frame)."""
+        if self.time_column == "t_ns":
+            return self.times.astype(np.int64)
+        if first_can_ns is None:
+            raise ConfigError(self.path, "column t_s", "relative times need CAN frames in the log")
+        return first_can_ns + np.round(self.times.astype(np.float64) * 1e9).astype(np.int64)
+
+
+def _text(value: Any) -> str:
+    """A CSV cell for a message: quoted text, plain numbers."""
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def table_times(path: str, df: pd.DataFrame) -> tuple[str, NDArray[Any]]:
+    """The time column of a side table (``t_ns`` or ``t_s``): finite, never decreasing, ``t_ns``
+    integers.  Returns ``(column, values)``."""
+    if "t_ns" in df.columns:
+        tcol = "t_ns"
+    elif "t_s" in df.columns:
+        tcol = "t_s"
+    else:
+        raise ConfigError(path, "column t_ns", "missing: need a t_ns or t_s column")
+    raw = df[tcol]
+    num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(num))
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, column {tcol}",
+            f"expected a finite number, got {_text(raw.iloc[i])}",
+        )
+    if tcol == "t_ns":
+        if not pd.api.types.is_integer_dtype(raw):
+            frac = np.flatnonzero(num != np.round(num))
+            i = int(frac[0]) if frac.size else 0
+            raise ConfigError(
+                path,
+                f"row {i + 2}, column t_ns",
+                f"expected integer ns since the Unix epoch, got {_text(raw.iloc[i])}",
+            )
+        tv: NDArray[Any] = raw.to_numpy(dtype=np.int64)
+    else:
+        tv = num
+    back = np.flatnonzero(np.diff(tv) < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise ConfigError(
+            path, f"row {i + 2}, column {tcol}", f"time goes backwards ({tv[i]} after {tv[i - 1]})"
+        )
+    return tcol, tv
+
+
+def _check_range(path: str, df: pd.DataFrame, col: str, lo: float, strict: bool) -> None:
+    v = df[col].to_numpy(dtype=np.float64)
+    bad = np.flatnonzero((v <= lo) if strict else (v < lo))
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, column {col}",
+            f"must be {'>' if strict else '>='} {lo:g}, got {v[i]:g}",
+        )
+
+
+def read_tunnel_csv(path: str | os.PathLike[str]) -> TimedTable:
+    """Read and check a tunnel-conditions CSV (see the module docstring)."""
+    p = str(path)
+    head = read_table(p, (), "tunnel table")
+    if "density_kgpm3" in head.columns:
+        req: tuple[str, ...] = ("airspeed_mps", "density_kgpm3")
+    elif "static_pressure_Pa" in head.columns or "temperature_K" in head.columns:
+        req = ("airspeed_mps", "static_pressure_Pa", "temperature_K")
+    else:
+        raise ConfigError(
+            p,
+            "column density_kgpm3",
+            "missing: need density_kgpm3 or static_pressure_Pa + temperature_K",
+        )
+    df = read_table(p, req, "tunnel table")
+    tcol, tv = table_times(p, df)
+    _check_range(p, df, "airspeed_mps", 0.0, False)
+    cols = {"airspeed_mps": df["airspeed_mps"].to_numpy(dtype=np.float64)}
+    if "density_kgpm3" in req:
+        _check_range(p, df, "density_kgpm3", 0.0, True)
+        cols["density_kgpm3"] = df["density_kgpm3"].to_numpy(dtype=np.float64)
+    else:
+        _check_range(p, df, "static_pressure_Pa", 0.0, True)
+        _check_range(p, df, "temperature_K", 0.0, True)
+        cols["static_pressure_Pa"] = df["static_pressure_Pa"].to_numpy(dtype=np.float64)
+        cols["temperature_K"] = df["temperature_K"].to_numpy(dtype=np.float64)
+        cols["density_kgpm3"] = air_density(cols["static_pressure_Pa"], cols["temperature_K"])
+    return TimedTable(p, tcol, tv, cols)
+
+
+def read_events_csv(path: str | os.PathLike[str]) -> TimedTable:
+    """Read and check a test-point events CSV (see the module docstring)."""
+    p = str(path)
+    df = read_table(p, (), "events table")
+    for c in ("point", "phase", "kind"):
+        if c not in df.columns:
+            raise ConfigError(p, f"column {c}", f"missing (have: {list(df.columns)})")
+    tcol, tv = table_times(p, df)
+    cols: dict[str, NDArray[Any]] = {}
+    for c in ("point", "phase", "kind", "repeat_of"):
+        s = df[c] if c in df.columns else pd.Series([""] * len(df))
+        s = s.astype(object).where(s.notna(), "")
+        cols[c] = s.astype(str).str.strip().to_numpy(dtype=object)
+    for i, (pt, ph, kd) in enumerate(zip(cols["point"], cols["phase"], cols["kind"], strict=True)):
+        if not pt:
+            raise ConfigError(p, f"row {i + 2}, column point", "empty label")
+        if ph not in ("start", "end"):
+            raise ConfigError(p, f"row {i + 2}, column phase", f"expected start or end, got {ph!r}")
+        if kd not in KINDS:
+            raise ConfigError(
+                p, f"row {i + 2}, column kind", f"expected one of {list(KINDS)}, got {kd!r}"
+            )
+    for c in EVENT_TARGETS:
+        if c in df.columns:
+            num = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=np.float64)
+            bad = np.flatnonzero(df[c].notna().to_numpy() & ~np.isfinite(num))
+            if bad.size:
+                i = int(bad[0])
+                raise ConfigError(
+                    p,
+                    f"row {i + 2}, column {c}",
+                    f"expected a number or an empty cell, got {_text(df[c].iloc[i])}",
+                )
+            cols[c] = num
+        else:
+            cols[c] = np.full(len(df), np.nan)
+    _check_pairs(p, cols["point"], cols["phase"])
+    return TimedTable(p, tcol, tv, cols)
+
+
+def _check_pairs(path: str, points: NDArray[Any], phases: NDArray[Any]) -> None:
+    """Every point starts, then ends, before the next one starts; labels are not reused."""
+    open_label: str | None = None
+    done: set[str] = set()
+    for i, (pt, ph) in enumerate(zip(points, phases, strict=True)):
+        row = f"row {i + 2}, column phase"
+        if ph == "start":
+            if open_label is not None:
+                raise ConfigError(path, row, f"{pt!r} starts before {open_label!r} ends")
+            if pt in done:
+                raise ConfigError(path, f"row {i + 2}, column point", f"label {pt!r} used twice")
+            open_label = pt
+        else:
+            if open_label != pt:
+                raise ConfigError(path, row, f"end of {pt!r}, which has not started")
+            done.add(pt)
+            open_label = None
+    if open_label is not None:
+        raise ConfigError(path, "", f"point {open_label!r} starts and never ends")
+
+
+TUNNEL_DESCRIPTION = {
+    "airspeed_mps": FieldDescription("m/s"),
+    "static_pressure_Pa": FieldDescription("Pa"),
+    "temperature_K": FieldDescription("K"),
+    "density_kgpm3": FieldDescription("kg/m^3"),
+}
+
+
+def tunnel_stream(
+    table: TimedTable, first_can_ns: int | None
+) -> tuple[StreamDescription, list[Reading]]:
+    """The ``/tunnel`` stream description and readings of a tunnel table."""
+    t_ns = table.t_ns(first_can_ns)
+    names = list(table.columns)
+    desc = StreamDescription(
+        {k: TUNNEL_DESCRIPTION[k] for k in names}, 0.0, "Imported tunnel conditions."
+    )
+    cols = [table.columns[k].tolist() for k in names]
+    out = [
+        Reading("tunnel", int(t), dict(zip(names, row, strict=True)))
+        for t, row in zip(t_ns.tolist(), zip(*cols, strict=True), strict=True)
+    ]
+    return desc, out
+
+
+def event_stream(
+    table: TimedTable, first_can_ns: int | None
+) -> tuple[StreamDescription, list[Reading]]:
+    """The ``/events`` stream description and ``test_point`` readings of an events table."""
+    from cdpr.daq.vrig_events import EVENT_FIELDS
+
+    t_ns = table.t_ns(first_can_ns).tolist()
+    c = table.columns
+    out = []
+    for i, t in enumerate(t_ns):
+        values: dict[str, Any] = {
+            "message": f"test point {c['point'][i]} {c['phase'][i]}",
+            "name": "test_point",
+            "point": str(c["point"][i]),
+            "phase": str(c["phase"][i]),
+            "kind": str(c["kind"][i]),
+            "repeat_of": str(c["repeat_of"][i]),
+        }
+        for k in EVENT_TARGETS:
+            x = float(c[k][i])
+            values[k] = x if np.isfinite(x) else None
+        out.append(Reading("events", int(t), values))
+    return StreamDescription(dict(EVENT_FIELDS), 0.0, "Imported test-point events."), out

@@ -1,0 +1,536 @@
+"""Campaign outputs: the campaign table across runs, plots per sweep, HTML and Markdown reports.
+
+Input: the per-point tables ``points.csv`` that ``cdpr analyze`` writes per run folder (one row per
+test point, columns :data:`REQUIRED_COLUMNS`, plus ``true_*`` / ``err_*`` when a truth exists).
+
+- :func:`read_points` checks a table (a missing column or a bad number: ``ConfigError`` naming the
+  file, row and column);
+- :func:`campaign_table` stacks the runs' tables (one row per test point, provenance columns
+  ``points_file``, ``points_sha256``), matches them to the test matrix when given (a matrix point
+  with no row is *missing*, said in the report and the exit code);
+- :func:`write_campaign_table` writes ``campaign.csv`` and ``campaign.h5`` (h5py: one dataset per
+  column, provenance as attributes);
+- :func:`sweep_figures` draws CL-aoa, the drag polar CD-CL, Cm-aoa and CY/Cl/Cn-sideslip, one
+  series per airspeed, error bars +-2 sigma, repeat points and flagged points with their own markers;
+- :func:`tension_figure` draws tensions against time with per-cable labels spread so they stay
+  readable when cables overlap, from a min/max envelope when the series is long;
+- :func:`html_report` / :func:`markdown_report`: a self-contained HTML page (plots inline as
+  ``data:`` URIs, tables, flags, provenance) and the Markdown page beside its PNG files.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from cdpr.analysis.errors import ConfigError
+
+from .config import atomic_output, file_sha256, read_table
+from .plotting import png_figure
+
+COEFFS = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
+WRENCH = ("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz_Nm")
+POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+TEXT_COLUMNS = ("run", "point", "kind", "source", "flags")
+TARGET_COLUMNS = ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps")
+OPTIONAL_COLUMNS = (*TARGET_COLUMNS, "repeat_of")
+"""Only in tables whose points come from test-point events (``source == "events"``); absent for
+detected points: filled with NaN / "" (the report says the points have no targets)."""
+NUMBER_COLUMNS = (
+    "start_ns",
+    "stop_ns",
+    "n_samples",
+    "n_masked",
+    *POSE,
+    "airspeed_mps",
+    "density_kgpm3",
+    "q_Pa",
+    "aoa_rad",
+    "sideslip_rad",
+    *WRENCH,
+    *(f"sd_{c}" for c in WRENCH),
+    *COEFFS,
+    *(f"sd_{c}" for c in COEFFS),
+    "check_max_abs_dT_N",
+)
+REQUIRED_COLUMNS = (*TEXT_COLUMNS, *NUMBER_COLUMNS)
+"""The per-point columns agreed with ``cdpr analyze`` (``points.csv``)."""
+WIND_ON = "wind_on"
+SIGMA_BARS = 2.0  # error bars: +-2 sigma (about 95 %)
+
+
+# --------------------------------------------------------------------------------------------
+# the table
+# --------------------------------------------------------------------------------------------
+def read_points(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """A run's per-point table, checked.  Numbers may be empty (NaN: not computed, e.g. the
+    coefficients of a wind-off point); text columns are strings (empty when absent)."""
+    p = str(path)
+    df = read_table(p, (), "per-point table")
+    missing = [c for c in REQUIRED_COLUMNS if c not in df.columns]
+    if missing:
+        raise ConfigError(p, f"column {missing[0]}", f"missing (have: {list(df.columns)})")
+    for c in TARGET_COLUMNS:
+        if c not in df.columns:
+            df[c] = np.nan
+    if "repeat_of" not in df.columns:
+        df["repeat_of"] = ""
+    numbers = (*NUMBER_COLUMNS, *TARGET_COLUMNS)
+    for c in (*numbers, *(c for c in df.columns if c.startswith(("true_", "err_")))):
+        num = pd.to_numeric(df[c], errors="coerce")
+        bad = np.flatnonzero(df[c].notna().to_numpy() & num.isna().to_numpy())
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(
+                p, f"row {i + 2}, column {c}", f"expected a number, got {df[c].iloc[i]!r}"
+            )
+        df[c] = num.astype(np.float64)
+    for c in (*TEXT_COLUMNS, "repeat_of"):
+        df[c] = df[c].astype(object).where(df[c].notna(), "").astype(str).str.strip()
+    return df
+
+
+@dataclass
+class CampaignTable:
+    """The stacked table (one row per test point) and what the matrix expected but did not get."""
+
+    df: pd.DataFrame
+    inputs: list[tuple[str, str]] = field(default_factory=list)  # (points file, sha256)
+    missing_points: list[str] = field(default_factory=list)
+    info_flags: frozenset[str] = frozenset()
+
+    def warning_words(self) -> pd.Series:
+        """Per point, its flag words that are warnings (all but ``info_flags``), ";"-joined."""
+        return self.df["flags"].map(
+            lambda f: ";".join(w for w in f.split(";") if w and w not in self.info_flags)
+        )
+
+    @property
+    def flagged(self) -> pd.DataFrame:
+        """The points with a warning flag (a point with only informational flags is not)."""
+        return self.df[self.warning_words() != ""]
+
+
+def campaign_table(
+    paths: Sequence[str | os.PathLike[str]],
+    matrix_labels: Sequence[str] | None = None,
+    info_flags: frozenset[str] = frozenset(),
+) -> CampaignTable:
+    """Stack the per-point tables of ``paths`` (in that order); with ``matrix_labels`` (the test
+    matrix's points) the table follows the matrix order and lists the points no run has."""
+    if not paths:
+        raise ConfigError("<campaign>", "points.csv", "no per-point tables given")
+    frames, inputs = [], []
+    for p in paths:
+        df = read_points(p).copy()  # one block per dtype (the CSV had many columns)
+        sha = file_sha256(p)
+        frames.append(df.assign(points_file=str(p), points_sha256=sha))
+        inputs.append((str(p), sha))
+    df = pd.concat(frames, ignore_index=True)
+    df = df.assign(
+        aoa_deg=np.degrees(df["aoa_rad"].to_numpy()),
+        sideslip_deg=np.degrees(df["sideslip_rad"].to_numpy()),
+        is_repeat=df["repeat_of"] != "",
+    )
+    missing: list[str] = []
+    if matrix_labels is not None:
+        order = {lab: i for i, lab in enumerate(matrix_labels)}
+        missing = [lab for lab in matrix_labels if lab not in set(df["point"])]
+        df = df.assign(matrix_index=df["point"].map(order).astype("float64"))
+        df = df.sort_values(["matrix_index", "start_ns"], kind="stable", na_position="last")
+        df = df.reset_index(drop=True)
+    return CampaignTable(df, inputs, missing, info_flags)
+
+
+def write_campaign_table(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Path]:
+    """``campaign.csv`` and ``campaign.h5`` in ``out_dir`` (atomic); returns their paths."""
+    import h5py
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv = out / "campaign.csv"
+    with atomic_output(csv) as fh:
+        table.df.to_csv(fh, index=False)
+    h5 = out / "campaign.h5"
+    tmp = h5.with_name(f".{h5.name}.part")
+    with h5py.File(tmp, "w") as f:
+        g = f.create_group("points")
+        for c in table.df.columns:
+            col = table.df[c]
+            if pd.api.types.is_bool_dtype(col) or pd.api.types.is_numeric_dtype(col):
+                g.create_dataset(c, data=col.to_numpy())
+            else:  # text (object or pandas' string dtype): UTF-8 strings, NaN as ""
+                text = col.astype(object).where(col.notna(), "").astype(str)
+                g.create_dataset(c, data=text.to_numpy(dtype=object), dtype=h5py.string_dtype())
+        g.attrs["columns"] = list(map(str, table.df.columns))
+        f.attrs["inputs"] = [f"{p} sha256={s}" for p, s in table.inputs]
+        f.attrs["missing_points"] = list(table.missing_points)
+    os.replace(tmp, h5)
+    return [csv, h5]
+
+
+# --------------------------------------------------------------------------------------------
+# plots
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Figure:
+    """A written figure: file name (in the report folder), title, PNG bytes."""
+
+    name: str
+    title: str
+    png: bytes
+
+    def data_uri(self) -> str:
+        return "data:image/png;base64," + base64.b64encode(self.png).decode("ascii")
+
+
+def _figure(path: Path, title: str) -> Figure:
+    return Figure(path.name, title, path.read_bytes())
+
+
+def _series(ax: Any, d: pd.DataFrame, x: str, y: str, label: str, color: Any) -> None:
+    """Normal points (filled), repeats (open squares), flagged points (red x), +-2 sigma bars."""
+    d = d.sort_values(x)
+    sx = d.get(f"sd_{x}") if x in COEFFS else None
+    normal = ~d["is_repeat"] & ~d["warned"]
+    for sel, kw in (
+        (normal, {"fmt": "o-", "label": label}),
+        (d["is_repeat"], {"fmt": "s", "mfc": "none", "ms": 9, "label": f"{label} repeat"}),
+        (d["warned"], {"fmt": "x", "ms": 10, "mew": 2, "ecolor": "red", "label": None}),
+    ):
+        if not sel.any():
+            continue
+        e = d[sel]
+        xerr = None if sx is None else SIGMA_BARS * e[f"sd_{x}"].to_numpy()
+        color_k = "red" if kw.get("fmt") == "x" else color
+        ax.errorbar(
+            e[x].to_numpy(), e[y].to_numpy(), yerr=SIGMA_BARS * e[f"sd_{y}"].to_numpy(),
+            xerr=xerr, color=color_k, capsize=3, **kw,
+        )  # fmt: skip
+
+
+def _groups(d: pd.DataFrame, keys: list[str]) -> list[tuple[tuple[Any, ...], pd.DataFrame]]:
+    groups = d.groupby(keys, sort=True, dropna=False)
+    return [((k,) if not isinstance(k, tuple) else k, g) for k, g in groups]
+
+
+def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Figure]:
+    """The sweep plots of the wind-on points (PNG files in ``out_dir``); a plot whose sweep does
+    not exist in the data (no sideslip sweep) is not drawn."""
+    import matplotlib
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    d = table.df.assign(warned=table.warning_words() != "")
+    d = d[d["kind"] == WIND_ON]
+    figs: list[Figure] = []
+    if d.empty:
+        return figs
+    cmap = matplotlib.colormaps["viridis"]
+    speeds = sorted(d["target_airspeed_mps"].dropna().unique())
+    color = {v: cmap(0.1 + 0.8 * i / max(1, len(speeds) - 1)) for i, v in enumerate(speeds)}
+    note = f"error bars +-{SIGMA_BARS:g} sigma; open squares: repeats; red x: flagged"
+    alpha_sweeps = [
+        (k, g) for k, g in _groups(d, ["target_sideslip_deg", "target_airspeed_mps"])
+        if g["target_aoa_deg"].nunique() > 1
+    ]  # fmt: skip
+    if alpha_sweeps:
+        for name, title, x, y, xl, yl in (
+            ("cl_aoa.png", "Lift curve CL - aoa", "aoa_deg", "CL", "aoa (deg)", "CL"),
+            ("drag_polar.png", "Drag polar CD - CL", "CL", "CD", "CL", "CD"),
+            ("cm_aoa.png", "Pitching moment Cm - aoa", "aoa_deg", "Cm", "aoa (deg)", "Cm"),
+        ):
+            path = out / name
+            with png_figure(path, size=(6.4, 4.6)) as (_, axes):
+                ax = axes[0, 0]
+                for (beta, v), g in alpha_sweeps:
+                    lab = f"{v:g} m/s" + (f", sideslip {beta:g} deg" if beta != 0 else "")
+                    _series(ax, g, x, y, lab, color.get(v, "0.4"))
+                ax.set_xlabel(xl)
+                ax.set_ylabel(yl)
+                ax.set_title(f"{title}\n({note})", fontsize=9)
+                ax.grid(True, alpha=0.3)
+                ax.legend(fontsize=8)
+            figs.append(_figure(path, title))
+    beta_sweeps = [
+        (k, g) for k, g in _groups(d, ["target_aoa_deg", "target_airspeed_mps"])
+        if g["target_sideslip_deg"].nunique() > 1
+    ]  # fmt: skip
+    if beta_sweeps:
+        path = out / "lateral_sideslip.png"
+        with png_figure(path, 3, 1, size=(6.4, 8.5), sharex=True) as (_, axes):
+            for ax, y in zip(axes[:, 0], ("CY", "Cl", "Cn"), strict=True):
+                for (a, v), g in beta_sweeps:
+                    lab = f"{v:g} m/s, aoa {a:g} deg"
+                    _series(ax, g, "sideslip_deg", y, lab, color.get(v, "0.4"))
+                ax.set_ylabel(y)
+                ax.grid(True, alpha=0.3)
+            axes[0, 0].set_title(f"CY, Cl, Cn - sideslip\n({note})", fontsize=9)
+            axes[0, 0].legend(fontsize=8)
+            axes[-1, 0].set_xlabel("sideslip (deg)")
+        figs.append(_figure(path, "Lateral coefficients CY, Cl, Cn - sideslip"))
+    return figs
+
+
+def envelope(
+    t: NDArray[np.float64], y: NDArray[np.float64], max_bins: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Min/max envelope of ``y`` (n, m) over ``max_bins`` equal-count bins of samples: bin centre
+    times (b,), minima (b, m), maxima (b, m); NaN samples ignored (an all-NaN bin gives NaN).  With
+    ``n <= max_bins`` the samples themselves (min = max = y)."""
+    n = y.shape[0]
+    if n <= max_bins:
+        return t, y, y
+    size = -(-n // max_bins)
+    pad = size * max_bins - n
+    yp = np.concatenate([y, np.full((pad, y.shape[1]), np.nan)]).reshape(max_bins, size, -1)
+    tp = np.concatenate([t, np.full(pad, np.nan)]).reshape(max_bins, size)
+    with warnings.catch_warnings():  # an all-NaN bin is NaN, said by the plot's gap
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(tp, axis=1), np.nanmin(yp, axis=1), np.nanmax(yp, axis=1)
+
+
+def spread_labels(y: NDArray[np.float64], min_gap: float) -> NDArray[np.float64]:
+    """Label heights near ``y`` (m,) at least ``min_gap`` apart, order kept, mean shift zero
+    (labels of overlapping cables fan out around their common value)."""
+    y = np.asarray(y, dtype=np.float64)
+    order = np.argsort(y, kind="stable")
+    ys = y[order]
+    # the lowest placement with gaps >= min_gap: a running maximum of y_k - k gap, plus k gap
+    k = np.arange(ys.size) * min_gap
+    placed = np.maximum.accumulate(ys - k) + k
+    placed -= np.mean(placed - ys)  # centre the fan on the data
+    out = np.empty_like(placed)
+    out[order] = placed
+    return out
+
+
+def tension_figure(
+    path: str | os.PathLike[str],
+    t_ns: NDArray[np.int64],
+    tensions_N: NDArray[np.float64],
+    cable_names: Sequence[str],
+    windows: Sequence[tuple[str, int, int]] = (),
+    max_bins: int = 2000,
+) -> Figure:
+    """Tensions against time (s from the first sample), one colour per cable, a label per cable at
+    the right end (spread to stay readable when cables overlap), test-point windows shaded;
+    drawn as a min/max envelope when longer than ``max_bins`` samples."""
+    t0 = int(t_ns[0])
+    t = (np.asarray(t_ns, dtype=np.int64) - t0).astype(np.float64) * 1e-9
+    T = np.asarray(tensions_N, dtype=np.float64)
+    tc, lo, hi = envelope(t, T, max_bins)
+    p = Path(path)
+    long = T.shape[0] > max_bins
+    with png_figure(p, size=(9.0, 4.8)) as (_, axes):
+        ax = axes[0, 0]
+        import matplotlib
+
+        colors = matplotlib.colormaps["tab10"]
+        for j in range(T.shape[1]):
+            c = colors(j % 10)
+            if long:
+                ax.fill_between(tc, lo[:, j], hi[:, j], color=c, alpha=0.35, lw=0)
+                ax.plot(tc, 0.5 * (lo[:, j] + hi[:, j]), color=c, lw=0.9)
+            else:
+                ax.plot(tc, lo[:, j], color=c, lw=0.8)
+        for lab, a, b in windows:
+            ax.axvspan((a - t0) * 1e-9, (b - t0) * 1e-9, color="0.88", zorder=0)
+            ax.text((a - t0) * 1e-9, 1.0, lab, transform=ax.get_xaxis_transform(), rotation=90,
+                    va="top", ha="left", fontsize=5, color="0.35")  # fmt: skip
+        finite = np.isfinite(T)
+        last = np.array([T[np.flatnonzero(finite[:, j])[-1], j] if finite[:, j].any() else np.nan
+                         for j in range(T.shape[1])])  # fmt: skip
+        ok = np.isfinite(last)
+        y0, y1 = np.nanmin(lo), np.nanmax(hi)
+        gap = 0.045 * max(y1 - y0, 1e-9)
+        ys = np.full_like(last, np.nan)
+        ys[ok] = spread_labels(last[ok], gap)
+        x_end = t[-1]
+        for j, name in enumerate(cable_names):
+            if not ok[j]:
+                continue
+            ax.annotate(
+                name, xy=(x_end, last[j]), xytext=(x_end + 0.02 * max(x_end, 1e-9), ys[j]),
+                textcoords="data", va="center", fontsize=7, color=colors(j % 10),
+                arrowprops={"arrowstyle": "-", "color": colors(j % 10), "lw": 0.6},
+                annotation_clip=False,
+            )  # fmt: skip
+        ax.set_xlim(0, x_end * 1.22 if x_end > 0 else 1)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("tension (N)")
+        how = f"min/max envelope of {T.shape[0]} samples" if long else f"{T.shape[0]} samples"
+        ax.set_title(f"Cable tensions ({how}; shaded: test points)", fontsize=9)
+        ax.grid(True, alpha=0.3)
+    return _figure(p, "Cable tensions")
+
+
+# --------------------------------------------------------------------------------------------
+# reports
+# --------------------------------------------------------------------------------------------
+SUMMARY_COLUMNS = (
+    "run", "point", "kind", "target_aoa_deg", "target_airspeed_mps", "aoa_deg", "airspeed_mps",
+    "q_Pa", "CL", "sd_CL", "CD", "sd_CD", "Cm", "sd_Cm", "n_masked", "repeat_of", "flags",
+)  # fmt: skip
+
+
+def truth_table(df: pd.DataFrame) -> pd.DataFrame | None:
+    """Recovered minus true wrench per wind-on point (``err_*`` columns), or None without truth."""
+    cols = [f"err_{c}" for c in WRENCH]
+    if not all(c in df.columns for c in cols):
+        return None
+    d = df[df["kind"] == WIND_ON]
+    out = d[["run", "point", *cols]].copy()
+    out["max_abs_err_F_N"] = d[cols[:3]].abs().max(axis=1)
+    out["max_abs_err_M_Nm"] = d[cols[3:]].abs().max(axis=1)
+    return out.reset_index(drop=True)
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float | np.floating):
+        if not np.isfinite(v):
+            return ""
+        return f"{v:.4g}"
+    return str(v)
+
+
+def _html_table(df: pd.DataFrame, flag_col: str | None) -> str:
+    """An HTML table; rows with a non-empty ``flag_col`` are highlighted."""
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
+    rows = []
+    for _, r in df.iterrows():
+        cls = ' class="flag"' if flag_col and flag_col in df.columns and r[flag_col] else ""
+        cells = "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in r.to_numpy())
+        rows.append(f"<tr{cls}>{cells}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>"
+
+
+def _md_table(df: pd.DataFrame) -> str:
+    lines = ["| " + " | ".join(map(str, df.columns)) + " |", "|" + "---|" * len(df.columns)]
+    lines += ["| " + " | ".join(_fmt(v) for v in r) + " |" for r in df.to_numpy()]
+    return "\n".join(lines)
+
+
+_CSS = """body{font-family:sans-serif;margin:2em;max-width:1200px}
+table{border-collapse:collapse;font-size:12px;margin:1em 0}td,th{border:1px solid #bbb;padding:2px 6px}
+th{background:#eee}tr.flag td{background:#fdd}.warn{color:#a00;font-weight:bold}
+img{max-width:100%;border:1px solid #ddd;margin:0.5em 0}"""
+
+
+@dataclass(frozen=True)
+class ReportContent:
+    """What a report says: title, warnings (said first), the tables, figures, provenance."""
+
+    title: str
+    warnings: list[str]
+    table: pd.DataFrame
+    figures: list[Figure]
+    provenance: Mapping[str, str]
+    truth: pd.DataFrame | None = None
+
+
+def report_content(
+    title: str,
+    table: CampaignTable,
+    figures: list[Figure],
+    provenance: Mapping[str, str],
+) -> ReportContent:
+    df = table.df
+    warnings = []
+    if table.missing_points:
+        warnings.append(
+            f"{len(table.missing_points)} test point(s) of the matrix have no data: "
+            + ", ".join(table.missing_points)
+        )
+    fl = table.flagged
+    if len(fl):
+        warnings.append(
+            f"{len(fl)} point(s) flagged: "
+            + "; ".join(
+                f"{r.point} [{w}]"
+                for r, w in zip(fl.itertuples(), table.warning_words()[fl.index], strict=True)
+            )
+        )
+    detected = df[df["source"] != "events"]
+    if len(detected):
+        warnings.append(
+            f"{len(detected)} point(s) found by steady-point detection, not by test-point "
+            "events: no targets, no repeat links (" + ", ".join(map(str, detected["point"])) + ")"
+        )
+    masked = df[df["n_masked"] > 0]
+    if len(masked):
+        warnings.append(
+            f"{len(masked)} point(s) with masked samples: "
+            + ", ".join(f"{r.point} ({int(r.n_masked)})" for r in masked.itertuples())
+        )
+    cols = [c for c in SUMMARY_COLUMNS if c in df.columns]
+    shown = df[cols].assign(warnings=table.warning_words())
+    return ReportContent(title, warnings, shown, figures, dict(provenance), truth_table(df))
+
+
+def html_report(rc: ReportContent) -> str:
+    """A self-contained HTML page: warnings, figures inline (data URIs), tables, provenance."""
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(rc.title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(rc.title)}</h1>",
+    ]
+    if rc.warnings:
+        parts.append("<h2>Flags</h2><ul>")
+        parts += [f"<li class='warn'>{html.escape(w)}</li>" for w in rc.warnings]
+        parts.append("</ul>")
+    else:
+        parts.append("<p>No flags: every point has data, none masked or flagged.</p>")
+    parts.append("<h2>Plots</h2>")
+    for f in rc.figures:
+        parts.append(
+            f"<figure><img alt='{html.escape(f.title)}' src='{f.data_uri()}'>"
+            f"<figcaption>{html.escape(f.title)}</figcaption></figure>"
+        )
+    if rc.truth is not None:
+        parts.append("<h2>Recovered minus true wrench (virtual rig truth)</h2>")
+        parts.append(_html_table(rc.truth, None))
+    parts.append("<h2>Test points</h2>")
+    parts.append(_html_table(rc.table, "warnings"))
+    parts.append("<h2>Provenance</h2><ul>")
+    parts += [
+        f"<li>{html.escape(k)}: <code>{html.escape(v)}</code></li>"
+        for k, v in rc.provenance.items()
+    ]
+    parts.append("</ul></body></html>")
+    return "\n".join(parts)
+
+
+def markdown_report(rc: ReportContent) -> str:
+    """The Markdown page (figures as links to the PNG files beside it)."""
+    out = [f"# {rc.title}", ""]
+    if rc.warnings:
+        out += ["## Flags", ""] + [f"- **{w}**" for w in rc.warnings] + [""]
+    else:
+        out += ["No flags: every point has data, none masked or flagged.", ""]
+    out += [f"![{f.title}]({f.name})" for f in rc.figures] + [""]
+    if rc.truth is not None:
+        out += ["## Recovered minus true wrench", "", _md_table(rc.truth), ""]
+    out += ["## Test points", "", _md_table(rc.table), "", "## Provenance", ""]
+    out += [f"- {k}: `{v}`" for k, v in rc.provenance.items()]
+    return "\n".join(out) + "\n"
+
+
+def write_report(rc: ReportContent, out_dir: str | os.PathLike[str], stem: str) -> list[Path]:
+    """``<stem>.html`` and ``<stem>.md`` in ``out_dir`` (atomic); returns their paths."""
+    out = Path(out_dir)
+    paths = [out / f"{stem}.html", out / f"{stem}.md"]
+    for p, text in zip(paths, (html_report(rc), markdown_report(rc)), strict=True):
+        with atomic_output(p) as fh:
+            fh.write(text)
+    return paths
