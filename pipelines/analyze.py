@@ -47,14 +47,23 @@ from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix, ro
 
 from . import __version__
 from .config import file_sha256
-from .reduce import ReduceSettings, points_table, reduce_points, reduction_stages, steps_log
+from .reduce import (
+    ReduceSettings,
+    correction_stages,
+    points_table,
+    reduce_points,
+    reduction_stages,
+    steps_log,
+)
+from .tunnel_section import TunnelSection
 
 PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
 """The paper's camera precision (0.5 mm, 0.1 deg): the pose σ fallback, used only with a flag."""
 
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
-     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options"}
+     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options",
+     "windage_tare", "wall_corrected"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -65,6 +74,9 @@ class AnalyzeOptions:
 
     geometry: the model's reference geometry (from the test matrix, or options: flagged); None:
         no coefficients (flag ``no_geometry`` on wind-on points).
+    corrections: run the correction stages (zero drift, flow conditions, windage, wall
+        corrections, repeatability; ``cdpr analyze --matrix``); tunnel: the matrix's ``[tunnel]``
+        (None: no windage model and no wall corrections, flagged); matrix_file: its path.
     pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
     balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
     """
@@ -74,6 +86,9 @@ class AnalyzeOptions:
     balance_file: str | None = None
     rule: SteadyRule = field(default_factory=SteadyRule)
     reduce: ReduceSettings = field(default_factory=ReduceSettings)
+    corrections: bool = False
+    tunnel: TunnelSection | None = None
+    matrix_file: str | None = None
 
 
 @dataclass
@@ -94,6 +109,8 @@ class RunData:
     events: list[tuple[int, dict[str, Any]]]
     truth: dict[str, np.ndarray] | None
     camera: bool = False
+    pressure_temperature: tuple[np.ndarray, np.ndarray] | None = None
+    """Static pressure (Pa) and temperature (K) on ``t_ns`` when the tunnel stream has them."""
 
 
 def _topic(messages: dict[str, list], suffix: str) -> list[tuple[int, dict[str, Any]]]:
@@ -149,6 +166,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
 
     tun = _topic(contents.messages, "tunnel")
     tunnel = None
+    pressure_temperature: Any = None
     if tun:
         tt = np.array([t for t, _ in tun], dtype=np.int64)
         v = np.array([_float(b.get("airspeed_mps")) for _, b in tun])
@@ -172,6 +190,14 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
                 else np.full(len(t_ns), np.nan)
             )
             tunnel = (vi, ri)
+        pT = [
+            np.array([_float(b.get(k)) for _, b in tun])
+            for k in ("static_pressure_Pa", "temperature_K")
+        ]
+        if all(np.isfinite(x).any() for x in pT):
+            pressure_temperature = tuple(
+                interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in pT
+            )
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -209,7 +235,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src,
-                _events(contents.messages), truth, camera,
+                _events(contents.messages), truth, camera, pressure_temperature,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -217,13 +243,13 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            _events(contents.messages), truth,
+            _events(contents.messages), truth, False, pressure_temperature,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)",
-        _events(contents.messages), truth,
+        _events(contents.messages), truth, False, pressure_temperature,
     )  # fmt: skip
 
 
@@ -295,6 +321,29 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
     )
 
 
+def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
+    """Per-point inputs of the correction stages: ``temperature_K`` and ``static_pressure_Pa``
+    (means over each point, NaN without them in the tunnel stream) and ``repeat_group`` (the index
+    of the point a point repeats, else its own)."""
+    from cdpr.analysis.balance import point_stats
+
+    s = len(plan.ranges)
+    out: dict[str, np.ndarray] = {}
+    for k, key in enumerate(("static_pressure_Pa", "temperature_K")):
+        if run.pressure_temperature is None:
+            out[key] = np.full(s, np.nan)
+        else:
+            v = run.pressure_temperature[k]
+            out[key] = point_stats(v, plan.ranges, run.mask_bits).mean[:, 0]
+    first = {lab: i for i, lab in reversed(list(enumerate(plan.labels)))}
+    rep = plan.targets.get("repeat_of", [""] * s)
+    out["repeat_group"] = np.array(
+        [first.get(str(r), i) if isinstance(r, str) and r else i for i, r in enumerate(rep)],
+        dtype=np.int64,
+    )
+    return out
+
+
 def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
     """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
     model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
@@ -350,7 +399,7 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
         pose_sd_fallback=fallback,
         pose_bad=run.pose_bad,
     )
-    from cdpr.analysis.reduction import flags_from_masks
+    from cdpr.analysis.reduction import flags_from_masks, with_updates
 
     run_words = []
     if not run.camera:
@@ -360,7 +409,15 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
     words = [";".join(filter(None, [f, *run_words])) for f in plan.flags]
     pts = flags_from_masks(pts, words=words)
     K, second = read_balance_calibration(opts.balance_file)
-    stages = reduction_stages(rig, opts.geometry, opts.reduce, interaction=K, second_order=second)
+    corr = None
+    if opts.corrections:
+        pts = with_updates(pts, arrays=_correction_inputs(run, plan))
+        corr = correction_stages(
+            rig, opts.geometry, opts.tunnel, wind_off_mps=opts.reduce.wind_off_mps
+        )
+    stages = reduction_stages(
+        rig, opts.geometry, opts.reduce, interaction=K, second_order=second, extra=corr
+    )
     out = reduce_points(pts, stages)
     if opts.geometry is None:
         on = np.isin(out["kind"], ("wind_on", "unknown"))
@@ -419,6 +476,9 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
             "left_to_prior": list(wm.weak),
         },
         "lines": _warning_lines(run, plan, warn_words),
+        "corrections": list(out.meta.get("corrections", []))
+        if opts.corrections
+        else "not applied (no test matrix given: cdpr analyze --matrix)",
     }
     return df, info
 
@@ -599,6 +659,7 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
     if "max_abs_error_vs_truth" in summary:
         errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
+    lines += _corrections_section(df, red)
     lines += ["", "Stages of the reduction:", ""]
     for st in red["stages"]:
         note = f": {st['note']}" if st["note"] else ""
@@ -617,6 +678,42 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
+    """The report's corrections: every record (name, source, values, flags) and per wind-on point
+    the size of each correction, the corrected beside the uncorrected coefficients, Re and Mach."""
+    recs = red.get("corrections")
+    if not isinstance(recs, list):
+        return ["", f"Corrections: {recs}."]
+    lines = ["", "## Corrections", ""]
+    for r in recs:
+        flags = f" — flags: {', '.join(r['flags'])}" if r["flags"] else ""
+        lines.append(f"- **{r['name']}** ({r['source']}){flags}")
+    on = df[df.kind == "wind_on"]
+    if on.empty or "corrections" not in on:
+        return lines
+    cols = [
+        ("point", "point", ""), ("V", "airspeed_mps", ".2f"), ("Re", "reynolds", ".3g"),
+        ("Mach", "mach", ".4f"), ("drift max (N)", "zero_drift_max_abs_N", ".4f"),
+        ("windage", "windage_source", ""), ("windage Fx (N)", "windage_fx_N", ".4f"),
+        ("CL", "CL", ".4f"), ("CL corr.", "CL_corrected", ".4f"), ("CD", "CD", ".5f"),
+        ("CD corr.", "CD_corrected", ".5f"), ("Cm", "Cm", ".5f"), ("Cm corr.", "Cm_corrected", ".5f"),
+        ("σ CL", "sd_CL", ".2g"), ("σ_repeat CL", "sd_repeat_CL", ".2g"),
+    ]  # fmt: skip
+    cols = [c for c in cols if c[1] in on]
+    lines += ["", "| " + " | ".join(c[0] for c in cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in on.iterrows():
+        cells = []
+        for _, key, f in cols:
+            v = r[key]
+            cells.append(
+                str(v) if not f else ("–" if not np.isfinite(float(v)) else format(float(v), f))
+            )
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Per point, what was applied and its source (the `corrections` column):", ""]
+    lines += [f"- {r.point}: {r.corrections or 'none'}" for r in on.itertuples()]
+    return lines
 
 
 def _options_json(opts: AnalyzeOptions) -> Any:

@@ -152,6 +152,13 @@ def run(args: argparse.Namespace) -> int:
         from ..tunnel_section import tunnel_section_from_mapping
 
         section = tunnel_section_from_mapping(load_toml(args.tunnel), str(args.tunnel)).geometry
+    elif matrix is not None and matrix.tunnel is not None:
+        if args.transport != "virtual":
+            raise InputError(
+                f"{args.campaign}: [tunnel] puts the cable drag in this process: use --transport "
+                "virtual"
+            )
+        section = matrix.tunnel.geometry
     cal_file = args.loadcell_calibration
     if cal_file is None and matrix is not None and matrix.loadcell_calibration is not None:
         cal_file = str(matrix.loadcell_calibration)
