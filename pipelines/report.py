@@ -376,6 +376,130 @@ def tension_figure(
 
 
 # --------------------------------------------------------------------------------------------
+# the corrections (issue 13): windage tare and its fit, corrected beside uncorrected, q/Re/Mach,
+# repeatability beside the propagated sigma
+# --------------------------------------------------------------------------------------------
+CORRECTION_COLUMNS = (
+    "run", "point", "target_airspeed_mps", "aoa_deg", "q_Pa", "reynolds", "mach",
+    "CL", "CL_corrected", "sd_CL", "sd_repeat_CL", "CD", "CD_corrected", "sd_CD", "sd_repeat_CD",
+    "Cm", "Cm_corrected", "sd_Cm", "sd_repeat_Cm", "zero_drift_max_abs_N", "windage_source",
+    "windage_fx_N", "corrections",
+)  # fmt: skip
+"""The campaign table's correction view: one row per wind-on point (columns that exist)."""
+_WINDAGE_SHOWN = (("fx_N", "Fx (N)"), ("fz_N", "Fz (N)"), ("my_Nm", "My (N m)"))
+
+
+def _windage_points(df: pd.DataFrame) -> pd.DataFrame:
+    if "windage_tare_fx_N" not in df.columns:
+        return df.iloc[0:0]
+    d = df[(df["kind"] == "windage") & np.isfinite(df["windage_tare_fx_N"].astype(float))]
+    speed = d["target_airspeed_mps"].where(d["target_airspeed_mps"].notna(), d["airspeed_mps"])
+    return d.assign(speed_mps=speed.round(2))
+
+
+def windage_figure(table: CampaignTable, out_dir: str | os.PathLike[str]) -> Figure | None:
+    """The measured windage tare (model-off wind-on points, markers), its fit per speed (line),
+    the model beside it (dashed, when the matrix has a [tunnel]) and the fit residuals, against
+    aoa; None without windage points."""
+    import matplotlib
+
+    d = _windage_points(table.df)
+    if d.empty:
+        return None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "windage_tare.png"
+    speeds = sorted(d["speed_mps"].unique())
+    cmap = matplotlib.colormaps["viridis"]
+    with png_figure(path, 2, 3, size=(11.0, 6.4), sharex=True, height_ratios=[2, 1]) as (_, ax):
+        for j, (c, label) in enumerate(_WINDAGE_SHOWN):
+            for i, v in enumerate(speeds):
+                g = d[d["speed_mps"] == v].sort_values("aoa_deg")
+                col = cmap(0.1 + 0.8 * i / max(1, len(speeds) - 1))
+                x = g["aoa_deg"].to_numpy(float)
+                ax[0, j].errorbar(
+                    x, g[c].to_numpy(float), yerr=SIGMA_BARS * g[f"sd_{c}"].to_numpy(float),
+                    fmt="o", color=col, capsize=3, label=f"{v:g} m/s measured",
+                )  # fmt: skip
+                ax[0, j].plot(x, g[f"windage_tare_{c}"].to_numpy(float), "-", color=col,
+                              label=f"{v:g} m/s fit")  # fmt: skip
+                if np.isfinite(g[f"windage_model_{c}"].astype(float)).any():
+                    ax[0, j].plot(x, g[f"windage_model_{c}"].to_numpy(float), "--", color=col,
+                                  lw=0.9, label=f"{v:g} m/s model")  # fmt: skip
+                res = (g[c] - g[f"windage_tare_{c}"]).to_numpy(float)
+                ax[1, j].plot(x, res, "o-", color=col, ms=4)
+            ax[0, j].set_title(f"windage tare {label}", fontsize=9)
+            ax[1, j].axhline(0.0, color="0.5", lw=0.8)
+            ax[1, j].set_xlabel("aoa (deg)")
+            ax[1, j].set_ylabel(f"residual {label}")
+            for a in ax[:, j]:
+                a.grid(True, alpha=0.3)
+        ax[0, 0].legend(fontsize=6, ncol=1)
+    return _figure(path, "Windage tare (model-off points), its fit per speed and the residuals")
+
+
+def windage_fit_table(df: pd.DataFrame) -> pd.DataFrame | None:
+    """Per run and speed: the windage points, the largest tare and the RMS fit residual of
+    Fx, Fz, My, and the model's Fx beside the measured one (mean over the points)."""
+    d = _windage_points(df)
+    if d.empty:
+        return None
+    rows = []
+    for (run, v), g in d.groupby(["run", "speed_mps"], sort=True):
+        row: dict[str, Any] = {"run": run, "speed_mps": v, "points": len(g)}
+        row["max_abs_tare_fx_N"] = float(np.abs(g["windage_tare_fx_N"]).max())
+        for c, _ in _WINDAGE_SHOWN:
+            row[f"rms_residual_{c}"] = float(np.sqrt(np.mean((g[c] - g[f"windage_tare_{c}"]) ** 2)))
+        row["mean_measured_fx_N"] = float(g["fx_N"].mean())
+        row["mean_model_fx_N"] = float(g["windage_model_fx_N"].astype(float).mean())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def repeatability_table(df: pd.DataFrame) -> pd.DataFrame | None:
+    """Per run: the measured repeatability σ of each coefficient beside the propagated σ (RMS over
+    the repeat points) and their ratio; None when no run has repeat points."""
+    rows = []
+    for run, g in df[df["kind"] == WIND_ON].groupby("run", sort=False):
+        for c in COEFFS:
+            if f"sd_repeat_{c}" not in g.columns:
+                continue
+            rep = g[f"sd_repeat_{c}"].astype(float).dropna()
+            if rep.empty:
+                continue
+            prop = float(g[f"sd_propagated_{c}"].astype(float).dropna().iloc[0])
+            r = float(rep.iloc[0])
+            rows.append(
+                {"run": run, "coefficient": c, "sd_repeat": r, "sd_propagated": prop,
+                 "ratio": r / prop if prop > 0 else float("nan")}
+            )  # fmt: skip
+    return pd.DataFrame(rows) if rows else None
+
+
+def correction_sections(df: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """The report's correction tables (only those the data has)."""
+    out: list[tuple[str, pd.DataFrame]] = []
+    on = df[df["kind"] == WIND_ON]
+    if "corrections" in on.columns and len(on):
+        cols = [c for c in CORRECTION_COLUMNS if c in on.columns]
+        shown = on[cols].copy()
+        for c in ("corrections", "windage_source"):
+            if c in shown:
+                shown[c] = shown[c].astype(object).where(shown[c].notna(), "").astype(str)
+        out.append(
+            ("Corrections per point: q, Re, Mach, corrected beside uncorrected, "
+             "repeatability σ beside the propagated σ, each correction and its source", shown)
+        )  # fmt: skip
+    w = windage_fit_table(df)
+    if w is not None:
+        out.append(("Windage tare fit per speed (residuals of the model-off points)", w))
+    r = repeatability_table(df)
+    if r is not None:
+        out.append(("Repeatability: measured σ beside the propagated σ", r))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
 # reports
 # --------------------------------------------------------------------------------------------
 SUMMARY_COLUMNS = (
@@ -437,6 +561,7 @@ class ReportContent:
     figures: list[Figure]
     provenance: Mapping[str, str]
     truth: pd.DataFrame | None = None
+    sections: list[tuple[str, pd.DataFrame]] = field(default_factory=list)
 
 
 def report_content(
@@ -475,7 +600,9 @@ def report_content(
         )
     cols = [c for c in SUMMARY_COLUMNS if c in df.columns]
     shown = df[cols].assign(warnings=table.warning_words())
-    return ReportContent(title, warnings, shown, figures, dict(provenance), truth_table(df))
+    return ReportContent(
+        title, warnings, shown, figures, dict(provenance), truth_table(df), correction_sections(df)
+    )
 
 
 def html_report(rc: ReportContent) -> str:
@@ -500,6 +627,9 @@ def html_report(rc: ReportContent) -> str:
     if rc.truth is not None:
         parts.append("<h2>Recovered minus true wrench (virtual rig truth)</h2>")
         parts.append(_html_table(rc.truth, None))
+    for head, t in rc.sections:
+        parts.append(f"<h2>{html.escape(head)}</h2>")
+        parts.append(_html_table(t, None))
     parts.append("<h2>Test points</h2>")
     parts.append(_html_table(rc.table, "warnings"))
     parts.append("<h2>Provenance</h2><ul>")
@@ -521,6 +651,8 @@ def markdown_report(rc: ReportContent) -> str:
     out += [f"![{f.title}]({f.name})" for f in rc.figures] + [""]
     if rc.truth is not None:
         out += ["## Recovered minus true wrench", "", _md_table(rc.truth), ""]
+    for head, t in rc.sections:
+        out += [f"## {head}", "", _md_table(t), ""]
     out += ["## Test points", "", _md_table(rc.table), "", "## Provenance", ""]
     out += [f"- {k}: `{v}`" for k, v in rc.provenance.items()]
     return "\n".join(out) + "\n"

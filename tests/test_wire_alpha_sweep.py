@@ -195,6 +195,7 @@ def analysed(tmp_path_factory) -> dict:
     matrix.write_text(MATRIX)
     code = main(["analyze", str(run), "--out", str(tmp / "with"), "--matrix", str(matrix)])
     return dict(
+        out=tmp,
         g=g,
         code=code,
         df=pd.read_csv(
@@ -283,3 +284,45 @@ def test_a_run_without_its_closing_zero_is_flagged(tmp_path: Path, capsys) -> No
     last = df[df.kind == "wind_on"].tail(len(AOA_DEG))  # the last block, after the last zero
     assert last["flags"].str.contains("no_closing_zero").all()
     assert "no_closing_zero" in capsys.readouterr().out
+
+
+def _screenshot(page: Path, png: Path, tmp: Path) -> np.ndarray:
+    """The page rendered by headless Chromium (as tests/test_campaign_report.py does)."""
+    import os
+    import shutil
+    import subprocess
+
+    from cdpr.calibration.cv import read_image
+
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert exe, "chromium is not installed (make install installs it: Debian package chromium)"
+    cmd = [
+        exe, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        f"--user-data-dir={tmp / 'chrome-profile'}", "--hide-scrollbars",
+        "--window-size=1200,2400", f"--screenshot={png}", page.as_uri(),
+    ]  # fmt: skip
+    subprocess.run(cmd, capture_output=True, timeout=120, env={**os.environ, "HOME": str(tmp)})
+    img = read_image(png, gray=False)
+    assert img is not None, "no screenshot written"
+    return img
+
+
+def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, capsys) -> None:
+    out = analysed["out"] / "report"
+    assert main(["campaign", str(analysed["out"] / "with"), "--out", str(out)]) in (0, 1)
+    capsys.readouterr()
+    table = pd.read_csv(out / "campaign.csv")
+    row = table[table.point == "a3v41.42"].iloc[0]
+    for c in ("q_Pa", "reynolds", "mach", "CL", "CL_corrected", "CD", "CD_corrected",
+              "Cm", "Cm_corrected", "sd_CL", "sd_repeat_CL", "windage_fx_N"):  # fmt: skip
+        assert np.isfinite(row[c]), c
+    np.testing.assert_allclose(row.q_Pa, 0.5 * RHO * row.airspeed_mps**2, rtol=1e-9)
+    assert row.CL_corrected != row.CL
+    page = (out / "campaign.html").read_text()
+    assert "Windage tare (model-off points), its fit per speed and the residuals" in page
+    assert "Windage tare fit per speed" in page and "Repeatability: measured σ" in page
+    assert "Barlow, Rae &amp; Pope" in page  # every correction listed with its source
+    assert (out / "plots" / "windage_tare.png").is_file()
+    img = _screenshot(out / "campaign.html", out / "campaign_screenshot.png", analysed["out"])
+    assert img.shape[0] >= 2000 and img.std() > 20  # rendered, not blank

@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         report_content,
         sweep_figures,
         tension_figure,
+        windage_figure,
         write_campaign_table,
         write_report,
     )
@@ -105,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     written = write_campaign_table(table, out)
     figs = sweep_figures(table, out / "plots")
+    wfig = windage_figure(table, out / "plots")
+    if wfig is not None:
+        figs.append(wfig)
     rc = report_content(title, table, figs, prov)
     written += write_report(rc, out, "campaign")
     # per run
