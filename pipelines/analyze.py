@@ -50,6 +50,7 @@ from .config import file_sha256
 from .reduce import (
     ReduceSettings,
     correction_stages,
+    point_spectra,
     points_table,
     reduce_points,
     reduction_stages,
@@ -412,8 +413,13 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
     corr = None
     if opts.corrections:
         pts = with_updates(pts, arrays=_correction_inputs(run, plan))
+        spectra = point_spectra(rig, run.t_ns, run.tensions_N, plan.ranges, pts["pose"])
         corr = correction_stages(
-            rig, opts.geometry, opts.tunnel, wind_off_mps=opts.reduce.wind_off_mps
+            rig,
+            opts.geometry,
+            opts.tunnel,
+            wind_off_mps=opts.reduce.wind_off_mps,
+            spectra=spectra,
         )
     stages = reduction_stages(
         rig, opts.geometry, opts.reduce, interaction=K, second_order=second, extra=corr

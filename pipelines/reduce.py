@@ -490,18 +490,108 @@ def repeatability_stage(p: Points) -> Points:
     )
 
 
+@dataclass(frozen=True)
+class PointSpectra:
+    """The spectrum check of every point (computed from the samples, which the core does not
+    hold): ``modes_Hz`` (s, 6) the rig's natural frequencies at each point's pose (NaN: none),
+    ``too_few_periods`` and ``peak_near_mode`` (s,), ``peak_Hz`` (s, m), and the spectra of each
+    point for the report's plot (``freqs_Hz`` (s) arrays, ``psd`` (s) (m, nf) arrays)."""
+
+    modes_Hz: NDArray[np.float64]
+    too_few_periods: NDArray[np.bool_]
+    peak_near_mode: NDArray[np.bool_]
+    peak_Hz: NDArray[np.float64]
+    freqs_Hz: list[NDArray[np.float64]]
+    psd: list[NDArray[np.float64]]
+
+
+def point_spectra(
+    rig: Rig,
+    t_ns: NDArray[np.int64],
+    tensions_N: NDArray[np.float64],
+    ranges: Sequence[tuple[int, int]],
+    poses: NDArray[np.float64],
+) -> PointSpectra:
+    """:func:`cdpr.analysis.stiffness.spectrum_check` of each point's tension window against the
+    rig's modes at the point's mean pose (:func:`cdpr.analysis.stiffness.rig_modes`).  A window
+    with fewer than 8 finite samples, or a pose where no tension distribution exists, gets NaN."""
+    from cdpr.analysis.errors import CdprError
+    from cdpr.analysis.stiffness import rig_modes, spectrum_check
+
+    s, m = len(ranges), tensions_N.shape[1]
+    dt = np.diff(t_ns)
+    fs = 1e9 / float(np.median(dt)) if dt.size else float("nan")
+    modes = np.full((s, 6), np.nan)
+    few = np.zeros(s, bool)
+    near = np.zeros(s, bool)
+    peak = np.full((s, m), np.nan)
+    freqs: list[NDArray[np.float64]] = []
+    psd: list[NDArray[np.float64]] = []
+    for i, (a, b) in enumerate(ranges):  # one Welch estimate per point (vectorised inside)
+        freqs.append(np.zeros(0))
+        psd.append(np.zeros((m, 0)))
+        x = tensions_N[a:b]
+        x = x[np.isfinite(x).all(axis=1)]
+        if x.shape[0] < 8 or not np.isfinite(poses[i]).all() or not np.isfinite(fs):
+            continue
+        try:
+            f = rig_modes(rig, poses[i, :3], poses[i, 3:]).modes.frequencies_Hz
+        except CdprError:
+            continue
+        modes[i] = f
+        if not np.isfinite(f).any():
+            continue
+        sc = spectrum_check(x, fs, f)
+        few[i], near[i], peak[i] = sc.too_few_periods, bool(sc.peak_near_mode.any()), sc.peak_Hz
+        freqs[i], psd[i] = sc.freqs_Hz, sc.psd
+    return PointSpectra(modes, few, near, peak, freqs, psd)
+
+
+@stage("spectrum_check")
+def spectrum_stage(p: Points, *, spectra: PointSpectra) -> Points:
+    """Per point the rig's lowest natural frequency (``lowest_mode_Hz``) and the flags of the
+    tension-spectrum check: ``too_few_periods`` (the averaging window holds fewer than 10 periods
+    of the lowest mode), ``spectrum_peak_near_mode`` (a tension's spectral peak within 10 % of a
+    mode), ``no_modes`` (no mode could be computed at the point)."""
+    sp = spectra
+    if sp.modes_Hz.shape[0] != p.n:
+        raise InputError(f"spectra: expected {p.n} points, got {sp.modes_Hz.shape[0]}")
+    none = ~np.isfinite(sp.modes_Hz).any(axis=1)
+    rec = CorrectionRecord(
+        name="spectrum_check",
+        source="Welch PSD of each tension over the point's window; the rig's modes at the "
+        "point's pose (stiffness: EA/l + tension term; mass and inertia from the rig file)",
+        values={"points_too_few_periods": int(sp.too_few_periods.sum()),
+                "points_peak_near_mode": int(sp.peak_near_mode.sum())},
+    )  # fmt: skip
+    low = np.where(none, np.nan, np.nanmin(np.where(none[:, None], 1.0, sp.modes_Hz), axis=1))
+    return with_updates(
+        p,
+        arrays={"lowest_mode_Hz": low, "spectrum_peak_Hz": sp.peak_Hz},
+        flag={
+            "too_few_periods": sp.too_few_periods,
+            "spectrum_peak_near_mode": sp.peak_near_mode,
+            "no_modes": none,
+        },
+        meta=_records(p, rec),
+    )
+
+
 def correction_stages(
     rig: Rig,
     geometry: ModelGeometry | None,
     tunnel: TunnelSection | None,
     wind_off_mps: float = 1.0,
     windage_sigma_rel: float = 0.15,
+    spectra: PointSpectra | None = None,
 ) -> dict[str, list[Stage]]:
     """The correction stages for :func:`reduction_stages`'s slots: zero drift, flow conditions,
     windage, wall corrections, repeatability (``tunnel``: the test matrix's ``[tunnel]``; None:
-    windage from measured tares only, no wall corrections, both flagged)."""
+    windage from measured tares only, no wall corrections, both flagged), and the spectrum check
+    when ``spectra`` (:func:`point_spectra`) is given."""
     out: dict[str, list[Stage]] = {
-        "zero_drift": [zero_drift_stage],
+        "zero_drift": [zero_drift_stage]
+        + ([] if spectra is None else [functools.partial(spectrum_stage, spectra=spectra)]),
         "windage": [
             functools.partial(
                 windage_stage,
@@ -629,7 +719,7 @@ def correction_columns(p: Points, rig: Rig) -> dict[str, Any]:
         for k, name in enumerate(rig.cable_names):
             cols[f"zero_drift_{name}_N"] = d[:, k]
             cols[f"sd_zero_drift_{name}_N"] = a["sd_zero_drift_N"][:, k]
-    for key in ("reynolds", "mach", "viscosity_Pas"):
+    for key in ("reynolds", "mach", "viscosity_Pas", "lowest_mode_Hz"):
         if key in a:
             cols[key] = a[key]
     if "windage_N" in a:

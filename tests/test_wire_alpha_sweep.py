@@ -32,7 +32,7 @@ YC, ZC, X0, LEN = 0.0, 0.36, -0.0375, 1.075
 CHORD, SPAN = 0.0815, 0.2441
 AREA = CHORD * SPAN
 DRIFT_N_PER_S = np.array([8e-3, -6e-3, 4e-3, 0.0, -8e-3, 1e-2, 2e-3, -4e-3])
-RATE_HZ, POINT_S, RAMP_S = 100.0, 1.0, 0.3
+RATE_HZ, POINT_S, RAMP_S = 100.0, 1.2, 0.3  # 1.2 s: >= 10 periods of the 9.5 Hz mode
 
 MATRIX = f"""
 [campaign]

@@ -143,3 +143,25 @@ def test_the_test_matrix_carries_the_tunnel_section() -> None:
     with pytest.raises(ConfigError, match="model.blockage_K3.*needs a \\[tunnel\\]"):
         test_matrix_from_mapping({**MATRIX, "model": model}, "m.toml", ROOT / "data_samples")
     assert test_matrix_from_mapping(MATRIX, "m.toml", ROOT / "data_samples").tunnel is None
+
+
+def test_spectrum_flags_a_tension_peak_at_a_mode_and_a_short_window() -> None:
+    from cdpr.pipelines.reduce import point_spectra, spectrum_stage
+
+    rig = paper_rigs()["flat_optimum"]
+    rng = np.random.default_rng(4)
+    fs, n = 100.0, 300
+    t_ns = (np.arange(3 * n) * 1e9 / fs).astype(np.int64)
+    T = 150.0 + rng.normal(0, 0.01, (3 * n, rig.n_cables))
+    # point 1 rings at 9.2 Hz, the flat optimum's yaw mode (docs/corrections.md: 9.22 Hz)
+    T[n : 2 * n] += 0.5 * np.sin(2 * np.pi * 9.2 * t_ns[n : 2 * n] * 1e-9)[:, None]
+    ranges = [(0, n), (n, 2 * n), (2 * n, 2 * n + 50)]  # the last: 0.5 s, < 10 periods
+    pose = np.tile(np.concatenate([rig.reference_position_O_m, [0.0, 0.0, 0.0]]), (3, 1))
+    sp = point_spectra(rig, t_ns, T, ranges, pose)
+    np.testing.assert_allclose(sp.modes_Hz[:, 0], 9.22, atol=0.01)
+    p = _points(["wind_on"] * 3, [0.0, 3.0, 6.0], np.full((3, rig.n_cables), 150.0))
+    out = spectrum_stage(p, spectra=sp)
+    assert out.flags[0] == ()
+    assert out.flags[1] == ("spectrum_peak_near_mode",)
+    assert "too_few_periods" in out.flags[2]
+    np.testing.assert_allclose(out["lowest_mode_Hz"], 9.22, atol=0.01)
