@@ -411,6 +411,7 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
     pts = flags_from_masks(pts, words=words)
     K, second = read_balance_calibration(opts.balance_file)
     corr = None
+    spectra = None
     if opts.corrections:
         pts = with_updates(pts, arrays=_correction_inputs(run, plan))
         spectra = point_spectra(rig, run.t_ns, run.tensions_N, plan.ranges, pts["pose"])
@@ -482,6 +483,7 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
             "left_to_prior": list(wm.weak),
         },
         "lines": _warning_lines(run, plan, warn_words),
+        "_spectra": spectra,
         "corrections": list(out.meta.get("corrections", []))
         if opts.corrections
         else "not applied (no test matrix given: cdpr analyze --matrix)",
@@ -609,6 +611,29 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax.legend(fontsize=7, ncol=5)
 
 
+def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> None:
+    """``spectrum.png``: the tension spectra of the fastest wind-on point with the rig's modes
+    at its pose marked (when the spectrum check ran)."""
+    from .report import spectrum_figure
+
+    if spectra is None:
+        return
+    on = np.flatnonzero((df["kind"] == "wind_on").to_numpy())
+    on = [i for i in on if spectra.freqs_Hz[i].size]
+    if not on:
+        return
+    i = max(on, key=lambda k: np.nan_to_num(df["airspeed_mps"].iloc[k]))
+    spectrum_figure(
+        folder / "spectrum.png",
+        spectra.freqs_Hz[i],
+        spectra.psd[i],
+        run.rig.cable_names,
+        spectra.modes_Hz[i],
+        f"Tension spectra of point {df['point'].iloc[i]} "
+        f"({df['airspeed_mps'].iloc[i]:.2f} m/s) with the rig's modes at its pose",
+    )
+
+
 def _fmt(v: float, sd: float) -> str:
     return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
 
@@ -682,6 +707,7 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
         "![check](check.png)",
         "",
+        *(["![spectrum](spectrum.png)", ""] if "lowest_mode_Hz" in df else []),
     ]
     return "\n".join(lines)
 
@@ -756,7 +782,7 @@ def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]
             "points": len(df),
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
-            "reduction": red,
+            "reduction": {k: v for k, v in red.items() if k != "_spectra"},
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:
@@ -769,6 +795,7 @@ def analyze_run(path: str, out_dir: str, opts: AnalyzeOptions) -> dict[str, Any]
         df.to_csv(tmp / "points.csv", index=False)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
+        _spectrum_plot(run, df, red.get("_spectra"), tmp)
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
             shutil.rmtree(final)

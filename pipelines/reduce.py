@@ -412,7 +412,7 @@ def wall_corrections_stage(p: Points, *, walls: WallParameters | None) -> Points
         )
     }  # fmt: skip
     have = np.isfinite(p["CL"]) & np.isfinite(p["CD"]) & np.isfinite(p["Cm"])
-    have &= np.isfinite(p["aoa_rad"])
+    have &= np.isfinite(p["aoa_rad"]) & (p["kind"] == "wind_on")  # the model is in the flow
     if walls is None:
         rec = _no_record("wall_corrections", "no test section ([tunnel])", ("no_wall_correction",))
         return with_updates(

@@ -499,6 +499,37 @@ def correction_sections(df: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     return out
 
 
+def spectrum_figure(
+    path: str | os.PathLike[str],
+    freqs_Hz: NDArray[np.float64],
+    psd: NDArray[np.float64],
+    cable_names: Sequence[str],
+    modes_Hz: NDArray[np.float64],
+    title: str,
+) -> Figure:
+    """The power spectrum of every tension of one point (``psd`` (m, nf), N^2/Hz) with the rig's
+    natural frequencies at the point's pose marked (dashed lines, labelled in Hz)."""
+    import matplotlib
+
+    p = Path(path)
+    with png_figure(p, size=(9.0, 4.6)) as (_, axes):
+        ax = axes[0, 0]
+        colors = matplotlib.colormaps["tab10"]
+        for j, name in enumerate(cable_names):
+            ax.semilogy(freqs_Hz[1:], psd[j, 1:], lw=0.8, color=colors(j % 10), label=name)
+        for k, f in enumerate(np.asarray(modes_Hz, dtype=np.float64)):
+            if np.isfinite(f):
+                ax.axvline(f, color="k", ls="--", lw=0.8)
+                ax.text(f, 0.98 - 0.06 * (k % 2), f" mode {k + 1}: {f:.1f} Hz",
+                        transform=ax.get_xaxis_transform(), fontsize=7, va="top")  # fmt: skip
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("tension PSD (N²/Hz)")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6, ncol=4, loc="lower left")
+    return _figure(p, title)
+
+
 # --------------------------------------------------------------------------------------------
 # reports
 # --------------------------------------------------------------------------------------------
