@@ -224,9 +224,15 @@ def _groups(d: pd.DataFrame, keys: list[str]) -> list[tuple[tuple[Any, ...], pd.
     return [((k,) if not isinstance(k, tuple) else k, g) for k, g in groups]
 
 
-def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Figure]:
+def sweep_figures(
+    table: CampaignTable,
+    out_dir: str | os.PathLike[str],
+    reference: pd.DataFrame | None = None,
+) -> list[Figure]:
     """The sweep plots of the wind-on points (PNG files in ``out_dir``); a plot whose sweep does
-    not exist in the data (no sideslip sweep) is not drawn."""
+    not exist in the data (no sideslip sweep) is not drawn.  ``reference``
+    (:func:`read_reference_polars`) is drawn beside the measured polars (black, one line per
+    source and speed)."""
     import matplotlib
 
     out = Path(out_dir)
@@ -256,6 +262,7 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
                 for (beta, v), g in alpha_sweeps:
                     lab = f"{v:g} m/s" + (f", sideslip {beta:g} deg" if beta != 0 else "")
                     _series(ax, g, x, y, lab, color.get(v, "0.4"))
+                _reference_lines(ax, reference, x, y)
                 ax.set_xlabel(xl)
                 ax.set_ylabel(yl)
                 ax.set_title(f"{title}\n({note})", fontsize=9)
@@ -280,6 +287,17 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
             axes[-1, 0].set_xlabel("sideslip (deg)")
         figs.append(_figure(path, "Lateral coefficients CY, Cl, Cn - sideslip"))
     return figs
+
+
+def _reference_lines(ax: Any, ref: pd.DataFrame | None, x: str, y: str) -> None:
+    """Reference polars on an aoa or drag-polar plot (x ``aoa_deg`` or ``CL``)."""
+    if ref is None or y not in ref.columns or x not in ref.columns:
+        return
+    styles = ("-", "--", ":", "-.")
+    for k, ((src, v), g) in enumerate(ref.groupby(["source", "airspeed_mps"], dropna=False)):
+        g = g.sort_values("aoa_deg")
+        lab = f"reference {src}" + ("" if not np.isfinite(v) else f" {v:g} m/s")
+        ax.plot(g[x].to_numpy(), g[y].to_numpy(), styles[k % 4], color="k", lw=1.2, label=lab)
 
 
 def envelope(
@@ -528,6 +546,74 @@ def spectrum_figure(
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6, ncol=4, loc="lower left")
     return _figure(p, title)
+
+
+# --------------------------------------------------------------------------------------------
+# reference polars (CFD or another facility) beside the measured ones
+# --------------------------------------------------------------------------------------------
+REFERENCE_COEFFS = ("CL", "CD", "Cm")
+
+
+def read_reference_polars(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """A reference polar CSV: ``aoa_deg`` and at least one of ``CL, CD, Cm`` (finite numbers),
+    optional ``airspeed_mps`` (one polar per speed; without it one polar for every speed) and
+    ``source`` (a label, default the file name).  Errors name the file, the row and the column."""
+    p = str(path)
+    df = read_table(p, ("aoa_deg",), "reference polar")
+    have = [c for c in REFERENCE_COEFFS if c in df.columns]
+    if not have:
+        raise ConfigError(p, "columns", f"expected at least one of {list(REFERENCE_COEFFS)}")
+    for c in (*have, *(["airspeed_mps"] if "airspeed_mps" in df.columns else [])):
+        num = pd.to_numeric(df[c], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(num.to_numpy(dtype=np.float64)))
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(
+                p, f"row {i + 2}, column {c}", f"expected a finite number, got {df[c].iloc[i]!r}"
+            )
+        df[c] = num.astype(np.float64)
+    if "airspeed_mps" not in df.columns:
+        df["airspeed_mps"] = np.nan
+    src = df["source"].astype(str) if "source" in df.columns else Path(p).stem
+    return df.assign(source=src)
+
+
+def _reference_at(ref: pd.DataFrame, speed: float, aoa_deg: NDArray[np.float64], c: str) -> Any:
+    """The reference coefficient ``c`` at ``aoa_deg``, linear in aoa within the polar of the
+    speed (within 3 %) or the speed-free polar; NaN outside its aoa range or without a polar."""
+    sp = ref["airspeed_mps"].to_numpy(dtype=np.float64)
+    sel = np.isfinite(sp) & (np.abs(sp - speed) <= 0.03 * speed)
+    if not sel.any():
+        sel = ~np.isfinite(sp)
+    r = ref[sel & ref[c].notna().to_numpy()].sort_values("aoa_deg") if c in ref else ref.iloc[0:0]
+    if len(r) < 2:
+        return np.full(np.shape(aoa_deg), np.nan)
+    x, y = r["aoa_deg"].to_numpy(dtype=np.float64), r[c].to_numpy(dtype=np.float64)
+    return np.interp(aoa_deg, x, y, left=np.nan, right=np.nan)
+
+
+def reference_differences(df: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame:
+    """Per wind-on point: measured (wall-corrected where the table has it, else uncorrected),
+    reference at the same aoa and speed, and their difference, for each reference coefficient."""
+    on = df[df["kind"] == WIND_ON]
+    rows = []
+    for r in on.itertuples():
+        speed = r.target_airspeed_mps if np.isfinite(r.target_airspeed_mps) else r.airspeed_mps
+        row: dict[str, Any] = {"run": r.run, "point": r.point, "airspeed_mps": speed}
+        corrected = "aoa_corrected_rad" in on.columns and np.isfinite(
+            float(getattr(r, "aoa_corrected_rad", np.nan))
+        )
+        aoa = np.degrees(r.aoa_corrected_rad) if corrected else r.aoa_deg
+        row["aoa_deg"] = aoa
+        row["measured"] = "corrected" if corrected else "uncorrected"
+        for c in REFERENCE_COEFFS:
+            if c not in ref.columns:
+                continue
+            m = float(getattr(r, f"{c}_corrected")) if corrected else float(getattr(r, c))
+            v = float(_reference_at(ref, float(speed), np.array(aoa), c))
+            row.update({c: m, f"{c}_reference": v, f"d{c}": m - v})
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 # --------------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.daq.mcap_io import McapRunWriter
 from cdpr.daq.source import Reading
 from cdpr.pipelines.cli import main
+from cdpr.pipelines.report import read_reference_polars, reference_differences
 
 AOA_DEG = (-4.0, 0.0, 3.0, 6.0)
 RHO, T_K, MU = 1.19, 293.15, 1.8134e-5  # MU: Sutherland at 293.15 K, by hand
@@ -310,7 +311,15 @@ def _screenshot(page: Path, png: Path, tmp: Path) -> np.ndarray:
 
 def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, capsys) -> None:
     out = analysed["out"] / "report"
-    assert main(["campaign", str(analysed["out"] / "with"), "--out", str(out)]) in (0, 1)
+    # a reference polar "from another facility": the generator's own polar, written by hand
+    aoa = np.arange(-6.0, 9.0, 1.0)
+    cl = 0.1 + 4.5 * np.deg2rad(aoa)
+    ref = analysed["out"] / "reference.csv"
+    pd.DataFrame(
+        {"source": "generator", "aoa_deg": aoa, "CL": cl, "CD": 0.03 + 0.05 * cl**2}
+    ).to_csv(ref, index=False)
+    args = ["campaign", str(analysed["out"] / "with"), "--out", str(out), "--reference", str(ref)]
+    assert main(args) in (0, 1)
     capsys.readouterr()
     table = pd.read_csv(out / "campaign.csv")
     row = table[table.point == "a3v41.42"].iloc[0]
@@ -324,5 +333,14 @@ def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, ca
     assert "Windage tare fit per speed" in page and "Repeatability: measured σ" in page
     assert "Barlow, Rae &amp; Pope" in page  # every correction listed with its source
     assert (out / "plots" / "windage_tare.png").is_file()
+    # the difference table: measured (wall-corrected) minus the reference, per wind-on point
+    assert "Measured minus reference polars" in page and "reference polars" in page
+    d = reference_differences(
+        table.assign(run=table["run"].astype(str)), read_reference_polars(ref)
+    )
+    assert len(d) == int((table.kind == "wind_on").sum()) and (d.measured == "corrected").all()
+    # the generator has no walls: the difference holds the wall correction (d_aoa up to 0.13 deg,
+    # i.e. 0.01 in CL at 4.5/rad) and the noise; a unit or interpolation slip would be far larger
+    assert np.abs(d.dCL).max() < 0.02 and np.abs(d.dCD).max() < 0.005
     img = _screenshot(out / "campaign.html", out / "campaign_screenshot.png", analysed["out"])
     assert img.shape[0] >= 2000 and img.std() > 20  # rendered, not blank

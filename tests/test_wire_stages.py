@@ -165,3 +165,15 @@ def test_spectrum_flags_a_tension_peak_at_a_mode_and_a_short_window() -> None:
     assert out.flags[1] == ("spectrum_peak_near_mode",)
     assert "too_few_periods" in out.flags[2]
     np.testing.assert_allclose(out["lowest_mode_Hz"], 9.22, atol=0.01)
+
+
+def test_a_bad_reference_polar_names_the_file_row_and_column(tmp_path: Path) -> None:
+    from cdpr.pipelines.report import read_reference_polars
+
+    p = tmp_path / "ref.csv"
+    p.write_text("aoa_deg,CL\n0,0.1\n2,abc\n")
+    with pytest.raises(ConfigError, match=r"ref.csv: row 3, column CL: expected a finite number"):
+        read_reference_polars(p)
+    p.write_text("aoa_deg,lift\n0,0.1\n")
+    with pytest.raises(ConfigError, match="expected at least one of"):
+        read_reference_polars(p)

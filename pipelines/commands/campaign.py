@@ -27,6 +27,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--matrix", help="test matrix (TOML): point order and missing points")
     p.add_argument("--runs", help="folder of the run files (.mcap): tension plots per run")
+    p.add_argument(
+        "--reference",
+        help="reference polars (CSV: aoa_deg, CL/CD/Cm, optional airspeed_mps and source) drawn "
+        "beside the measured ones, with a difference table",
+    )
     p.set_defaults(func=run)
 
 
@@ -85,6 +90,11 @@ def run(args: argparse.Namespace) -> int:
     )
 
     files = _points_files(args)
+    ref = None
+    if args.reference:
+        from ..report import read_reference_polars
+
+        ref = read_reference_polars(args.reference)
     labels = None
     title = "Campaign"
     prov: dict[str, str] = {"software": f"cdpr {__version__}"}
@@ -102,14 +112,23 @@ def run(args: argparse.Namespace) -> int:
     table = campaign_table(files, labels, info)
     for p, sha in table.inputs:
         prov[f"points {p}"] = f"sha256={sha}"
+    if args.reference:
+        prov["reference polars"] = f"{args.reference} sha256={file_sha256(args.reference)}"
     prov["written"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     out = Path(args.out)
     written = write_campaign_table(table, out)
-    figs = sweep_figures(table, out / "plots")
+    figs = sweep_figures(table, out / "plots", ref)
     wfig = windage_figure(table, out / "plots")
     if wfig is not None:
         figs.append(wfig)
     rc = report_content(title, table, figs, prov)
+    if ref is not None:
+        from ..report import reference_differences
+
+        rc.sections.append(
+            ("Measured minus reference polars (wall-corrected where available)",
+             reference_differences(table.df, ref))
+        )  # fmt: skip
     written += write_report(rc, out, "campaign")
     # per run
     runs_dir = Path(args.runs) if args.runs else None
