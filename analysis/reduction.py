@@ -11,9 +11,10 @@ treat, and the decorator appends a :class:`Step` (name, settings, points flagged
 that cannot run for a point leaves NaN and a flag there, never a nominal value in silence.
 
 The order (see ``cdpr.pipelines.reduce``): steady points and masks (upstream, :mod:`.balance`) →
-[zero drift] → structure matrix → weight model → weight tare → [windage] → balance interaction
-matrix → axes and moment transfer → coefficients → tension check.  Bracketed slots are stages
-other modules plug in with the same signature; they read and add the same keys.
+[zero drift] → structure matrix → weight model → weight tare → [windage] → [inertia] → balance
+interaction matrix → axes and moment transfer → [wall corrections] → coefficients → tension
+check.  Bracketed slots are stages other modules plug in with the same signature; they read and add
+the same keys.
 
 Keys in ``Points.arrays`` (s points, m cables):
 
@@ -164,7 +165,9 @@ def _plain(v: Any) -> Any:
     if isinstance(v, ModelGeometry | WeightModel):
         return type(v).__name__
     if isinstance(v, np.ndarray):
-        return v.tolist()
+        return f"<array {v.shape}>" if v.size > 12 else v.tolist()
+    if isinstance(v, list | tuple):
+        return f"<{len(v)} values>" if len(v) > 12 else [_plain(x) for x in v]
     if isinstance(v, float | int | str | bool) or v is None:
         return v
     return repr(v)
@@ -219,12 +222,17 @@ def flags_from_masks(p: Points, *, words: list[str] | None = None) -> Points:
 
 @stage("structure_matrix")
 def structure_matrix_stage(p: Points, *, rig: Rig) -> Points:
-    """``A`` (s, 6, m) at each point's measured mean pose; ``-A T`` is the cables' load."""
+    """``A`` (s, 6, m) at each point's measured mean pose; ``-A T`` is the cables' load.  A point
+    without a pose (no usable camera frame) gets NaN and the flag ``no_pose``."""
     q = p["pose"]
     if q.shape[0] and p["tension_N"].shape[1] != rig.n_cables:
         raise InputError(f"tension_N: expected {rig.n_cables} cables for rig {rig.name!r}")
-    A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, q[:, :3], rotation_from_euler(q[:, 3:]))
-    return with_updates(p, arrays={"A": A})
+    ok = np.isfinite(q).all(axis=1)
+    A = np.full((p.n, 6, rig.n_cables), np.nan)
+    A[ok] = structure_matrix(
+        rig.anchors_O_m, rig.attach_P_m, q[ok, :3], rotation_from_euler(q[ok, 3:])
+    )
+    return with_updates(p, arrays={"A": A}, flag={"no_pose": ~ok})
 
 
 def _minus_AT(rig: Rig, poses: FloatArray, T: FloatArray) -> FloatArray:
@@ -496,7 +504,7 @@ def coefficients(p: Points, *, geometry: ModelGeometry, wind_off_mps: float = 1.
     """Dynamic pressure ``q_Pa = rho V^2 / 2`` and ``CD, CY, CL, Cl, Cm, Cn`` with ``sd_*`` (from
     the total wrench covariance; the attitude's and q's own errors are not included) for wind-on
     points with a finite airspeed above ``wind_off_mps``; NaN elsewhere, flag ``no_airspeed`` on
-    wind-on points without one."""
+    wind-on points without one (``no_density`` without a density)."""
     s = p.n
     V = p["airspeed_mps"]
     rho = p["density_kgpm3"]
@@ -519,7 +527,11 @@ def coefficients(p: Points, *, geometry: ModelGeometry, wind_off_mps: float = 1.
         for k, c in enumerate(COEFFICIENTS):
             out[c][use] = C[:, k]
             out[f"sd_{c}"][use] = sd[:, k]
-    flags = {"no_airspeed": (p["kind"] == "wind_on") & ~okv}
+    wind_on = p["kind"] == "wind_on"
+    flags = {
+        "no_airspeed": wind_on & ~np.isfinite(V),
+        "no_density": wind_on & np.isfinite(V) & ~(np.isfinite(rho) & (rho > 0)),
+    }
     return with_updates(p, arrays={"q_Pa": q, **out}, flag=flags)
 
 

@@ -104,18 +104,32 @@ GEO = ["--area-m2", str(0.2441 * 0.0815), "--span-m", "0.2441", "--chord-m", "0.
 
 @pytest.fixture(scope="module")
 def sweep() -> Sweep:
-    return alpha_sweep(21, point_s=2.0, ramp_s=0.6)
+    return alpha_sweep(21, rate_hz=50.0, point_s=2.0, ramp_s=0.6)
+
+
+@pytest.fixture(scope="module")
+def events_run(sweep: Sweep, tmp_path_factory) -> tuple[Path, Path, int, str]:
+    """The sweep with events, tunnel and camera, analysed once: (run, output folder, exit code,
+    stdout)."""
+    import contextlib
+    import io
+
+    d = tmp_path_factory.mktemp("events")
+    run = d / "sweep.mcap"
+    write_run(run, sweep)
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(["analyze", str(run), "--out", str(d / "a"), *GEO])
+    return run, d / "a" / "sweep", rc, buf.getvalue()
 
 
 def test_events_define_the_points_and_the_accuracy_holds(
-    sweep: Sweep, tmp_path: Path, capsys
+    sweep: Sweep, events_run: tuple[Path, Path, int, str]
 ) -> None:
-    run = tmp_path / "sweep.mcap"
-    write_run(run, sweep)
-    assert main(["analyze", str(run), "--out", str(tmp_path / "a"), *GEO]) == 0
-    said = capsys.readouterr().out
+    _, folder, rc, said = events_run
+    assert rc == 0
     assert "(events), 0 with warnings" in said and "warning:" not in said
-    df = pd.read_csv(tmp_path / "a" / "sweep" / "points.csv")
+    df = pd.read_csv(folder / "points.csv")
     assert (df.source == "events").all() and list(df.point) == [f"P{k:02d}" for k in range(25)]
     on = (df.kind == "wind_on").to_numpy()
     err = df.loc[on, list(WRENCH_COLUMNS)].to_numpy() - sweep.true_wrench[on]
@@ -125,7 +139,7 @@ def test_events_define_the_points_and_the_accuracy_holds(
     # σ came from the camera's covariance (no nominal fallback) and is small
     assert not df["flags"].fillna("").str.contains("pose_cov_nominal").any()
     assert (df.loc[on, "sd_fz_N"] < 0.05).all()
-    summary = json.loads((tmp_path / "a" / "sweep" / "summary.json").read_text())
+    summary = json.loads((folder / "summary.json").read_text())
     assert summary["reduction"]["point_source"] == "events"
     names = [s["stage"] for s in summary["reduction"]["stages"]]
     assert names.index("weight_model") < names.index("weight_tare") < names.index("coefficients")
@@ -163,11 +177,9 @@ def test_no_events_and_no_tunnel_reports_no_wind_on_wrench(
 
 
 def test_balance_calibration_with_second_order_is_applied(
-    sweep: Sweep, tmp_path: Path, capsys
+    events_run: tuple[Path, Path, int, str], tmp_path: Path
 ) -> None:
-    run = tmp_path / "sweep.mcap"
-    write_run(run, sweep)
-    assert main(["analyze", str(run), "--out", str(tmp_path / "plain"), *GEO]) == 0
+    run, plain_folder, _, _ = events_run
     c = 0.01
     K2 = np.zeros((6, 21))
     K2[2, 2] = c  # index 2 of the upper triangle is Fx * Fz: Fz' = Fz + c Fx Fz
@@ -179,7 +191,7 @@ def test_balance_calibration_with_second_order_is_applied(
     bal.write_text(json.dumps(doc))
     args = ["analyze", str(run), "--out", str(tmp_path / "cal"), "--balance", str(bal), *GEO]
     assert main(args) == 0
-    plain = pd.read_csv(tmp_path / "plain" / "sweep" / "points.csv")
+    plain = pd.read_csv(plain_folder / "points.csv")
     cal = pd.read_csv(tmp_path / "cal" / "sweep" / "points.csv")
     on = plain.kind == "wind_on"
     np.testing.assert_allclose(

@@ -273,3 +273,17 @@ def test_a_later_stage_plugs_into_its_slot_and_is_logged() -> None:
     )
     with pytest.raises(InputError, match="unknown slot"):
         reduction_stages(RIG, GEOMETRY, extra={"nowhere": []})
+
+
+def test_a_point_without_pose_frames_is_flagged_not_fatal() -> None:
+    sw = alpha_sweep(11)
+    k = 12  # a wind-on point whose camera frames were all lost
+    lost = (sw.pose_t_ns >= sw.start_ns[k]) & (sw.pose_t_ns <= sw.stop_ns[k])
+    sw.pose_t_ns, sw.poses, sw.pose_cov = sw.pose_t_ns[~lost], sw.poses[~lost], sw.pose_cov[~lost]
+    out, extra = _reduce(sw, geometry=GEOMETRY)
+    assert extra["n_pose_frames"][k] == 0
+    assert "no_pose" in out.flag_text()[k] and np.isnan(out["wrench_N"][k]).all()
+    assert np.isnan(out["CL"][k])
+    others = np.array(sw.kind) == "wind_on"
+    others[k] = False
+    assert np.isfinite(out["wrench_N"][others]).all()
