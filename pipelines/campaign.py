@@ -467,6 +467,12 @@ def schedule_from_matrix(
         return schedule_from_mapping(data, matrix.source, rig)
     except ConfigError as exc:
         key = exc.key
+        n_own = len(matrix.virtual_rig.get("faults", []))
+        if key.startswith("faults[") and int(key[len("faults[") : key.index("]")]) >= n_own:
+            i = int(key[len("faults[") : key.index("]")]) - n_own  # a --fault of the command line
+            raise ConfigError(
+                "--fault", f"#{i + 1}{key[key.index(']') + 1 :]}", exc.problem
+            ) from None
         if key.startswith("segments["):
             i = int(key[len("segments[") : key.index("]")])
             key = f"points ({matrix.points[i].label})" + key[key.index("]") + 1 :]

@@ -219,3 +219,24 @@ def test_run_page_has_the_run_tensions_from_the_run_file(tmp_path: Path) -> None
     assert page.count("src='data:image/png;base64,") == 4 and "Cable tensions" in page
     img = read_image(out / "plots" / "run_a" / "tensions.png", gray=False)
     assert img is not None and img.shape[1] > 900
+
+
+def test_a_sideslip_sweep_gets_the_lateral_plot(tmp_path: Path) -> None:
+    from cdpr.pipelines.report import sweep_figures
+
+    df = _points("r")
+    on = df.index[df["kind"] == "wind_on"][:4]  # four points at 17.27 m/s become a sideslip sweep
+    df.loc[on, "target_aoa_deg"] = 0.0
+    df.loc[on, "aoa_rad"] = 0.0
+    df.loc[on, "target_sideslip_deg"] = [-4.0, 0.0, 4.0, 8.0]
+    df.loc[on, "sideslip_rad"] = np.radians([-4.0, 0.0, 4.0, 8.0])
+    for c, slope in (("CY", -0.6), ("Cl", -0.08), ("Cn", 0.1)):
+        df[c] = np.nan
+        df.loc[on, c] = slope * df.loc[on, "sideslip_rad"]
+        df[f"sd_{c}"] = 0.002
+    p = tmp_path / "points.csv"
+    df.to_csv(p, index=False)
+    figs = sweep_figures(campaign_table([p]), tmp_path / "plots")
+    assert [f.name for f in figs][-1] == "lateral_sideslip.png"
+    img = read_image(tmp_path / "plots" / "lateral_sideslip.png", gray=True)
+    assert img is not None and img.shape[0] > img.shape[1]  # three panels stacked
