@@ -306,8 +306,20 @@ def windage_stage(
             if np.ptp(ang[wnd]) < angle_tol_rad:
                 held = float(np.mean(ang[wnd]))
                 ang[np.abs(ang - held) <= angle_tol_rad] = held
+        # a windage point whose speed has too few others (a speed ramp caught in its window)
+        # cannot be fitted: it is left out and flagged, the other speeds are still fitted
+        close = (np.abs(V[:, None] - V[None, :]) <= 0.03 * V[None, :]) & wnd[None, :]
+        lonely = wnd & (close.sum(axis=1) < aoa_degree + 2)
+        fitset = wnd & ~lonely
+        flags["windage_tare_unfit"] = lonely
+        if lonely.any():
+            notes.append(f"{int(lonely.sum())} windage point(s) left out: too few at their speed")
         try:
-            fit = fit_windage_tare(V[wnd], aoa[wnd], slip[wnd], W[wnd], aoa_degree, sideslip_degree)
+            if not fitset.any():
+                raise InputError("no speed with enough windage points")
+            fit = fit_windage_tare(
+                V[fitset], aoa[fitset], slip[fitset], W[fitset], aoa_degree, sideslip_degree
+            )
         except InputError as exc:
             notes.append(f"measured tare not fitted: {exc}")
             flags["windage_tare_unfit"] = wnd
@@ -323,7 +335,7 @@ def windage_stage(
             ev = evaluate_windage_tare(fit, V[at], aoa[at], slip[at])
             measured[at], measured_sd[at], extrap[at] = ev.tare_N, ev.sigma_N, ev.extrapolated
             recs.append(ev.record)
-            notes.append(f"measured tare from {int(wnd.sum())} model-off points")
+            notes.append(f"measured tare from {int(fitset.sum())} model-off points")
     model = np.full((s, 6), np.nan)
     model_cov = np.full((s, 6, 6), np.nan)
     if section is not None:

@@ -93,6 +93,14 @@ def test_windage_source_is_measured_then_modelled_then_none() -> None:
     assert "windage_tare" in p.flags[4] and "windage_modelled" in p.flags[5]
     assert "windage_tare_missing" in p.flags[5]
     assert p.cov_terms["windage"][5, 0, 0] > 0  # the model's σ is carried
+    # a windage point alone at its speed (a ramp caught in its window) is left out and flagged;
+    # the 20 m/s tare is still fitted
+    kinds7 = [*kinds, "windage"]
+    V7, aoa7, W7 = np.append(V, 26.0), np.append(aoa, 0.0), np.vstack([W, W[:1]])
+    p7 = windage_stage(
+        _windage_points(kinds7, V7, aoa7, W7), rig=rig, section=section.geometry, geometry=None
+    )
+    assert "windage_tare_unfit" in p7.flags[6] and p7["windage_source"][4] == "measured"
     # neither a tare nor a section: nothing subtracted, flagged
     q = windage_stage(
         _windage_points(["wind_on"], V[4:5], aoa[4:5], W[4:5]), rig=rig, section=None,
