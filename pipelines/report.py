@@ -401,7 +401,7 @@ CORRECTION_COLUMNS = (
     "run", "point", "target_airspeed_mps", "aoa_deg", "q_Pa", "reynolds", "mach",
     "CL", "CL_corrected", "sd_CL", "sd_repeat_CL", "CD", "CD_corrected", "sd_CD", "sd_repeat_CD",
     "Cm", "Cm_corrected", "sd_Cm", "sd_repeat_Cm", "zero_drift_max_abs_N", "windage_source",
-    "windage_fx_N", "corrections",
+    "windage_fx_N",
 )  # fmt: skip
 """The campaign table's correction view: one row per wind-on point (columns that exist)."""
 _WINDAGE_SHOWN = (("fx_N", "Fx (N)"), ("fz_N", "Fz (N)"), ("my_Nm", "My (N m)"))
@@ -501,12 +501,17 @@ def correction_sections(df: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     if "corrections" in on.columns and len(on):
         cols = [c for c in CORRECTION_COLUMNS if c in on.columns]
         shown = on[cols].copy()
-        for c in ("corrections", "windage_source"):
-            if c in shown:
-                shown[c] = shown[c].astype(object).where(shown[c].notna(), "").astype(str)
+        if "windage_source" in shown:
+            w = shown["windage_source"]
+            shown["windage_source"] = w.astype(object).where(w.notna(), "").astype(str)
         out.append(
             ("Corrections per point: q, Re, Mach, corrected beside uncorrected, "
-             "repeatability σ beside the propagated σ, each correction and its source", shown)
+             "repeatability σ beside the propagated σ", shown)
+        )  # fmt: skip
+        text = on["corrections"].astype(object).where(on["corrections"].notna(), "none")
+        out.append(
+            ("Every correction applied per point, its size and its source",
+             on[["run", "point"]].assign(corrections=text.astype(str)))
         )  # fmt: skip
     w = windage_fit_table(df)
     if w is not None:
