@@ -185,3 +185,34 @@ def test_a_bad_reference_polar_names_the_file_row_and_column(tmp_path: Path) -> 
     p.write_text("aoa_deg,lift\n0,0.1\n")
     with pytest.raises(ConfigError, match="expected at least one of"):
         read_reference_polars(p)
+
+
+def test_flow_conditions_by_hand_and_no_temperature_flagged() -> None:
+    from cdpr.pipelines.reduce import flow_conditions_stage
+
+    p = _points(["wind_on", "wind_on"], [0.0, 1.0], np.full((2, 2), 1.0), V=np.array([30.0, 30.0]))
+    p = with_updates(p, arrays={"temperature_K": np.array([288.15, np.nan])})
+    out = flow_conditions_stage(p, chord_m=0.05)
+    mu = 1.716e-5 * (288.15 / 273.15) ** 1.5 * (273.15 + 110.4) / (288.15 + 110.4)  # Sutherland
+    np.testing.assert_allclose(out["reynolds"][0], 1.2 * 30.0 * 0.05 / mu, rtol=1e-6)
+    np.testing.assert_allclose(out["mach"][0], 30.0 / 340.29, rtol=1e-3)  # ISA sea level a
+    assert np.isnan(out["reynolds"][1]) and out.flags[1] == ("no_temperature",)
+
+
+def test_simulate_refuses_a_tunnel_matrix_over_a_second_process_transport(
+    tmp_path: Path, capsys
+) -> None:
+    from cdpr.pipelines.cli import main
+
+    octagon = OCTAGON.read_text().split("\n[model]")[0].strip()
+    m = tmp_path / "m.toml"
+    m.write_text(
+        f'[campaign]\nrig = "{ROOT / "data_samples" / "flat_optimum.toml"}"\n'
+        "[model]\narea_m2 = 0.0125\nspan_m = 0.2441\nchord_m = 0.051\nmrp_P_m = [0, 0, 0]\n"
+        "volume_m3 = 5.6e-4\nblockage_K3 = 0.94\n"
+        f'{octagon}\n[[points]]\nlabel = "z"\nkind = "zero"\n'
+    )
+    args = ["simulate", "--campaign", str(m), "--out", str(tmp_path / "r"), "--transport", "slcan"]
+    assert main(args) == 2
+    assert "use --transport virtual" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
