@@ -333,6 +333,8 @@ def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, ca
     assert "Windage tare fit per speed" in page and "Repeatability: measured σ" in page
     assert "Barlow, Rae &amp; Pope" in page  # every correction listed with its source
     assert (out / "plots" / "windage_tare.png").is_file()
+    # the run's page carries the tension spectra of its fastest point with the rig's modes
+    assert "Tension spectra with the rig" in (out / "run_sweep.html").read_text()
     # the difference table: measured (wall-corrected) minus the reference, per wind-on point
     assert "Measured minus reference polars" in page and "reference polars" in page
     d = reference_differences(

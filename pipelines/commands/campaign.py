@@ -72,6 +72,7 @@ def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import shutil
     import time
 
     import numpy as np
@@ -80,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from ..config import file_sha256
     from ..report import (
         CampaignTable,
+        Figure,
         campaign_table,
         report_content,
         sweep_figures,
@@ -150,6 +152,16 @@ def run(args: argparse.Namespace) -> int:
                 ]
                 rfigs.append(
                     tension_figure(out / "plots" / stem / "tensions.png", *tens, windows=windows)
+                )
+        # the tension spectra with the rig's modes (cdpr analyze --matrix drew them per run)
+        for pf in sorted(set(d["points_file"])):
+            spec = Path(pf).parent / "spectrum.png"
+            if spec.is_file():
+                dst = out / "plots" / stem / "spectrum.png"
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(spec, dst)
+                rfigs.append(
+                    Figure(dst.name, "Tension spectra with the rig's modes", dst.read_bytes())
                 )
         rprov = {**prov, "run": str(run_name)}
         written += write_report(
