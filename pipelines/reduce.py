@@ -10,6 +10,12 @@ corrections): pass them in
 ``extra`` under the slot's name; each is a :data:`cdpr.analysis.reduction.Stage` (points in, points
 out) that adds its correction to ``wrench_N`` and its σ term to ``cov_terms``, flags the points it
 cannot treat and is logged by the ``@stage`` decorator.
+
+The correction stages of issue 13 live here too (each a thin stage around one pure function of
+``cdpr.analysis``: ``zero_drift_stage``, ``spectrum_stage``, ``flow_conditions_stage``,
+``windage_stage``, ``wall_corrections_stage``, ``repeatability_stage``); :func:`correction_stages`
+fills the slots with them (``cdpr analyze --matrix``), :func:`correction_columns` gives their
+per-point columns (docs/corrections.md, "In the reduction core").
 """
 
 from __future__ import annotations
