@@ -17,6 +17,7 @@ Rig file layout (all SI)::
     mass_kg = 0.64
     com_P_m = [0.0, 0.0, 0.0]
     inertia_P_kgm2 = [[...], [...], [...]]       # about P, {P} axes
+    windage_drag_area_m2 = 0.0                    # optional: CD*A of the bare platform in the flow
 
     [[cables]]                                    # one table per cable, m >= 1
     name = "front_left_top"
@@ -24,6 +25,9 @@ Rig file layout (all SI)::
     attach_P_m = [-0.015, 0.005, 0.0]             # pp_i in {P}
     t_min_N = 35.0
     t_max_N = 300.0
+    diameter_m = 0.001                            # optional, default DEFAULT_CABLE_DIAMETER_M
+    drag_coefficient = 1.1                        # optional, default: CD(Re) of a cylinder
+    EA_N = 70000.0                                # optional, default DEFAULT_CABLE_EA_N
 
     [assumptions]                                 # optional free text, kept with the rig
     layout = "..."
@@ -43,6 +47,15 @@ from .conventions import GRAVITY_O_MPS2
 from .errors import ConfigError
 
 FloatArray = NDArray[np.float64]
+
+DEFAULT_CABLE_DIAMETER_M: float = 1.0e-3
+"""Assumed cable diameter when the rig file gives none: 1 mm (the issue's estimate; the paper
+does not give it)."""
+
+DEFAULT_CABLE_EA_N: float = 7.0e4
+"""Assumed axial stiffness E*A when the rig file gives none: a 1 mm 7x7 steel wire rope
+(effective modulus about 90 GPa on the 0.785 mm^2 nominal section).  The paper does not give it;
+the natural frequencies scale with its square root."""
 
 
 def _frozen(a: Any, shape: tuple[int, ...]) -> FloatArray:
@@ -69,6 +82,11 @@ class Rig:
     reference_position_O_m: (3,) nominal position of P in {O}, m.
     reference_euler_rad: (3,) nominal Z-Y-X Euler angles, rad.
     assumptions: free-text notes on where the numbers come from.
+    cable_diameter_m: (m,) cable diameters, m (default :data:`DEFAULT_CABLE_DIAMETER_M`).
+    cable_drag_coefficient: (m,) constant cross-flow drag coefficients; NaN (the default) means
+      the cylinder's CD(Re) of :func:`cdpr.analysis.windage.cylinder_drag_coefficient`.
+    cable_EA_N: (m,) axial stiffness E*A, N (default :data:`DEFAULT_CABLE_EA_N`).
+    platform_drag_area_m2: CD*A of the bare platform in the flow, m^2 (default 0: inside the model).
     """
 
     name: str
@@ -86,6 +104,10 @@ class Rig:
     assumptions: Mapping[str, str] = field(default_factory=dict)
     description: str = ""
     source: str = "<memory>"
+    cable_diameter_m: Any = None
+    cable_drag_coefficient: Any = None
+    cable_EA_N: Any = None
+    platform_drag_area_m2: float = 0.0
 
     def __post_init__(self) -> None:
         src = self.source
@@ -154,6 +176,45 @@ class Rig:
             arr("rig.reference_euler_rad", self.reference_euler_rad, (3,)),
         )
         object.__setattr__(self, "assumptions", dict(self.assumptions))
+
+        def per_cable(key: str, value: Any, default: float, allow_nan: bool = False) -> FloatArray:
+            v = np.broadcast_to(np.asarray(default if value is None else value, dtype=float), (m,))
+            a = np.array(v, dtype=np.float64)
+            ok = np.isfinite(a) & (a > 0)
+            if allow_nan:
+                ok |= np.isnan(a)
+            bad_i = np.flatnonzero(~ok)
+            if bad_i.size:
+                raise ConfigError(
+                    src, f"cables[{bad_i[0]}].{key}", f"must be > 0, got {a[bad_i[0]]}"
+                )
+            return _frozen(a, (m,))
+
+        try:
+            object.__setattr__(
+                self,
+                "cable_diameter_m",
+                per_cable("diameter_m", self.cable_diameter_m, DEFAULT_CABLE_DIAMETER_M),
+            )
+            object.__setattr__(
+                self,
+                "cable_drag_coefficient",
+                per_cable("drag_coefficient", self.cable_drag_coefficient, math.nan, True),
+            )
+            object.__setattr__(
+                self, "cable_EA_N", per_cable("EA_N", self.cable_EA_N, DEFAULT_CABLE_EA_N)
+            )
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(
+                src, "cables", f"bad diameter_m, drag_coefficient or EA_N: {exc}"
+            ) from None
+        try:
+            cda = float(self.platform_drag_area_m2)
+        except (TypeError, ValueError):
+            raise ConfigError(src, "platform.windage_drag_area_m2", "expected a number") from None
+        if not math.isfinite(cda) or cda < 0:
+            raise ConfigError(src, "platform.windage_drag_area_m2", f"must be >= 0 m^2, got {cda}")
+        object.__setattr__(self, "platform_drag_area_m2", cda)
         # A cable of zero length at the reference pose cannot define a direction.
         from .kinematics import cable_vectors
         from .rotations import rotation_from_euler
@@ -216,6 +277,16 @@ def rig_to_mapping(rig: Rig) -> dict[str, Any]:
             for i in range(rig.n_cables)
         ],
     }
+    # the optional windage and stiffness keys are written only where they differ from the default
+    for i, cab in enumerate(out["cables"]):
+        if rig.cable_diameter_m[i] != DEFAULT_CABLE_DIAMETER_M:
+            cab["diameter_m"] = float(rig.cable_diameter_m[i])
+        if not math.isnan(rig.cable_drag_coefficient[i]):
+            cab["drag_coefficient"] = float(rig.cable_drag_coefficient[i])
+        if rig.cable_EA_N[i] != DEFAULT_CABLE_EA_N:
+            cab["EA_N"] = float(rig.cable_EA_N[i])
+    if rig.platform_drag_area_m2 != 0.0:
+        out["platform"]["windage_drag_area_m2"] = rig.platform_drag_area_m2
     if rig.description:
         out["rig"]["description"] = rig.description
     if rig.assumptions:

@@ -29,9 +29,12 @@ Mass properties
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 from .rig import Rig
+
+FloatArray = NDArray[np.float64]
 
 CUBIC_DEFAULTS = {
     "L_m": 2.0,
@@ -54,6 +57,25 @@ FLAT_DEFAULTS = {
     "model_length_m": 0.3776,
 }
 """The paper's flat-rig values (Fig. 4, Table 3) plus the SDM model length used for its inertia."""
+
+
+def box_inertia(mass_kg: ArrayLike, l_m: ArrayLike, w_m: ArrayLike, h_m: ArrayLike) -> FloatArray:
+    """Inertia (..., 3, 3) about its centre of a uniform solid box l (x) by w (y) by h (z), kg m^2."""
+    m, l, w, h = np.broadcast_arrays(
+        *(np.asarray(v, dtype=np.float64) for v in (mass_kg, l_m, w_m, h_m))
+    )
+    out = np.zeros(m.shape + (3, 3))
+    out[..., 0, 0] = m / 12.0 * (w**2 + h**2)
+    out[..., 1, 1] = m / 12.0 * (l**2 + h**2)
+    out[..., 2, 2] = m / 12.0 * (l**2 + w**2)
+    return out
+
+
+def rod_inertia(mass_kg: float, length_m: float) -> FloatArray:
+    """Inertia (3, 3) of the flat rig's platform + model: a uniform rod of ``length_m`` along x
+    (``Iyy = Izz = m L^2 / 12``), ``Ixx`` 5 % of that, about its centre, kg m^2."""
+    Iyy = mass_kg * length_m**2 / 12.0
+    return np.diag([Iyy * 0.05, Iyy, Iyy])
 
 
 def cubic_rig(
@@ -95,7 +117,7 @@ def cubic_rig(
             + ("_back" if sx > 0 else "_front")
             + ("_left" if sy > 0 else "_right")
         )
-    inertia = mass_kg / 12.0 * np.diag([w**2 + h**2, l**2 + h**2, l**2 + w**2])
+    inertia = box_inertia(mass_kg, l, w, h)
     return Rig(
         name=name or f"cubic-k{k1:g}-{k2:g}-{k3:g}",
         description="Cubic-platform rig of the paper's Fig. 3",
@@ -158,7 +180,6 @@ def flat_rig(
                 anchors.append([x_anchor, sy * half_base, z])
                 attach.append([x_p, sy * half_plat, 0.0])
                 names.append(f"{side}_{lr}_{tb}")
-    Iyy = mass_kg * model_length_m**2 / 12.0
     return Rig(
         name=name or f"flat-K21_{K21:g}-K22_{K22:g}-H{H_m:g}-X{X_m:g}",
         description="Flat-platform rig of the paper's Fig. 4 / Table 3",
@@ -167,7 +188,7 @@ def flat_rig(
         attach_P_m=np.array(attach),
         mass_kg=mass_kg,
         com_P_m=np.zeros(3),
-        inertia_P_kgm2=np.diag([Iyy * 0.05, Iyy, Iyy]),
+        inertia_P_kgm2=rod_inertia(mass_kg, model_length_m),
         t_min_N=np.full(8, t_min_N),
         t_max_N=np.full(8, t_max_N),
         reference_position_O_m=np.array([X_m, 0.0, 0.5 * H_m]),

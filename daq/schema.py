@@ -14,6 +14,7 @@ the project's naming convention; the rig file's schema is here too (:class:`RigF
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from typing import Annotated, Any, TypeVar
@@ -23,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cdpr.analysis.conventions import GRAVITY_O_MPS2
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.rig import Rig
+from cdpr.analysis.rig import DEFAULT_CABLE_DIAMETER_M, DEFAULT_CABLE_EA_N, Rig
 
 from .files import load_toml
 
@@ -137,10 +138,17 @@ class RigSection(Schema):
     reference_euler_rad: Euler_rad = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
+Diameter_m = Annotated[float, _bounded(0.0, 1.0, gt=True)]
+DragCoefficient = Annotated[float, _bounded(0.0, 100.0, gt=True)]
+Stiffness_N = Annotated[float, _bounded(0.0, 1e12, gt=True)]
+Area_m2 = Annotated[float, _bounded(0.0, 1e3)]
+
+
 class PlatformSection(Schema):
     mass_kg: Mass_kg
     com_P_m: Vec3_m = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     inertia_P_kgm2: Inertia3_kgm2 = Field(default_factory=lambda: [[0.0] * 3 for _ in range(3)])
+    windage_drag_area_m2: Area_m2 = 0.0
 
 
 class CableSection(Schema):
@@ -149,6 +157,9 @@ class CableSection(Schema):
     attach_P_m: Vec3_m
     t_min_N: Tension_N
     t_max_N: Tension_N
+    diameter_m: Diameter_m | None = None
+    drag_coefficient: DragCoefficient | None = None
+    EA_N: Stiffness_N | None = None
 
 
 class RigFile(Schema):
@@ -184,7 +195,16 @@ def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
         reference_euler_rad=np.array(f.rig.reference_euler_rad),
         assumptions={k: str(v) for k, v in f.assumptions.items()},
         source=source,
+        cable_diameter_m=_per_cable([c.diameter_m for c in cables], DEFAULT_CABLE_DIAMETER_M),
+        cable_drag_coefficient=_per_cable([c.drag_coefficient for c in cables], math.nan),
+        cable_EA_N=_per_cable([c.EA_N for c in cables], DEFAULT_CABLE_EA_N),
+        platform_drag_area_m2=f.platform.windage_drag_area_m2,
     )
+
+
+def _per_cable(values: list[float | None], default: float) -> np.ndarray:
+    """Optional per-cable numbers: ``default`` where a cable does not give one."""
+    return np.array([default if v is None else v for v in values], dtype=np.float64)
 
 
 def load_rig(path: str | os.PathLike[str]) -> Rig:

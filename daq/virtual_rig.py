@@ -47,10 +47,13 @@ from numpy.typing import NDArray
 
 from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.flow import sutherland_viscosity
 from cdpr.analysis.kinematics import structure_matrix
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
+from cdpr.analysis.test_section import SectionGeometry
+from cdpr.analysis.windage import windage_of_rig
 
 from .aero_model import AeroModel
 from .files import atomic_output, load_toml
@@ -94,8 +97,10 @@ class VirtualRig:
         schedule: Schedule,
         aero: AeroModel | None = None,
         seed: int | None = None,
+        section: SectionGeometry | None = None,
     ) -> None:
         self.rig = rig
+        self.section = section  # the test section: cable drag is on when given
         self.schedule = schedule
         self.aero = aero if aero is not None else schedule.aero
         self.seed = schedule.seed if seed is None else int(seed)
@@ -115,6 +120,27 @@ class VirtualRig:
         self._compute_truth(rng)
 
     # -- physics ---------------------------------------------------------------------------
+    def _cable_drag_O(self, pos: FloatArray, R: FloatArray, wind: FloatArray) -> FloatArray:
+        """Cable (and platform) windage at P in {O} (n, 6), N and N m: zero without a section.
+
+        The one hook of the cable drag: :func:`cdpr.analysis.windage.windage_of_rig` (the rig's
+        cable diameters and drag coefficients) with the aero model's p and T.  The wrench does
+        not depend on the tensions (only the cables' turn angles do), so no iteration is needed.
+        """
+        if self.section is None:
+            return np.zeros((pos.shape[0], 6))
+        rig, aero = self.rig, self.aero
+        return windage_of_rig(
+            rig,
+            self.section,
+            pos,
+            R,
+            np.ones((pos.shape[0], rig.n_cables)),
+            wind,
+            aero.air_density(aero.static_pressure_Pa, aero.temperature_K),
+            sutherland_viscosity(aero.temperature_K),
+        ).wrench_N
+
     def _state_at(
         self, t_s: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]:
@@ -146,17 +172,20 @@ class VirtualRig:
         R_O_P: FloatArray,
         airspeed_mps: FloatArray,
         model_on: NDArray[np.bool_],
-    ) -> tuple[FloatArray, FloatArray]:
-        """The loads on the platform at P in {O} (each (n, 6), N and N m): ``(W_aero, G)``.
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The loads on the platform at P in {O} (each (n, 6), N and N m): ``(W_aero, G, D)``.
 
         W_aero: the model's aero wrench at the airspeed (zero where ``model_on`` is False: a
-        model-off windage point); G: gravity of platform + model from the rig file.  The cables
-        carry ``A T = -(G + W_aero)``.  Every load the twin simulates is added here.
+        model-off windage point); G: gravity of platform + model from the rig file; D: the
+        cable (and platform) windage from :meth:`_cable_drag_O` (zero without a test section;
+        present on model-off points too, which is what a measured windage tare sees).  The
+        cables carry ``A T = -(G + W_aero + D)``.  Every load the twin simulates is added here.
         """
         rig = self.rig
         W = self.aero.wrench_O(airspeed_mps, R_O_P) * model_on[:, None]
         G = gravity_wrench(rig.mass_kg, rig.com_P_m, R_O_P, rig.gravity_O_mps2)
-        return W, G
+        D = self._cable_drag_O(position_O_m, R_O_P, airspeed_mps)
+        return W, G, D
 
     def _compute_truth(self, rng: np.random.Generator) -> None:
         sch, rig, sens = self.schedule, self.rig, self.schedule.sensor
@@ -172,8 +201,8 @@ class VirtualRig:
         inv = inv.reshape(-1)
         R_u = rotation_from_euler(uniq[:, 3:6])
         A_u = structure_matrix(rig.anchors_O_m, rig.attach_P_m, uniq[:, :3], R_u)
-        W_u, G_u = self.physics(uniq[:, :3], R_u, uniq[:, 6], uniq[:, 7] > 0.5)
-        res = distribute(sch.method, A_u, -(G_u + W_u), rig.t_min_N, rig.t_max_N)
+        W_u, G_u, D_u = self.physics(uniq[:, :3], R_u, uniq[:, 6], uniq[:, 7] > 0.5)
+        res = distribute(sch.method, A_u, -(G_u + W_u + D_u), rig.t_min_N, rig.t_max_N)
         bad = np.flatnonzero(~np.asarray(res.feasible))
         if bad.size:
             j = int(np.flatnonzero(inv == bad[0])[0])
@@ -192,6 +221,7 @@ class VirtualRig:
         self.segment_index = seg.astype(np.int64)
         self.wrench_aero_O = W_u[inv]
         self.wrench_gravity_O = G_u[inv]
+        self.wrench_cable_drag_O = D_u[inv]
         self.tensions_true_N = T_true
 
         # -- sensor model ------------------------------------------------------------------
@@ -267,7 +297,8 @@ class VirtualRig:
         """Ground truth arrays, one row per load-cell sample ``k`` (counter ``k % 256``, serial seq
         ``k``): ``t_rel_ns`` (n,), ``t_ns`` (n,, host epoch, -1 before start), ``position_O_m``
         (n, 3), ``euler_rad`` (n, 3), ``quaternion_wxyz`` (n, 4), ``wind_mps`` (n,),
-        ``wrench_aero_O`` (n, 6) and ``wrench_gravity_O`` (n, 6) at P in {O} (N, N m),
+        ``wrench_aero_O`` (n, 6), ``wrench_gravity_O`` (n, 6) and ``wrench_cable_drag_O`` (n, 6,
+        zero without a test section) at P in {O} (N, N m),
         ``tensions_true_N`` (n, m) physics, ``tensions_sensor_N`` (n, m) after noise/drift/faults
         before quantisation, ``counts`` (n, m), ``channel_status`` (n, m) bits 1 sat 2 slack
         4 fault, ``sent`` (n,) False in dropouts, ``port_up`` (n,), ``fault_code`` (n, m), segment
@@ -282,6 +313,7 @@ class VirtualRig:
             "segment_index": self.segment_index,
             "wrench_aero_O": self.wrench_aero_O,
             "wrench_gravity_O": self.wrench_gravity_O,
+            "wrench_cable_drag_O": self.wrench_cable_drag_O,
             "tensions_true_N": self.tensions_true_N,
             "tensions_sensor_N": self.tensions_sensor_N,
             "counts": self.counts,

@@ -49,14 +49,24 @@ from cdpr.daq.schema import rig_from_mapping
 from . import __version__
 from .config import file_sha256
 from .freshness import fingerprint, is_current
-from .reduce import ReduceSettings, points_table, reduce_points, reduction_stages, steps_log
+from .reduce import (
+    ReduceSettings,
+    correction_stages,
+    point_spectra,
+    points_table,
+    reduce_points,
+    reduction_stages,
+    steps_log,
+)
+from .tunnel_section import TunnelSection
 
 PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),) * 3)
 """The paper's camera precision (0.5 mm, 0.1 deg): the pose σ fallback, used only with a flag."""
 
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
-     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options"}
+     "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options",
+     "windage_tare", "wall_corrected"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -67,6 +77,9 @@ class AnalyzeOptions:
 
     geometry: the model's reference geometry (from the test matrix, or options: flagged); None:
         no coefficients (flag ``no_geometry`` on wind-on points).
+    corrections: run the correction stages (zero drift, flow conditions, windage, wall
+        corrections, repeatability; ``cdpr analyze --matrix``); tunnel: the matrix's ``[tunnel]``
+        (None: no windage model and no wall corrections, flagged); matrix_file: its path.
     pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
     balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
     """
@@ -76,6 +89,9 @@ class AnalyzeOptions:
     balance_file: str | None = None
     rule: SteadyRule = field(default_factory=SteadyRule)
     reduce: ReduceSettings = field(default_factory=ReduceSettings)
+    corrections: bool = False
+    tunnel: TunnelSection | None = None
+    matrix_file: str | None = None
 
 
 @dataclass
@@ -96,6 +112,8 @@ class RunData:
     events: list[tuple[int, dict[str, Any]]]
     truth: dict[str, np.ndarray] | None
     camera: bool = False
+    pressure_temperature: tuple[np.ndarray, np.ndarray] | None = None
+    """Static pressure (Pa) and temperature (K) on ``t_ns`` when the tunnel stream has them."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -229,6 +247,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
     bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
 
     tunnel = None
+    pressure_temperature: Any = None
     if tun is not None and len(tun):
         tt = tun["t_ns"].to_numpy(np.int64)
         v = _column(tun, "airspeed_mps")
@@ -248,6 +267,11 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
                 else np.full(len(t_ns), np.nan)
             )
             tunnel = (vi, ri)
+        pT = [_column(tun, k) for k in ("static_pressure_Pa", "temperature_K")]
+        if all(np.isfinite(x).any() for x in pT):
+            pressure_temperature = tuple(
+                interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in pT
+            )
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -284,20 +308,22 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
-                p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True
-            )
+                p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
+                pressure_temperature,
+            )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
         src = f"virtual-rig truth ({truth_path.name}); no camera stream in the run"
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth,
+            events, truth, False, pressure_temperature,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
-        np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth,
+        np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
+        pressure_temperature,
     )  # fmt: skip
 
 
@@ -374,6 +400,29 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
     )
 
 
+def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
+    """Per-point inputs of the correction stages: ``temperature_K`` and ``static_pressure_Pa``
+    (means over each point, NaN without them in the tunnel stream) and ``repeat_group`` (the index
+    of the point a point repeats, else its own)."""
+    from cdpr.analysis.balance import point_stats
+
+    s = len(plan.ranges)
+    out: dict[str, np.ndarray] = {}
+    for k, key in enumerate(("static_pressure_Pa", "temperature_K")):
+        if run.pressure_temperature is None:
+            out[key] = np.full(s, np.nan)
+        else:
+            v = run.pressure_temperature[k]
+            out[key] = point_stats(v, plan.ranges, run.mask_bits).mean[:, 0]
+    first = {lab: i for i, lab in reversed(list(enumerate(plan.labels)))}
+    rep = plan.targets.get("repeat_of", [""] * s)
+    out["repeat_group"] = np.array(
+        [first.get(str(r), i) if isinstance(r, str) and r else i for i, r in enumerate(rep)],
+        dtype=np.int64,
+    )
+    return out
+
+
 def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
     """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
     model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
@@ -429,7 +478,7 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
         pose_sd_fallback=fallback,
         pose_bad=run.pose_bad,
     )
-    from cdpr.analysis.reduction import flags_from_masks
+    from cdpr.analysis.reduction import flags_from_masks, with_updates
 
     run_words = []
     if not run.camera:
@@ -439,7 +488,21 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
     words = [";".join(filter(None, [f, *run_words])) for f in plan.flags]
     pts = flags_from_masks(pts, words=words)
     K, second = read_balance_calibration(opts.balance_file)
-    stages = reduction_stages(rig, opts.geometry, opts.reduce, interaction=K, second_order=second)
+    corr = None
+    spectra = None
+    if opts.corrections:
+        pts = with_updates(pts, arrays=_correction_inputs(run, plan))
+        spectra = point_spectra(rig, run.t_ns, run.tensions_N, plan.ranges, pts["pose"])
+        corr = correction_stages(
+            rig,
+            opts.geometry,
+            opts.tunnel,
+            wind_off_mps=opts.reduce.wind_off_mps,
+            spectra=spectra,
+        )
+    stages = reduction_stages(
+        rig, opts.geometry, opts.reduce, interaction=K, second_order=second, extra=corr
+    )
     out = reduce_points(pts, stages)
     if opts.geometry is None:
         on = np.isin(out["kind"], ("wind_on", "unknown"))
@@ -498,6 +561,10 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
             "left_to_prior": list(wm.weak),
         },
         "lines": _warning_lines(run, plan, warn_words),
+        "_spectra": spectra,
+        "corrections": list(out.meta.get("corrections", []))
+        if opts.corrections
+        else "not applied (no test matrix given: cdpr analyze --matrix)",
     }
     return df, info
 
@@ -642,6 +709,29 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax.legend(fontsize=7, ncol=5, loc="upper left")
 
 
+def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> None:
+    """``spectrum.png``: the tension spectra of the fastest wind-on point with the rig's modes
+    at its pose marked (when the spectrum check ran)."""
+    from .report import spectrum_figure
+
+    if spectra is None:
+        return
+    on = np.flatnonzero((df["kind"] == "wind_on").to_numpy())
+    on = [i for i in on if spectra.freqs_Hz[i].size]
+    if not on:
+        return
+    i = max(on, key=lambda k: np.nan_to_num(df["airspeed_mps"].iloc[k]))
+    spectrum_figure(
+        folder / "spectrum.png",
+        spectra.freqs_Hz[i],
+        spectra.psd[i],
+        run.rig.cable_names,
+        spectra.modes_Hz[i],
+        f"Tension spectra of point {df['point'].iloc[i]} "
+        f"({df['airspeed_mps'].iloc[i]:.2f} m/s) with the rig's modes at its pose",
+    )
+
+
 def _fmt(v: float, sd: float) -> str:
     return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
 
@@ -698,6 +788,7 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
     if "max_abs_error_vs_truth" in summary:
         errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
+    lines += _corrections_section(df, red)
     lines += ["", "Stages of the reduction:", ""]
     for st in red["stages"]:
         note = f": {st['note']}" if st["note"] else ""
@@ -714,8 +805,45 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
         "![check](check.png)",
         "",
+        *(["![spectrum](spectrum.png)", ""] if "lowest_mode_Hz" in df else []),
     ]
     return "\n".join(lines)
+
+
+def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
+    """The report's corrections: every record (name, source, values, flags) and per wind-on point
+    the size of each correction, the corrected beside the uncorrected coefficients, Re and Mach."""
+    recs = red.get("corrections")
+    if not isinstance(recs, list):
+        return ["", f"Corrections: {recs}."]
+    lines = ["", "## Corrections", ""]
+    for r in recs:
+        flags = f" — flags: {', '.join(r['flags'])}" if r["flags"] else ""
+        lines.append(f"- **{r['name']}** ({r['source']}){flags}")
+    on = df[df.kind == "wind_on"]
+    if on.empty or "corrections" not in on:
+        return lines
+    cols = [
+        ("point", "point", ""), ("V", "airspeed_mps", ".2f"), ("Re", "reynolds", ".3g"),
+        ("Mach", "mach", ".4f"), ("drift max (N)", "zero_drift_max_abs_N", ".4f"),
+        ("windage", "windage_source", ""), ("windage Fx (N)", "windage_fx_N", ".4f"),
+        ("CL", "CL", ".4f"), ("CL corr.", "CL_corrected", ".4f"), ("CD", "CD", ".5f"),
+        ("CD corr.", "CD_corrected", ".5f"), ("Cm", "Cm", ".5f"), ("Cm corr.", "Cm_corrected", ".5f"),
+        ("σ CL", "sd_CL", ".2g"), ("σ_repeat CL", "sd_repeat_CL", ".2g"),
+    ]  # fmt: skip
+    cols = [c for c in cols if c[1] in on]
+    lines += ["", "| " + " | ".join(c[0] for c in cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in on.iterrows():
+        cells = []
+        for _, key, f in cols:
+            v = r[key]
+            cells.append(
+                str(v) if not f else ("–" if not np.isfinite(float(v)) else format(float(v), f))
+            )
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Per point, what was applied and its source (the `corrections` column):", ""]
+    lines += [f"- {r.point}: {r.corrections or 'none'}" for r in on.itertuples()]
+    return lines
 
 
 def _options_json(opts: AnalyzeOptions) -> Any:
@@ -726,11 +854,12 @@ def _options_json(opts: AnalyzeOptions) -> Any:
 
 def run_fingerprint(path: str, opts: AnalyzeOptions) -> dict[str, Any]:
     """The input fingerprint of one run's analysis (:mod:`cdpr.pipelines.freshness`): the run
-    file, the balance calibration, the virtual rig's truth file beside the run (absent is recorded
-    too), the options and the software version."""
+    file, the balance calibration, the test matrix, the virtual rig's truth file beside the run
+    (absent is recorded too), the options and the software version."""
     p = Path(path)
     truth = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
-    return fingerprint(p, _options_json(opts), __version__, [opts.balance_file, truth])
+    inputs = [opts.balance_file, opts.matrix_file, truth]
+    return fingerprint(p, _options_json(opts), __version__, inputs)
 
 
 def result_folder(path: str, out_dir: str) -> Path:
@@ -772,7 +901,7 @@ def analyze_run(
             "points": len(df),
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
-            "reduction": red,
+            "reduction": {k: v for k, v in red.items() if k != "_spectra"},
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:
@@ -785,6 +914,7 @@ def analyze_run(
         df.to_csv(tmp / "points.csv", index=False)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
+        _spectrum_plot(run, df, red.get("_spectra"), tmp)
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
             shutil.rmtree(final)

@@ -61,12 +61,22 @@ from cdpr.analysis.rotations import euler_from_rotation
 from cdpr.daq.files import load_toml
 from cdpr.daq.virtual_rig import Schedule, schedule_from_mapping
 
+from .tunnel_section import TunnelSection, tunnel_section_from_mapping
+
 KINDS = ("wind_on", "tare", "zero", "windage")
 WIND_OFF_KINDS = ("tare", "zero")
 
-_TOP = {"campaign", "model", "defaults", "points", "virtual_rig"}
+_TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig"}
 _CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
 _MODEL = {"name", "area_m2", "span_m", "chord_m", "mrp_P_m", "volume_m3"}
+_MODEL_WALLS = {
+    "blockage_K3",
+    "wing_volume_m3",
+    "wing_K1",
+    "reference_area_m2",
+    "lift_slope_per_rad",
+}
+"""[model] keys the wall corrections read (:mod:`cdpr.pipelines.tunnel_section`), with [tunnel]."""
 _DEFAULTS = {"duration_s", "transition_s", "position_O_m"}
 _POINT = {
     "label",
@@ -139,6 +149,9 @@ class TestMatrix:
     camera: Path | None = None
     markers: Path | None = None
     virtual_rig: Mapping[str, Any] = field(default_factory=dict)
+    tunnel: TunnelSection | None = None
+    """The ``[tunnel]`` table with the wall-correction keys of ``[model]`` (None: no test section
+    given: no wall corrections and no windage model, said by the reduction's flags)."""
 
     def point(self, label: str) -> TestPoint:
         for p in self.points:
@@ -221,7 +234,7 @@ def _fmt(x: float) -> str:
 def model_geometry_from_mapping(data: Any, src: str) -> ModelGeometry:
     """The ``[model]`` table of a test matrix (also as attached to a run by ``cdpr simulate
     --campaign``: ``campaign/<file>.toml``), checked; errors name ``src`` and ``model.<key>``."""
-    mod = _table(src, "model", data, _MODEL)
+    mod = _table(src, "model", data, _MODEL | _MODEL_WALLS)
     for k in ("area_m2", "span_m", "chord_m", "mrp_P_m"):
         if k not in mod:
             raise ConfigError(src, f"model.{k}", "missing")
@@ -261,6 +274,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
     if "model" not in data:
         raise ConfigError(src, "model", "missing [model] table")
     model = model_geometry_from_mapping(data["model"], src)
+    tunnel = _tunnel(data, src, model)
 
     dft = _table(src, "defaults", data.get("defaults", {}), _DEFAULTS)
     dft_dur = _num(src, "defaults.duration_s", dft.get("duration_s", 1.0), 0.0, True)
@@ -338,8 +352,29 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         model=model,
         points=points,
         virtual_rig=dict(vrig),
+        tunnel=tunnel,
         **optional,
     )
+
+
+def _tunnel(data: Mapping[str, Any], src: str, model: ModelGeometry) -> TunnelSection | None:
+    """The ``[tunnel]`` table (None without one).  The wall corrections' reference area is the
+    model's ``area_m2`` (``reference_area_m2`` may repeat it, never contradict it); span and chord
+    are the model's."""
+    if "tunnel" not in data:
+        extra = sorted(set(data["model"]) & _MODEL_WALLS)
+        if extra:
+            raise ConfigError(
+                src, f"model.{extra[0]}", "a wall-correction key needs a [tunnel] table"
+            )
+        return None
+    mod = dict(data["model"])
+    ref = mod.setdefault("reference_area_m2", model.area_m2)
+    if ref != model.area_m2:
+        raise ConfigError(
+            src, "model.reference_area_m2", f"{ref} contradicts model.area_m2 = {model.area_m2}"
+        )
+    return tunnel_section_from_mapping({**data, "model": mod}, src)
 
 
 def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint]) -> None:

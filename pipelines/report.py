@@ -224,9 +224,15 @@ def _groups(d: pd.DataFrame, keys: list[str]) -> list[tuple[tuple[Any, ...], pd.
     return [((k,) if not isinstance(k, tuple) else k, g) for k, g in groups]
 
 
-def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Figure]:
+def sweep_figures(
+    table: CampaignTable,
+    out_dir: str | os.PathLike[str],
+    reference: pd.DataFrame | None = None,
+) -> list[Figure]:
     """The sweep plots of the wind-on points (PNG files in ``out_dir``); a plot whose sweep does
-    not exist in the data (no sideslip sweep) is not drawn."""
+    not exist in the data (no sideslip sweep) is not drawn.  ``reference``
+    (:func:`read_reference_polars`) is drawn beside the measured polars (black, one line per
+    source and speed)."""
     import matplotlib
 
     out = Path(out_dir)
@@ -256,6 +262,7 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
                 for (beta, v), g in alpha_sweeps:
                     lab = f"{v:g} m/s" + (f", sideslip {beta:g} deg" if beta != 0 else "")
                     _series(ax, g, x, y, lab, color.get(v, "0.4"))
+                _reference_lines(ax, reference, x, y)
                 ax.set_xlabel(xl)
                 ax.set_ylabel(yl)
                 ax.set_title(f"{title}\n({note})", fontsize=9)
@@ -280,6 +287,17 @@ def sweep_figures(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list
             axes[-1, 0].set_xlabel("sideslip (deg)")
         figs.append(_figure(path, "Lateral coefficients CY, Cl, Cn - sideslip"))
     return figs
+
+
+def _reference_lines(ax: Any, ref: pd.DataFrame | None, x: str, y: str) -> None:
+    """Reference polars on an aoa or drag-polar plot (x ``aoa_deg`` or ``CL``)."""
+    if ref is None or y not in ref.columns or x not in ref.columns:
+        return
+    styles = ("-", "--", ":", "-.")
+    for k, ((src, v), g) in enumerate(ref.groupby(["source", "airspeed_mps"], dropna=False)):
+        g = g.sort_values("aoa_deg")
+        lab = f"reference {src}" + ("" if not np.isfinite(v) else f" {v:g} m/s")
+        ax.plot(g[x].to_numpy(), g[y].to_numpy(), styles[k % 4], color="k", lw=1.2, label=lab)
 
 
 def envelope(
@@ -376,6 +394,234 @@ def tension_figure(
 
 
 # --------------------------------------------------------------------------------------------
+# the corrections (issue 13): windage tare and its fit, corrected beside uncorrected, q/Re/Mach,
+# repeatability beside the propagated sigma
+# --------------------------------------------------------------------------------------------
+CORRECTION_COLUMNS = (
+    "run", "point", "target_airspeed_mps", "aoa_deg", "q_Pa", "reynolds", "mach",
+    "CL", "CL_corrected", "sd_CL", "sd_repeat_CL", "CD", "CD_corrected", "sd_CD", "sd_repeat_CD",
+    "Cm", "Cm_corrected", "sd_Cm", "sd_repeat_Cm", "zero_drift_max_abs_N", "windage_source",
+    "windage_fx_N",
+)  # fmt: skip
+"""The campaign table's correction view: one row per wind-on point (columns that exist)."""
+_WINDAGE_SHOWN = (("fx_N", "Fx (N)"), ("fz_N", "Fz (N)"), ("my_Nm", "My (N m)"))
+
+
+def _windage_points(df: pd.DataFrame) -> pd.DataFrame:
+    if "windage_tare_fx_N" not in df.columns:
+        return df.iloc[0:0]
+    d = df[(df["kind"] == "windage") & np.isfinite(df["windage_tare_fx_N"].astype(float))]
+    speed = d["target_airspeed_mps"].where(d["target_airspeed_mps"].notna(), d["airspeed_mps"])
+    return d.assign(speed_mps=speed.round(2))
+
+
+def windage_figure(table: CampaignTable, out_dir: str | os.PathLike[str]) -> Figure | None:
+    """The measured windage tare (model-off wind-on points, markers), its fit per speed (line),
+    the model beside it (dashed, when the matrix has a [tunnel]) and the fit residuals, against
+    aoa; None without windage points."""
+    import matplotlib
+
+    d = _windage_points(table.df)
+    if d.empty:
+        return None
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "windage_tare.png"
+    speeds = sorted(d["speed_mps"].unique())
+    cmap = matplotlib.colormaps["viridis"]
+    with png_figure(path, 2, 3, size=(11.0, 6.4), sharex=True, height_ratios=[2, 1]) as (_, ax):
+        for j, (c, label) in enumerate(_WINDAGE_SHOWN):
+            for i, v in enumerate(speeds):
+                g = d[d["speed_mps"] == v].sort_values("aoa_deg")
+                col = cmap(0.1 + 0.8 * i / max(1, len(speeds) - 1))
+                x = g["aoa_deg"].to_numpy(float)
+                ax[0, j].errorbar(
+                    x, g[c].to_numpy(float), yerr=SIGMA_BARS * g[f"sd_{c}"].to_numpy(float),
+                    fmt="o", color=col, capsize=3, label=f"{v:g} m/s measured",
+                )  # fmt: skip
+                ax[0, j].plot(x, g[f"windage_tare_{c}"].to_numpy(float), "-", color=col,
+                              label=f"{v:g} m/s fit")  # fmt: skip
+                if np.isfinite(g[f"windage_model_{c}"].astype(float)).any():
+                    ax[0, j].plot(x, g[f"windage_model_{c}"].to_numpy(float), "--", color=col,
+                                  lw=0.9, label=f"{v:g} m/s model")  # fmt: skip
+                res = (g[c] - g[f"windage_tare_{c}"]).to_numpy(float)
+                ax[1, j].plot(x, res, "o-", color=col, ms=4)
+            ax[0, j].set_title(f"windage tare {label}", fontsize=9)
+            ax[1, j].axhline(0.0, color="0.5", lw=0.8)
+            ax[1, j].set_xlabel("aoa (deg)")
+            ax[1, j].set_ylabel(f"residual {label}")
+            for a in ax[:, j]:
+                a.grid(True, alpha=0.3)
+        ax[0, 0].legend(fontsize=6, ncol=1)
+    return _figure(path, "Windage tare (model-off points), its fit per speed and the residuals")
+
+
+def windage_fit_table(df: pd.DataFrame) -> pd.DataFrame | None:
+    """Per run and speed: the windage points, the largest tare and the RMS fit residual of
+    Fx, Fz, My, and the model's Fx beside the measured one (mean over the points)."""
+    d = _windage_points(df)
+    if d.empty:
+        return None
+    rows = []
+    for (run, v), g in d.groupby(["run", "speed_mps"], sort=True):
+        row: dict[str, Any] = {"run": run, "speed_mps": v, "points": len(g)}
+        row["max_abs_tare_fx_N"] = float(np.abs(g["windage_tare_fx_N"]).max())
+        for c, _ in _WINDAGE_SHOWN:
+            row[f"rms_residual_{c}"] = float(np.sqrt(np.mean((g[c] - g[f"windage_tare_{c}"]) ** 2)))
+        row["mean_measured_fx_N"] = float(g["fx_N"].mean())
+        row["mean_model_fx_N"] = float(g["windage_model_fx_N"].astype(float).mean())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def repeatability_table(df: pd.DataFrame) -> pd.DataFrame | None:
+    """Per run: the measured repeatability σ of each coefficient beside the propagated σ (RMS over
+    the repeat points) and their ratio; None when no run has repeat points."""
+    rows = []
+    for run, g in df[df["kind"] == WIND_ON].groupby("run", sort=False):
+        for c in COEFFS:
+            if f"sd_repeat_{c}" not in g.columns:
+                continue
+            rep = g[f"sd_repeat_{c}"].astype(float).dropna()
+            if rep.empty:
+                continue
+            prop = float(g[f"sd_propagated_{c}"].astype(float).dropna().iloc[0])
+            r = float(rep.iloc[0])
+            rows.append(
+                {"run": run, "coefficient": c, "sd_repeat": r, "sd_propagated": prop,
+                 "ratio": r / prop if prop > 0 else float("nan")}
+            )  # fmt: skip
+    return pd.DataFrame(rows) if rows else None
+
+
+def correction_sections(df: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    """The report's correction tables (only those the data has)."""
+    out: list[tuple[str, pd.DataFrame]] = []
+    on = df[df["kind"] == WIND_ON]
+    if "corrections" in on.columns and len(on):
+        cols = [c for c in CORRECTION_COLUMNS if c in on.columns]
+        shown = on[cols].copy()
+        if "windage_source" in shown:
+            w = shown["windage_source"]
+            shown["windage_source"] = w.astype(object).where(w.notna(), "").astype(str)
+        out.append(
+            ("Corrections per point: q, Re, Mach, corrected beside uncorrected, "
+             "repeatability σ beside the propagated σ", shown)
+        )  # fmt: skip
+        text = on["corrections"].astype(object).where(on["corrections"].notna(), "none")
+        out.append(
+            ("Every correction applied per point, its size and its source",
+             on[["run", "point"]].assign(corrections=text.astype(str)))
+        )  # fmt: skip
+    w = windage_fit_table(df)
+    if w is not None:
+        out.append(("Windage tare fit per speed (residuals of the model-off points)", w))
+    r = repeatability_table(df)
+    if r is not None:
+        out.append(("Repeatability: measured σ beside the propagated σ", r))
+    return out
+
+
+def spectrum_figure(
+    path: str | os.PathLike[str],
+    freqs_Hz: NDArray[np.float64],
+    psd: NDArray[np.float64],
+    cable_names: Sequence[str],
+    modes_Hz: NDArray[np.float64],
+    title: str,
+) -> Figure:
+    """The power spectrum of every tension of one point (``psd`` (m, nf), N^2/Hz) with the rig's
+    natural frequencies at the point's pose marked (dashed lines, labelled in Hz)."""
+    import matplotlib
+
+    p = Path(path)
+    with png_figure(p, size=(9.0, 4.6)) as (_, axes):
+        ax = axes[0, 0]
+        colors = matplotlib.colormaps["tab10"]
+        for j, name in enumerate(cable_names):
+            ax.semilogy(freqs_Hz[1:], psd[j, 1:], lw=0.8, color=colors(j % 10), label=name)
+        for k, f in enumerate(np.asarray(modes_Hz, dtype=np.float64)):
+            if np.isfinite(f):
+                ax.axvline(f, color="k", ls="--", lw=0.8)
+                ax.text(f, 0.98 - 0.06 * (k % 2), f" mode {k + 1}: {f:.1f} Hz",
+                        transform=ax.get_xaxis_transform(), fontsize=7, va="top")  # fmt: skip
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("tension PSD (N²/Hz)")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6, ncol=4, loc="lower left")
+    return _figure(p, title)
+
+
+# --------------------------------------------------------------------------------------------
+# reference polars (CFD or another facility) beside the measured ones
+# --------------------------------------------------------------------------------------------
+REFERENCE_COEFFS = ("CL", "CD", "Cm")
+
+
+def read_reference_polars(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """A reference polar CSV: ``aoa_deg`` and at least one of ``CL, CD, Cm`` (finite numbers),
+    optional ``airspeed_mps`` (one polar per speed; without it one polar for every speed) and
+    ``source`` (a label, default the file name).  Errors name the file, the row and the column."""
+    p = str(path)
+    df = read_table(p, ("aoa_deg",), "reference polar")
+    have = [c for c in REFERENCE_COEFFS if c in df.columns]
+    if not have:
+        raise ConfigError(p, "columns", f"expected at least one of {list(REFERENCE_COEFFS)}")
+    for c in (*have, *(["airspeed_mps"] if "airspeed_mps" in df.columns else [])):
+        num = pd.to_numeric(df[c], errors="coerce")
+        bad = np.flatnonzero(~np.isfinite(num.to_numpy(dtype=np.float64)))
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(
+                p, f"row {i + 2}, column {c}", f"expected a finite number, got {df[c].iloc[i]!r}"
+            )
+        df[c] = num.astype(np.float64)
+    if "airspeed_mps" not in df.columns:
+        df["airspeed_mps"] = np.nan
+    src = df["source"].astype(str) if "source" in df.columns else Path(p).stem
+    return df.assign(source=src)
+
+
+def _reference_at(ref: pd.DataFrame, speed: float, aoa_deg: NDArray[np.float64], c: str) -> Any:
+    """The reference coefficient ``c`` at ``aoa_deg``, linear in aoa within the polar of the
+    speed (within 3 %) or the speed-free polar; NaN outside its aoa range or without a polar."""
+    sp = ref["airspeed_mps"].to_numpy(dtype=np.float64)
+    sel = np.isfinite(sp) & (np.abs(sp - speed) <= 0.03 * speed)
+    if not sel.any():
+        sel = ~np.isfinite(sp)
+    r = ref[sel & ref[c].notna().to_numpy()].sort_values("aoa_deg") if c in ref else ref.iloc[0:0]
+    if len(r) < 2:
+        return np.full(np.shape(aoa_deg), np.nan)
+    x, y = r["aoa_deg"].to_numpy(dtype=np.float64), r[c].to_numpy(dtype=np.float64)
+    return np.interp(aoa_deg, x, y, left=np.nan, right=np.nan)
+
+
+def reference_differences(df: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame:
+    """Per wind-on point: measured (wall-corrected where the table has it, else uncorrected),
+    reference at the same aoa and speed, and their difference, for each reference coefficient."""
+    on = df[df["kind"] == WIND_ON]
+    rows = []
+    for r in on.itertuples():
+        speed = r.target_airspeed_mps if np.isfinite(r.target_airspeed_mps) else r.airspeed_mps
+        row: dict[str, Any] = {"run": r.run, "point": r.point, "airspeed_mps": speed}
+        corrected = "aoa_corrected_rad" in on.columns and np.isfinite(
+            float(getattr(r, "aoa_corrected_rad", np.nan))
+        )
+        aoa = np.degrees(r.aoa_corrected_rad) if corrected else r.aoa_deg
+        row["aoa_deg"] = aoa
+        row["measured"] = "corrected" if corrected else "uncorrected"
+        for c in REFERENCE_COEFFS:
+            if c not in ref.columns:
+                continue
+            m = float(getattr(r, f"{c}_corrected")) if corrected else float(getattr(r, c))
+            v = float(_reference_at(ref, float(speed), np.array(aoa), c))
+            row.update({c: m, f"{c}_reference": v, f"d{c}": m - v})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# --------------------------------------------------------------------------------------------
 # reports
 # --------------------------------------------------------------------------------------------
 SUMMARY_COLUMNS = (
@@ -437,6 +683,7 @@ class ReportContent:
     figures: list[Figure]
     provenance: Mapping[str, str]
     truth: pd.DataFrame | None = None
+    sections: list[tuple[str, pd.DataFrame]] = field(default_factory=list)
 
 
 def report_content(
@@ -475,7 +722,9 @@ def report_content(
         )
     cols = [c for c in SUMMARY_COLUMNS if c in df.columns]
     shown = df[cols].assign(warnings=table.warning_words())
-    return ReportContent(title, warnings, shown, figures, dict(provenance), truth_table(df))
+    return ReportContent(
+        title, warnings, shown, figures, dict(provenance), truth_table(df), correction_sections(df)
+    )
 
 
 def html_report(rc: ReportContent) -> str:
@@ -500,6 +749,9 @@ def html_report(rc: ReportContent) -> str:
     if rc.truth is not None:
         parts.append("<h2>Recovered minus true wrench (virtual rig truth)</h2>")
         parts.append(_html_table(rc.truth, None))
+    for head, t in rc.sections:
+        parts.append(f"<h2>{html.escape(head)}</h2>")
+        parts.append(_html_table(t, None))
     parts.append("<h2>Test points</h2>")
     parts.append(_html_table(rc.table, "warnings"))
     parts.append("<h2>Provenance</h2><ul>")
@@ -521,6 +773,8 @@ def markdown_report(rc: ReportContent) -> str:
     out += [f"![{f.title}]({f.name})" for f in rc.figures] + [""]
     if rc.truth is not None:
         out += ["## Recovered minus true wrench", "", _md_table(rc.truth), ""]
+    for head, t in rc.sections:
+        out += [f"## {head}", "", _md_table(t), ""]
     out += ["## Test points", "", _md_table(rc.table), "", "## Provenance", ""]
     out += [f"- {k}: `{v}`" for k, v in rc.provenance.items()]
     return "\n".join(out) + "\n"

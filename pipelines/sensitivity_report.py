@@ -1,787 +1,79 @@
-"""The paper's force-sensitivity study (Figs. 6-15, Table 3), its CSV tables, plots and report.
+"""The paper's force-sensitivity study (Figs. 6-15, Table 3): its CSV tables, plots and report.
 
-Everything the paper leaves open is an option of :class:`StudyOptions` with a documented default
-(``OPTION_DOCS``); a TOML file with the sections ``[cubic]``, ``[flat]``, ``[aero]`` and ``[study]``
-overrides any of them (:func:`options_from_toml`).  :func:`run_study` computes every sweep with the
-batched :mod:`cdpr.analysis.sensitivity` and writes into one folder:
+:func:`run_study` runs the study (:mod:`.sensitivity_study`, options in
+:mod:`.sensitivity_options`, figures in :mod:`.sensitivity_plots`) and writes into one folder:
 
 - ``cubic_k_grid.csv`` (the 960-case study), ``cubic_Z.csv``, ``cubic_deflection.csv``,
-  ``flat_table3_sweeps.csv``, ``flat_table3_grid.csv``, ``singular_scan.csv``;
-- ``fig06..fig15_*.png`` in the paper's style and ``singular_*.png``;
-- ``report.md``: each of the paper's conclusions next to ours, agrees / differs and why.
+  ``flat_table3_sweeps.csv``, ``flat_table3_grid.csv``, ``singular_scan.csv``,
+  ``stiffness_optimum.csv``;
+- ``fig06..fig15_*.png`` in the paper's style, ``singular_*.png`` and ``stiffness_*.png``;
+- ``report.md``: each of the paper's conclusions next to ours, agrees / differs and why, and the
+  paper's optimum's natural frequencies beside its sensitivity.
+
+The names other modules used from here before the split are re-exported below.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from cdpr.analysis import sensitivity as sens
-from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.tension import METHODS
 
-from .config import atomic_output, load_toml, write_table
-from .plotting import png_figure as _figure
-
-PAPER_FORCES_N = (19.041, 32.183, 48.327, 60.949, 70.043, 75.706)
-PAPER_SPEEDS_MPS = (17.27, 25.51, 41.42)
-
-
-def _arange(a: float, b: float, step: float) -> tuple[float, ...]:
-    n = int(round((b - a) / step))
-    return tuple(float(round(a + i * step, 6)) for i in range(n + 1))
-
-
-@dataclass
-class CubicOptions:
-    """Cubic rig (paper Fig. 3) and its studies (Figs. 6-11)."""
-
-    L_m: float = 2.0
-    W_m: float = 1.2
-    H_m: float = 1.4
-    mass_kg: float = 5.0
-    t_min_N: float = 35.0
-    t_max_N: float = 1000.0
-    layout: str = "crossed"
-    k1_values: tuple[float, ...] = (0.1, 0.15, 0.2, 0.3, 0.4)
-    k2_values: tuple[float, ...] = (0.075, 0.1, 0.15, 0.2, 0.3)
-    k3_values: tuple[float, ...] = (0.025, 0.05, 0.075, 0.1, 0.15)
-    forces_N: tuple[float, ...] = PAPER_FORCES_N
-    baseline_k: tuple[float, float, float] = (0.15, 0.075, 0.075)
-    Z_values_m: tuple[float, ...] = _arange(0.3, 1.1, 0.05)
-    deflection_values_m: tuple[float, ...] = _arange(-0.3, 0.3, 0.025)
-    methods: tuple[str, ...] = ("penalty", "exact")
-
-
-@dataclass
-class FlatOptions:
-    """Flat rig (paper Fig. 4) and its Table 3 study (Figs. 12-15)."""
-
-    L_m: float = 1.0
-    l_m: float = 0.03
-    w1_m: float = 0.01
-    w2_m: float = 0.04
-    mass_kg: float = 0.64
-    t_min_N: float = 35.0
-    t_max_N: float = 300.0
-    K21_values: tuple[float, ...] = _arange(46, 96, 5)
-    K22_values: tuple[float, ...] = _arange(25, 55, 3)
-    H_values_m: tuple[float, ...] = _arange(0.52, 0.92, 0.05)
-    X_values_m: tuple[float, ...] = _arange(0.5, 0.95, 0.05)
-    baseline: tuple[float, float, float, float] = (51.0, 28.0, 0.67, 0.5)
-    methods: tuple[str, ...] = ("penalty", "improved-closed-form")
-    full_grid: bool = True
-
-
-@dataclass
-class AeroOptions:
-    """The flat study's external wrench: an SDM-like model, coefficients in {O} axes."""
-
-    speeds_mps: tuple[float, ...] = PAPER_SPEEDS_MPS
-    max_speed_mps: float = 51.0
-    rho_kgpm3: float = 1.225
-    S_ref_m2: float = 0.0199
-    span_m: float = 0.2441
-    chord_m: float = 0.0815
-    coefficients: tuple[float, ...] = (0.08, 0.02, 0.45, 0.01, -0.05, 0.01)
-
-
-@dataclass
-class MetricOptions:
-    """Metrics beyond the paper."""
-
-    sigma_T_N: float = 0.2
-    margin_method: str = "exact"
-    near_singular_condition: float = 1e3
-
-
-@dataclass
-class StudyOptions:
-    """All options of the study; see ``OPTION_DOCS`` for what each one means and why."""
-
-    cubic: CubicOptions = field(default_factory=CubicOptions)
-    flat: FlatOptions = field(default_factory=FlatOptions)
-    aero: AeroOptions = field(default_factory=AeroOptions)
-    study: MetricOptions = field(default_factory=MetricOptions)
-
-
-OPTION_DOCS: dict[str, str] = {
-    "cubic.L_m, W_m, H_m": "frame 2 x 1.2 x 1.4 m (paper)",
-    "cubic.mass_kg, t_min_N, t_max_N": "5 kg, 35 N, 1000 N (paper)",
-    "cubic.layout": "cable layout of Fig. 3 (not given by the paper): 'crossed' (default, bottom "
-    "cables to the opposite y side) or 'cube' (every corner to its own frame corner); see "
-    "cdpr.analysis.rigs",
-    "cubic.k1_values, k2_values, k3_values": "the grid standing in for the missing Tables 1-2: "
-    "k1 in {0.1, 0.15, 0.2, 0.3, 0.4}, k2 in {0.075, 0.1, 0.15, 0.2, 0.3}, k3 in {0.025, 0.05, "
-    "0.075, 0.1, 0.15} with 0.025 <= k3 <= k2 <= k1 <= 0.4 (eq. 13): 80 geometries x 6 forces x 2 "
-    "directions = 960 cases; it contains every value the paper names",
-    "cubic.forces_N": "19.041 ... 75.706 N (paper), applied at P along x and along y",
-    "cubic.baseline_k": "(0.15, 0.075, 0.075), the paper's optimum, used by the Z and deflection "
-    "studies",
-    "cubic.Z_values_m": "0.3 ... 1.1 m step 0.05 (Figs. 8-9)",
-    "cubic.deflection_values_m": "-0.3 ... 0.3 m step 0.025 (Figs. 10-11): Fig. 10 a force along "
-    "y applied at (d, 0, 0) from P (moment Mz = d Fy), Fig. 11 a force along x applied at "
-    "(0, d, 0) (Mz = -d Fx)",
-    "cubic.methods": "tension distribution methods (the paper does not say which one the cubic "
-    "study used): 'penalty' (the paper's, min |T - Tmin|) and 'exact' (min |T - Tmid|)",
-    "flat.*": "L = 1 m, l = 0.03 m, w1 = 0.01 m, w2 = 0.04 m, 0.64 kg, 35-300 N, Table 3 values "
-    "(paper); baseline (K21, K22, H, X) = (51, 28, 0.67 m, 0.5 m) for the one-at-a-time sweeps; "
-    "full_grid also evaluates all 11 x 11 x 9 x 10 Table 3 combinations",
-    "flat.methods": "'penalty' and 'improved-closed-form', as the paper compares them",
-    "aero.*": "the flat study's wrench (not given by the paper): W = q S_ref [C_Fx, C_Fy, C_Fz, "
-    "b C_Mx, c C_My, b C_Mz] with q = rho V^2 / 2, rho = 1.225 kg/m^3, S_ref = 0.0199 m^2 (span "
-    "0.2441 m squared over an aspect ratio of 3), chord 0.0815 m = S_ref / span, coefficients in "
-    "{O} axes (drag +x, lift +z) typical of the SDM at about 8 deg angle of attack and 2 deg "
-    "sideslip: (0.08, 0.02, 0.45, 0.01, -0.05, 0.01); speeds 17.27, 25.51, 41.42 m/s (paper); the "
-    "feasibility margin covers 0 ... 51 m/s (the tunnel's range) and the mirrored sideslip",
-    "study.sigma_T_N": "load-cell noise (1 sigma per reading, N) for the wrench uncertainty; the "
-    "tare method reads twice, so the covariance is A (2 sigma^2 I) A^T",
-    "study.margin_method": "method whose tensions define the feasibility margin",
-    "study.near_singular_condition": "condition number above which a configuration is reported "
-    "as near-singular",
-}
-
-
-# ------------------------------------------------------------------------------------ options
-
-
-def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(source, key, f"expected true or false, got {value!r}")
-        return value
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(source, key, f"expected a string, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, list | tuple) or not value:
-            raise ConfigError(source, key, f"expected a non-empty list, got {value!r}")
-        if isinstance(default[0], str):
-            if not all(isinstance(v, str) for v in value):
-                raise ConfigError(source, key, f"expected a list of strings, got {value!r}")
-            return tuple(value)
-        out = []
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ConfigError(source, key, f"expected finite numbers, got {v!r}")
-            out.append(float(v))
-        return tuple(out)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(source, key, f"expected a finite number, got {value!r}")
-    return float(value)
-
-
-def options_from_mapping(data: Mapping[str, Any], source: str = "<options>") -> StudyOptions:
-    """Defaults overridden by a mapping ``{section: {key: value}}``; unknown keys are errors."""
-    opts = StudyOptions()
-    for sec, body in data.items():
-        if sec not in ("cubic", "flat", "aero", "study"):
-            raise ConfigError(source, sec, "unknown section (allowed: cubic, flat, aero, study)")
-        if not isinstance(body, Mapping):
-            raise ConfigError(source, sec, "expected a table")
-        target = getattr(opts, sec)
-        names = {f.name for f in dataclasses.fields(target)}
-        for key, value in body.items():
-            if key not in names:
-                raise ConfigError(source, f"{sec}.{key}", f"unknown key (allowed: {sorted(names)})")
-            setattr(target, key, _coerce(source, f"{sec}.{key}", value, getattr(target, key)))
-    validate_options(opts, source)
-    return opts
-
-
-def options_from_toml(path: str) -> StudyOptions:
-    """Load study options from a TOML file (sections cubic, flat, aero, study)."""
-    return options_from_mapping(load_toml(path), source=str(path))
-
-
-def validate_options(o: StudyOptions, source: str = "<options>") -> None:
-    """Check every option's range; a :class:`ConfigError` names the option and the problem."""
-
-    def need(ok: bool, key: str, problem: str) -> None:
-        if not ok:
-            raise ConfigError(source, key, problem)
-
-    c, f, a, s = o.cubic, o.flat, o.aero, o.study
-    for key in ("L_m", "W_m", "H_m", "mass_kg"):
-        need(getattr(c, key) > 0, f"cubic.{key}", f"expected > 0, got {getattr(c, key)}")
-    need(0 <= c.t_min_N < c.t_max_N, "cubic.t_min_N", "expected 0 <= t_min_N < t_max_N")
-    need(c.layout in sens.CUBIC_LAYOUTS, "cubic.layout", f"expected one of {sens.CUBIC_LAYOUTS}")
-    for key in ("k1_values", "k2_values", "k3_values"):
-        v = getattr(c, key)
-        need(
-            all(0.025 <= k <= 0.4 for k in v),
-            f"cubic.{key}",
-            f"expected values in [0.025, 0.4] (paper eq. 13), got {list(v)}",
-        )
-    need(
-        len(tuple(_cubic_grid(c))) > 0,
-        "cubic.k1_values",
-        "no (k1, k2, k3) of the grids satisfies k3 <= k2 <= k1",
-    )
-    need(len(c.baseline_k) == 3, "cubic.baseline_k", "expected 3 values (k1, k2, k3)")
-    k1, k2, k3 = c.baseline_k
-    need(
-        0.025 <= k3 <= k2 <= k1 <= 0.4,
-        "cubic.baseline_k",
-        f"expected 0.025 <= k3 <= k2 <= k1 <= 0.4, got {tuple(c.baseline_k)}",
-    )
-    need(all(x > 0 for x in c.forces_N), "cubic.forces_N", "expected forces > 0 N")
-    half = 0.5 * k3 * c.H_m
-    need(
-        all(half < z < c.H_m - half for z in c.Z_values_m),
-        "cubic.Z_values_m",
-        f"expected {half:g} < Z < {c.H_m - half:g} m (platform inside the frame)",
-    )
-    need(
-        all(abs(d) <= 0.5 * min(c.L_m, c.W_m) for d in c.deflection_values_m),
-        "cubic.deflection_values_m",
-        f"expected |d| <= {0.5 * min(c.L_m, c.W_m):g} m (inside the frame)",
-    )
-    for key in ("L_m", "l_m", "w1_m", "w2_m", "mass_kg"):
-        need(getattr(f, key) > 0, f"flat.{key}", f"expected > 0, got {getattr(f, key)}")
-    need(0 <= f.t_min_N < f.t_max_N, "flat.t_min_N", "expected 0 <= t_min_N < t_max_N")
-    need(all(k > 1 for k in f.K21_values), "flat.K21_values", "expected K21 > 1")
-    need(all(k > 1 for k in f.K22_values), "flat.K22_values", "expected K22 > 1")
-    need(all(h > 0 for h in f.H_values_m), "flat.H_values_m", "expected H > 0 m")
-    need(
-        all(f.l_m / 2 < x < f.L_m - f.l_m / 2 for x in f.X_values_m),
-        "flat.X_values_m",
-        f"expected {f.l_m / 2:g} < X < {f.L_m - f.l_m / 2:g} m (inside the frame)",
-    )
-    need(len(f.baseline) == 4, "flat.baseline", "expected 4 values (K21, K22, H, X)")
-    b21, b22, bH, bX = f.baseline
-    need(b21 > 1 and b22 > 1, "flat.baseline", "expected K21, K22 > 1")
-    need(bH > 0, "flat.baseline", "expected H > 0")
-    need(f.l_m / 2 < bX < f.L_m - f.l_m / 2, "flat.baseline", "expected X inside the frame")
-    need(all(v > 0 for v in a.speeds_mps), "aero.speeds_mps", "expected speeds > 0 m/s")
-    need(a.max_speed_mps > 0, "aero.max_speed_mps", "expected > 0 m/s")
-    for key in ("rho_kgpm3", "S_ref_m2", "span_m", "chord_m"):
-        need(getattr(a, key) > 0, f"aero.{key}", f"expected > 0, got {getattr(a, key)}")
-    need(len(a.coefficients) == 6, "aero.coefficients", "expected 6 coefficients")
-    for key, methods in (("cubic.methods", c.methods), ("flat.methods", f.methods)):
-        bad = [m for m in methods if m not in METHODS]
-        need(not bad, key, f"unknown method {bad} (known: {sorted(METHODS)})")
-    need(s.margin_method in METHODS, "study.margin_method", f"expected one of {sorted(METHODS)}")
-    need(s.sigma_T_N >= 0, "study.sigma_T_N", "expected >= 0 N")
-    need(s.near_singular_condition > 1, "study.near_singular_condition", "expected > 1")
-
-
-def _cubic_grid(c: CubicOptions) -> Iterator[tuple[float, float, float]]:
-    for k1 in c.k1_values:
-        for k2 in c.k2_values:
-            for k3 in c.k3_values:
-                if k3 <= k2 <= k1:
-                    yield (k1, k2, k3)
-
-
-# ------------------------------------------------------------------------------------ studies
-
-
-Progress = Callable[[str, int], Callable[[int], None]]
-
-
-def _no_progress(label: str, total: int) -> Callable[[int], None]:
-    return lambda n: None
-
-
-def cubic_loads(forces_N: Sequence[float]) -> tuple[np.ndarray, list[str], np.ndarray]:
-    """The cubic study's load cases (12, 6): each force along x, then along y; labels; magnitudes."""
-    F = np.asarray(forces_N, dtype=np.float64)
-    W = np.zeros((2, len(F), 6))
-    W[0, :, 0] = F
-    W[1, :, 1] = F
-    return W.reshape(-1, 6), ["x"] * len(F) + ["y"] * len(F), np.concatenate([F, F])
-
-
-def flat_loads(a: AeroOptions, speeds: Sequence[float]) -> np.ndarray:
-    """The flat study's aerodynamic wrenches (k, 6) at the given airspeeds."""
-    return sens.aero_wrench(
-        np.asarray(speeds, dtype=np.float64),
-        np.asarray(a.coefficients),
-        rho_kgpm3=a.rho_kgpm3,
-        S_ref_m2=a.S_ref_m2,
-        span_m=a.span_m,
-        chord_m=a.chord_m,
-    )
-
-
-def flat_margin_loads(a: AeroOptions) -> np.ndarray:
-    """Load cases of the flat feasibility margin: 0 ... max speed, both sideslip signs."""
-    V = np.linspace(0.0, a.max_speed_mps, 7)[1:]
-    C = np.asarray(a.coefficients)
-    mirror = C * np.array([1, -1, 1, -1, 1, -1])
-    kw = {"rho_kgpm3": a.rho_kgpm3, "S_ref_m2": a.S_ref_m2, "span_m": a.span_m}
-    return np.concatenate(
-        [
-            sens.aero_wrench(V, C, chord_m=a.chord_m, **kw),
-            sens.aero_wrench(V, mirror, chord_m=a.chord_m, **kw),
-        ]
-    )
-
-
-def _metrics_frame(
-    A: np.ndarray,
-    G: np.ndarray,
-    loads: np.ndarray,
-    t_min: float,
-    t_max: float,
-    o: StudyOptions,
-) -> pd.DataFrame:
-    """Per-configuration metrics the paper lacks, for A (n, 6, m)."""
-    sv = sens.singular_value_metrics(A)
-    std = sens.wrench_std(A, o.study.sigma_T_N, tare=True)
-    margin = sens.feasibility_margin(A, G, loads, t_min, t_max, o.study.margin_method)
-    df = pd.DataFrame(
-        {
-            "condition": sv.condition,
-            "sigma_min": sv.sigma_min,
-            "sigma_max": sv.sigma_max,
-            "dW_per_dT_min": sv.sigma_min,
-            "dW_per_dT_max": sv.sigma_max,
-            "margin_N": margin,
-        }
-    )
-    for j, name in enumerate(("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz_Nm")):
-        df[f"std_{name}"] = std[:, j]
-    return df
-
-
-def _require_holdable(
-    res: sens.SensitivityResult,
-    sweep: str,
-    keys: str,
-    source: str,
-    method: str,
-    singular_keys: str | None = None,
-) -> None:
-    ok = res.feasible_wind_off & ~res.singular
-    if np.all(res.singular):
-        raise ConfigError(
-            source,
-            singular_keys or keys,
-            f"{sweep}: the structure matrix is singular at every configuration of the sweep "
-            "(for instance the 'cube' layout with two equal ratios at mid-height, or k1 = k3 in "
-            "the 'crossed' layout); choose other ratios or another cubic.layout",
-        )
-    if not np.any(ok):
-        n_sing = int(np.sum(res.singular))
-        raise ConfigError(
-            source,
-            keys,
-            f"{sweep}: the rig cannot hold its platform against gravity ({method}) at any "
-            f"configuration of the sweep ({n_sing} of {res.singular.size} singular); check the "
-            "mass, the tension limits and the geometry",
-        )
-
-
-def _require_loaded_holdable(grid: pd.DataFrame, o: StudyOptions, source: str) -> None:
-    """The report compares optima at the largest cubic force: some non-singular configuration
-    must hold it (per method and direction), else a one-line error naming ``cubic.forces_N``."""
-    Fmax = max(o.cubic.forces_N)
-    for method in o.cubic.methods:
-        for d in ("x", "y"):
-            g = grid[(grid.method == method) & (grid.direction == d) & (grid.force_N == Fmax)]
-            if not ((g.singular == 0) & (g.feasible == 1)).any():
-                raise ConfigError(
-                    source,
-                    "cubic.forces_N",
-                    f"no configuration of the cubic k grid holds the largest load, {Fmax:g} N "
-                    f"along {d} ({method}), within [{o.cubic.t_min_N:g}, {o.cubic.t_max_N:g}] N; "
-                    "lower the force or widen the tension limits",
-                )
-
-
-def run_cubic(o: StudyOptions, progress: Progress = _no_progress, source: str = "options") -> dict:
-    """The cubic-rig studies: the 960-case k grid (Figs. 6-7), Z (Figs. 8-9), deflection (10-11)."""
-    c = o.cubic
-    G = sens.gravity_load(c.mass_kg)
-    W, dirs, mags = cubic_loads(c.forces_N)
-    geo_kw = {"L_m": c.L_m, "W_m": c.W_m, "H_m": c.H_m, "layout": c.layout}
-    grid = np.array(list(_cubic_grid(c)))
-    A = sens.structure_matrices(sens.cubic_geometry(grid[:, 0], grid[:, 1], grid[:, 2], **geo_kw))
-    margin_loads = np.concatenate([W, -W])
-    metrics = _metrics_frame(A, G, margin_loads, c.t_min_N, c.t_max_N, o)
-    out: dict[str, Any] = {"grid": [], "Z": [], "deflection": []}
-    tick = progress("cubic rig: k grid, Z, deflection", 3 * len(c.methods))
-    timings = {}
-    for method in c.methods:
-        t0 = time.perf_counter()
-        res = sens.sensitivity(A[:, None], W, G, c.t_min_N, c.t_max_N, method)
-        timings[method] = time.perf_counter() - t0
-        _require_holdable(res, "cubic k grid", "cubic.mass_kg", source, method, "cubic.k1_values")
-        n, k = res.S_N.shape
-        df = pd.DataFrame(
-            {
-                "method": method,
-                "k1": np.repeat(grid[:, 0], k),
-                "k2": np.repeat(grid[:, 1], k),
-                "k3": np.repeat(grid[:, 2], k),
-                "Z_m": 0.5 * c.H_m,
-                "direction": np.tile(dirs, n),
-                "force_N": np.tile(mags, n),
-                "S_N": res.S_N.ravel(),
-                "feasible": res.feasible.ravel().astype(int),
-                "singular": res.singular.ravel().astype(int),
-            }
-        )
-        df = pd.concat([df, metrics.loc[np.repeat(np.arange(n), k)].reset_index(drop=True)], axis=1)
-        out["grid"].append(df)
-        tick(1)
-        # Z study at the baseline k.
-        Z = np.asarray(c.Z_values_m)
-        k1, k2, k3 = c.baseline_k
-        AZ = sens.structure_matrices(sens.cubic_geometry(k1, k2, k3, Z_m=Z, **geo_kw))
-        rz = sens.sensitivity(AZ[:, None], W, G, c.t_min_N, c.t_max_N, method)
-        _require_holdable(
-            rz, "cubic Z sweep", "cubic.Z_values_m", source, method, "cubic.baseline_k"
-        )
-        out["Z"].append(
-            pd.DataFrame(
-                {
-                    "method": method,
-                    "Z_m": np.repeat(Z, len(W)),
-                    "direction": np.tile(dirs, len(Z)),
-                    "force_N": np.tile(mags, len(Z)),
-                    "S_N": rz.S_N.ravel(),
-                    "feasible": rz.feasible.ravel().astype(int),
-                    "singular": rz.singular.ravel().astype(int),
-                }
-            )
-        )
-        tick(1)
-        # Deflection study: Fig. 10 force along y applied at (d, 0, 0); Fig. 11 along x at (0, d, 0).
-        d = np.asarray(c.deflection_values_m)
-        F = np.asarray(c.forces_N)
-        Wd = np.zeros((2, len(d), len(F), 6))
-        Wd[0, :, :, 1] = F
-        Wd[0, :, :, 5] = d[:, None] * F
-        Wd[1, :, :, 0] = F
-        Wd[1, :, :, 5] = -d[:, None] * F
-        A0 = sens.structure_matrices(sens.cubic_geometry(k1, k2, k3, **geo_kw))
-        rd = sens.sensitivity(A0, Wd, G, c.t_min_N, c.t_max_N, method)
-        _require_holdable(rd, "cubic deflection sweep", "cubic.baseline_k", source, method)
-        fig = np.array(["fig10_force_y_offset_x", "fig11_force_x_offset_y"])
-        out["deflection"].append(
-            pd.DataFrame(
-                {
-                    "method": method,
-                    "case": np.repeat(fig, len(d) * len(F)),
-                    "direction": np.repeat(np.array(["y", "x"]), len(d) * len(F)),
-                    "deflection_m": np.tile(np.repeat(d, len(F)), 2),
-                    "force_N": np.tile(F, 2 * len(d)),
-                    "S_N": rd.S_N.ravel(),
-                    "feasible": rd.feasible.ravel().astype(int),
-                }
-            )
-        )
-        tick(1)
-    return {
-        "grid": pd.concat(out["grid"], ignore_index=True),
-        "Z": pd.concat(out["Z"], ignore_index=True),
-        "deflection": pd.concat(out["deflection"], ignore_index=True),
-        "timings_s": timings,
-        "n_geometries": len(grid),
-    }
-
-
-def _flat_eval(
-    o: StudyOptions, K21: np.ndarray, K22: np.ndarray, H: np.ndarray, X: np.ndarray, method: str
-) -> sens.SensitivityResult:
-    f = o.flat
-    A = sens.structure_matrices(
-        sens.flat_geometry(K21, K22, H, X, L_m=f.L_m, l_m=f.l_m, w1_m=f.w1_m, w2_m=f.w2_m)
-    )
-    W = flat_loads(o.aero, o.aero.speeds_mps)
-    return sens.sensitivity(
-        A[:, None], W, sens.gravity_load(f.mass_kg), f.t_min_N, f.t_max_N, method
-    )
-
-
-def run_flat(o: StudyOptions, progress: Progress = _no_progress, source: str = "options") -> dict:
-    """The flat-rig Table 3 study: one-at-a-time sweeps (Figs. 12-15) and the full grid."""
-    f = o.flat
-    b = np.asarray(f.baseline, dtype=np.float64)
-    params = (
-        ("K21", f.K21_values, "fig12"),
-        ("K22", f.K22_values, "fig13"),
-        ("H_m", f.H_values_m, "fig14"),
-        ("X_m", f.X_values_m, "fig15"),
-    )
-    speeds = np.asarray(o.aero.speeds_mps)
-    rows = []
-    tick = progress("flat rig: Table 3 sweeps", len(params) * len(f.methods))
-    for j, (name, values, _fig) in enumerate(params):
-        cfg = np.tile(b, (len(values), 1))
-        cfg[:, j] = values
-        for method in f.methods:
-            res = _flat_eval(o, cfg[:, 0], cfg[:, 1], cfg[:, 2], cfg[:, 3], method)
-            _require_holdable(res, f"flat {name} sweep", f"flat.{name}_values", source, method)
-            for s_i, V in enumerate(speeds):
-                rows.append(
-                    pd.DataFrame(
-                        {
-                            "parameter": name,
-                            "value": np.asarray(values),
-                            "K21": cfg[:, 0],
-                            "K22": cfg[:, 1],
-                            "H_m": cfg[:, 2],
-                            "X_m": cfg[:, 3],
-                            "method": method,
-                            "speed_mps": V,
-                            "S_N": res.S_N[:, s_i],
-                            "feasible": res.feasible[:, s_i].astype(int),
-                            "singular": res.singular[:, s_i].astype(int),
-                        }
-                    )
-                )
-            tick(1)
-    out: dict[str, Any] = {"sweeps": pd.concat(rows, ignore_index=True)}
-    if f.full_grid:
-        g = np.array(
-            np.meshgrid(f.K21_values, f.K22_values, f.H_values_m, f.X_values_m, indexing="ij")
-        ).reshape(4, -1)
-        df = pd.DataFrame({"K21": g[0], "K22": g[1], "H_m": g[2], "X_m": g[3]})
-        chunk = 2048
-        n = g.shape[1]
-        tick = progress("flat rig: full Table 3 grid", n * len(f.methods))
-        cols: dict[str, list[np.ndarray]] = {}
-        mets = []
-        G = sens.gravity_load(f.mass_kg)
-        mloads = flat_margin_loads(o.aero)
-        for s in range(0, n, chunk):
-            sl = slice(s, min(n, s + chunk))
-            A = sens.structure_matrices(
-                sens.flat_geometry(
-                    g[0, sl], g[1, sl], g[2, sl], g[3, sl],
-                    L_m=f.L_m, l_m=f.l_m, w1_m=f.w1_m, w2_m=f.w2_m,
-                )
-            )  # fmt: skip
-            mets.append(_metrics_frame(A, G, mloads, f.t_min_N, f.t_max_N, o))
-            for method in f.methods:
-                res = sens.sensitivity(
-                    A[:, None], flat_loads(o.aero, speeds), G, f.t_min_N, f.t_max_N, method
-                )
-                for s_i, V in enumerate(speeds):
-                    cols.setdefault(f"S_{method}_{V:g}mps_N", []).append(res.S_N[:, s_i])
-                    cols.setdefault(f"feasible_{method}_{V:g}mps", []).append(
-                        res.feasible[:, s_i].astype(int)
-                    )
-                tick(sl.stop - sl.start)
-        for k, v in cols.items():
-            df[k] = np.concatenate(v)
-        out["grid"] = pd.concat([df, pd.concat(mets, ignore_index=True)], axis=1)
-    return out
-
-
-def singular_scan(o: StudyOptions) -> pd.DataFrame:
-    """S, sigma_min and the condition number as a configuration approaches a singular one.
-
-    ``crossed`` layout: k1 = k2 = 0.15, k3 -> k1 from below (singular at k1 = k3).  ``cube``
-    layout: k1 = 0.15, k3 = 0.075, k2 -> k3 from above (singular at k2 = k3: the paper's optimum).
-    Loads: the largest force along x and along y, and pure moments of 0.1 m times it about x, y, z.
-    """
-    c = o.cubic
-    G = sens.gravity_load(c.mass_kg)
-    F = max(c.forces_N)
-    loads = {
-        "Fx": [F, 0, 0, 0, 0, 0],
-        "Fy": [0, F, 0, 0, 0, 0],
-        "Mx": [0, 0, 0, F * 0.1, 0, 0],
-        "My": [0, 0, 0, 0, F * 0.1, 0],
-        "Mz": [0, 0, 0, 0, 0, F * 0.1],
-    }
-    W = np.array(list(loads.values()), dtype=np.float64)
-    gap = np.geomspace(0.05, 1e-7, 25)
-    rows = []
-    for layout in sens.CUBIC_LAYOUTS:
-        if layout == "crossed":
-            k1, k2, k3 = 0.15, 0.15, 0.15 - gap
-            what = "k3 -> k1 = k2 = 0.15"
-        else:
-            k1, k2, k3 = 0.15, 0.075 + gap, 0.075
-            what = "k2 -> k3 = 0.075 (k1 = 0.15)"
-        A = sens.structure_matrices(
-            sens.cubic_geometry(k1, k2, k3, L_m=c.L_m, W_m=c.W_m, H_m=c.H_m, layout=layout)
-        )
-        sv = sens.singular_value_metrics(A)
-        res = sens.sensitivity(A[:, None], W, G, c.t_min_N, c.t_max_N, "exact")
-        for j, name in enumerate(loads):
-            rows.append(
-                pd.DataFrame(
-                    {
-                        "layout": layout,
-                        "approach": what,
-                        "k1": k1,
-                        "k2": np.broadcast_to(k2, gap.shape),
-                        "k3": np.broadcast_to(k3, gap.shape),
-                        "gap": gap,
-                        "load": name,
-                        "S_N": res.S_N[:, j],
-                        "sigma_min": sv.sigma_min,
-                        "condition": sv.condition,
-                        "singular": res.singular[:, j].astype(int),
-                        "feasible": res.feasible[:, j].astype(int),
-                    }
-                )
-            )
-    return pd.concat(rows, ignore_index=True)
-
-
-# ------------------------------------------------------------------------------------ plots
-
-
-_MARKERS = "os^vD<>ph*"
-
-
-def _plot_lines(ax: Any, x: Sequence[float], series: dict[str, np.ndarray], **kw: Any) -> None:
-    for i, (label, y) in enumerate(series.items()):
-        ax.plot(x, y, marker=_MARKERS[i % len(_MARKERS)], ms=4, lw=1.2, label=label, **kw)
-
-
-def _by_force(piv: pd.DataFrame) -> dict[str, np.ndarray]:
-    """The columns of a pivot table whose columns are forces (N), labelled ``"<F> N"``."""
-    return {f"{F:g} N": piv[F].values for F in piv.columns}
-
-
-def _force_lines_figure(path: Path, piv: pd.DataFrame, xlabel: str, title: str) -> None:
-    """One panel: S (N) against the pivot's index, one line per force column."""
-    with _figure(path) as (fig, axes):
-        ax = axes[0, 0]
-        _plot_lines(ax, piv.index, _by_force(piv))
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("S (N)")
-        ax.set_title(title, fontsize=9)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-
-
-def plot_cubic(cub: dict, out: Path, o: StudyOptions) -> list[str]:
-    """Figs. 6-11 for every cubic method; returns the file names."""
-    files = []
-    grid, Zdf, Ddf = cub["grid"], cub["Z"], cub["deflection"]
-    for method in o.cubic.methods:
-        for fig_no, d in (("06", "x"), ("07", "y")):
-            name = f"fig{fig_no}_cubic_S_vs_k_force_{d}_{method}.png"
-            g = grid[(grid.method == method) & (grid.direction == d) & (grid.singular == 0)]
-            # Same geometries on every line: those that hold every force of the study.
-            ok = g.groupby(["k1", "k2", "k3"]).feasible.transform("min") == 1
-            g = g[ok]
-            with _figure(out / name, 1, 3, (13, 4.2)) as (fig, axes):
-                for j, key in enumerate(("k1", "k2", "k3")):
-                    ax = axes[0, j]
-                    piv = g.groupby([key, "force_N"]).S_N.max().unstack()
-                    _plot_lines(ax, piv.index, _by_force(piv))
-                    ax.set_xlabel(key)
-                    ax.set_ylabel("S (N), max over the other ratios")
-                    ax.set_title(f"({j + 1}) S vs {key}, force along {d}")
-                    ax.grid(alpha=0.3)
-                axes[0, 0].legend(fontsize=7, title="force")
-                fig.suptitle(
-                    f"Cubic rig, {o.cubic.layout} layout, method {method}; geometries that hold "
-                    "every force of the study",
-                    fontsize=10,
-                )
-            files.append(name)
-        for fig_no, d in (("08", "x"), ("09", "y")):
-            name = f"fig{fig_no}_cubic_S_vs_Z_force_{d}_{method}.png"
-            z = Zdf[(Zdf.method == method) & (Zdf.direction == d)]
-            piv = z.pivot_table(index="Z_m", columns="force_N", values="S_N")
-            _force_lines_figure(
-                out / name,
-                piv,
-                "Z of the reference point P (m)",
-                f"Force along {d}, k = {o.cubic.baseline_k}, {method}",
-            )
-            files.append(name)
-        for fig_no, case, label in (
-            ("10", "fig10_force_y_offset_x", "force along y, offset along x"),
-            ("11", "fig11_force_x_offset_y", "force along x, offset along y"),
-        ):
-            name = f"fig{fig_no}_cubic_S_vs_deflection_{method}.png"
-            dd = Ddf[(Ddf.method == method) & (Ddf.case == case)]
-            piv = dd.pivot_table(index="deflection_m", columns="force_N", values="S_N")
-            _force_lines_figure(
-                out / name,
-                piv,
-                "deflection of the point of application from P (m)",
-                f"{label}, {method}",
-            )
-            files.append(name)
-    return files
-
-
-def plot_flat(flat: dict, out: Path, o: StudyOptions) -> list[str]:
-    """Figs. 12-15: S vs K21, K22, H, X for both methods at the three speeds."""
-    files = []
-    sw = flat["sweeps"]
-    labels = {"K21": "K21 (front base width / w1)", "K22": "K22 (back base width / w2)",
-              "H_m": "H, height of the base (m)", "X_m": "X of the reference point P (m)"}  # fmt: skip
-    for fig_no, p in (("12", "K21"), ("13", "K22"), ("14", "H_m"), ("15", "X_m")):
-        name = f"fig{fig_no}_flat_S_vs_{p}.png"
-        d = sw[sw.parameter == p]
-        with _figure(out / name) as (fig, axes):
-            ax = axes[0, 0]
-            for mi, method in enumerate(o.flat.methods):
-                for si, V in enumerate(o.aero.speeds_mps):
-                    e = d[(d.method == method) & (d.speed_mps == V)]
-                    ax.plot(
-                        e.value,
-                        e.S_N,
-                        marker=_MARKERS[si],
-                        ms=4,
-                        ls="-" if mi == 0 else "--",
-                        color=f"C{si}",
-                        label=f"{V:g} m/s, {method}",
-                    )
-                    bad = e[e.feasible == 0]
-                    ax.plot(bad.value, bad.S_N, ls="none", marker=_MARKERS[si], ms=8,
-                            mfc="white", mec=f"C{si}")  # fmt: skip
-            ax.set_xlabel(labels[p])
-            ax.set_ylabel("S (N)")
-            ax.set_yscale("log")
-            ax.set_title(
-                f"Flat rig, others at {tuple(o.flat.baseline)}; hollow: tensions infeasible",
-                fontsize=9,
-            )
-            ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=7)
-        files.append(name)
-    return files
-
-
-def plot_singular(scan: pd.DataFrame, out: Path) -> list[str]:
-    """S and sigma_min as k3 -> k1 = k2 = 0.15 for both layouts."""
-    name = "singular_approach.png"
-    with _figure(out / name, 1, 2, (12, 4.4)) as (fig, axes):
-        for i, layout in enumerate(sens.CUBIC_LAYOUTS):
-            ax = axes[0, i]
-            d = scan[scan.layout == layout]
-            for j, load in enumerate(d.load.unique()):
-                e = d[d.load == load]
-                (ln,) = ax.loglog(e.gap, e.S_N, marker=_MARKERS[j], ms=3, label=f"S, {load}")
-                bad = e[e.feasible == 0]
-                ax.plot(bad.gap, bad.S_N, ls="none", marker=_MARKERS[j], ms=6, mfc="white",
-                        mec=ln.get_color())  # fmt: skip
-            e = d[d.load == d.load.iloc[0]]
-            ax.loglog(e.gap, 1.0 / e.sigma_min, "k:", label="1 / sigma_min")
-            ax.set_xlabel("distance to the singular configuration (ratio)")
-            ax.set_ylabel("S (N)  /  1 / sigma_min")
-            ax.set_title(
-                f"{layout} layout: {d.approach.iloc[0]} (exact; hollow: tensions infeasible)",
-                fontsize=9,
-            )
-            ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=7)
-    return [name]
+from .config import atomic_output, write_table
+from .sensitivity_options import (
+    OPTION_DOCS,
+    PAPER_FORCES_N,
+    PAPER_SPEEDS_MPS,
+    AeroOptions,
+    CubicOptions,
+    FlatOptions,
+    MetricOptions,
+    StudyOptions,
+    _cubic_grid,
+    options_from_mapping,
+    options_from_toml,
+    validate_options,
+)
+from .sensitivity_plots import plot_cubic, plot_flat, plot_singular
+from .sensitivity_study import (
+    Progress,
+    _no_progress,
+    _require_loaded_holdable,
+    cubic_loads,
+    flat_loads,
+    flat_margin_loads,
+    optimum_stiffness,
+    run_cubic,
+    run_flat,
+    singular_scan,
+)
+
+__all__ = [  # re-exported for the modules that imported them from here before the split
+    "PAPER_FORCES_N",
+    "PAPER_SPEEDS_MPS",
+    "AeroOptions",
+    "CubicOptions",
+    "FlatOptions",
+    "MetricOptions",
+    "StudyOptions",
+    "_cubic_grid",
+    "cubic_loads",
+    "flat_loads",
+    "flat_margin_loads",
+    "gap_values",
+    "options_from_mapping",
+    "options_from_toml",
+    "run_cubic",
+    "run_flat",
+    "run_study",
+    "singular_scan",
+    "validate_options",
+]
 
 
 # ------------------------------------------------------------------------------------ report
@@ -913,9 +205,16 @@ def _why_flat(p: str, e: pd.DataFrame, ok: bool) -> str:
 
 
 def build_report(
-    o: StudyOptions, cub: dict, flat: dict, scan: pd.DataFrame, files: list[str], meta: dict
+    o: StudyOptions,
+    cub: dict,
+    flat: dict,
+    scan: pd.DataFrame,
+    files: list[str],
+    meta: dict,
+    stiffness: pd.DataFrame | None = None,
 ) -> str:
-    """The reproduction report (Markdown): the paper's conclusions next to ours."""
+    """The reproduction report (Markdown): the paper's conclusions next to ours, and (when given)
+    the paper's optima's natural frequencies beside their sensitivity."""
     c, f = o.cubic, o.flat
     Fmax = max(c.forces_N)
     Vmax = max(o.aero.speeds_mps)
@@ -1205,6 +504,8 @@ def build_report(
     for k, v in OPTION_DOCS.items():
         add(f"- `{k}`: {v}")
     add("")
+    if stiffness is not None:
+        add(_stiffness_section(stiffness))
     add("## Files\n")
     for name in files:
         add(f"- [{name}]({name})")
@@ -1214,6 +515,26 @@ def build_report(
         if name.endswith(".png"):
             add(f"### {name}\n\n![{name}]({name})\n")
     return "\n".join(L)
+
+
+def _stiffness_section(st: pd.DataFrame) -> str:
+    """Markdown: S beside the six natural frequencies for each of the paper's optima."""
+    EA = float(st.EA_N.iloc[0])
+    lines = [
+        "## Stiffness against sensitivity at the paper's optima (the paper's future work)\n",
+        "The six natural frequencies at the reference pose under gravity alone (cables "
+        f"E*A = {EA:g} N, `study.EA_N`; mass and inertia of the rig files; tensions from the same "
+        "method as S), beside S at the design loads.  A balance must average over many periods of "
+        "its lowest mode, and a mode near a flow frequency rings: a higher S bought with lower "
+        "tensions also lowers the tension-dependent stiffness.\n",
+        "| rig | load | method | S (N) | f1..f6 (Hz) |",
+        "|---|---|---|---|---|",
+    ]
+    for _, r in st.iterrows():
+        freqs = ", ".join(f"{r[f'f{k}_Hz']:.3g}" for k in range(1, 7))
+        lines.append(f"| {r.rig} | {r.load} | {r.method} | {r.S_N:.4g} | {freqs} |")
+    lines.append("")
+    return "\n".join(lines)
 
 
 def gap_values(d: pd.DataFrame) -> np.ndarray:
@@ -1240,6 +561,7 @@ def run_study(
     _require_loaded_holdable(cub["grid"], o, source)
     flat = run_flat(o, progress, source)
     scan = singular_scan(o)
+    stiff = optimum_stiffness(o)
     meta = {"version": f"cdpr {version}".strip()}
     tick = progress("writing tables and figures", 4)
     _write_csv(out / "cubic_k_grid.csv", cub["grid"], "cubic k grid (Figs. 6-7)", meta)
@@ -1249,6 +571,9 @@ def run_study(
     if "grid" in flat:
         _write_csv(out / "flat_table3_grid.csv", flat["grid"], "flat Table 3 grid", meta)
     _write_csv(out / "singular_scan.csv", scan, "approach to singular configurations", meta)
+    _write_csv(
+        out / "stiffness_optimum.csv", stiff, "S and natural frequencies at the optima", meta
+    )
     tick(1)
     files = plot_cubic(cub, out, o)
     tick(1)
@@ -1262,10 +587,11 @@ def run_study(
         "flat_table3_sweeps.csv",
         *(["flat_table3_grid.csv"] if "grid" in flat else []),
         "singular_scan.csv",
+        "stiffness_optimum.csv",
         *files,
     ]
     meta["elapsed_s"] = time.perf_counter() - t0
-    text = build_report(o, cub, flat, scan, files, meta)
+    text = build_report(o, cub, flat, scan, files, meta, stiff)
     with atomic_output(out / "report.md") as fh:
         fh.write(text)
     tick(1)

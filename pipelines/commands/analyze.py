@@ -40,6 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--check-limit-N", type=float, default=1.0, help="pass mark of the tension check"
     )
     p.add_argument("--balance", help="balance calibration (cdpr calibrate balance output, JSON)")
+    p.add_argument(
+        "--matrix",
+        help="test matrix (TOML, docs/campaign.md): the model geometry from [model] and the "
+        "corrections (zero drift, flow conditions, windage, [tunnel] wall corrections, "
+        "repeatability; docs/corrections.md)",
+    )
     geo = p.add_argument_group(
         "model geometry (for runs without a test matrix; the points are flagged geometry_from_options)"
     )
@@ -108,6 +114,23 @@ def run(args: argparse.Namespace) -> int:
     if args.balance is not None and not Path(args.balance).is_file():
         raise ConfigError(args.balance, "", "no such balance calibration file")
     geometry = geometry_from_args(args, need=False)
+    tunnel = None
+    if args.matrix is not None:
+        from cdpr.analysis.aero import ModelGeometry
+
+        from ..campaign import load_test_matrix
+
+        if geometry is not None:
+            raise InputError("--matrix gives the model geometry: drop --area-m2/--span-m/--chord-m")
+        m = load_test_matrix(args.matrix)
+        geometry = ModelGeometry(
+            area_m2=m.model.area_m2,
+            span_m=m.model.span_m,
+            chord_m=m.model.chord_m,
+            mrp_P_m=m.model.mrp_P_m,
+            source="test matrix",
+        )
+        tunnel = m.tunnel
     paths: list[str] = []
     for r in args.runs:
         p = Path(r)
@@ -124,6 +147,9 @@ def run(args: argparse.Namespace) -> int:
     opts = AnalyzeOptions(
         geometry=geometry,  # type: ignore[arg-type]
         balance_file=args.balance,
+        corrections=args.matrix is not None,
+        tunnel=tunnel,
+        matrix_file=args.matrix,
         reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
     )
     results = analyze_runs(

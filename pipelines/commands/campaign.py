@@ -27,6 +27,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--matrix", help="test matrix (TOML): point order and missing points")
     p.add_argument("--runs", help="folder of the run files (.mcap): tension plots per run")
+    p.add_argument(
+        "--reference",
+        help="reference polars (CSV: aoa_deg, CL/CD/Cm, optional airspeed_mps and source) drawn "
+        "beside the measured ones, with a difference table",
+    )
     p.set_defaults(func=run)
 
 
@@ -67,6 +72,7 @@ def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import shutil
     import time
 
     import numpy as np
@@ -75,15 +81,22 @@ def run(args: argparse.Namespace) -> int:
     from ..config import file_sha256
     from ..report import (
         CampaignTable,
+        Figure,
         campaign_table,
         report_content,
         sweep_figures,
         tension_figure,
+        windage_figure,
         write_campaign_table,
         write_report,
     )
 
     files = _points_files(args)
+    ref = None
+    if args.reference:
+        from ..report import read_reference_polars
+
+        ref = read_reference_polars(args.reference)
     labels = None
     title = "Campaign"
     prov: dict[str, str] = {"software": f"cdpr {__version__}"}
@@ -101,11 +114,23 @@ def run(args: argparse.Namespace) -> int:
     table = campaign_table(files, labels, info)
     for p, sha in table.inputs:
         prov[f"points {p}"] = f"sha256={sha}"
+    if args.reference:
+        prov["reference polars"] = f"{args.reference} sha256={file_sha256(args.reference)}"
     prov["written"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     out = Path(args.out)
     written = write_campaign_table(table, out)
-    figs = sweep_figures(table, out / "plots")
+    figs = sweep_figures(table, out / "plots", ref)
+    wfig = windage_figure(table, out / "plots")
+    if wfig is not None:
+        figs.append(wfig)
     rc = report_content(title, table, figs, prov)
+    if ref is not None:
+        from ..report import reference_differences
+
+        rc.sections.append(
+            ("Measured minus reference polars (wall-corrected where available)",
+             reference_differences(table.df, ref))
+        )  # fmt: skip
     written += write_report(rc, out, "campaign")
     # per run
     runs_dir = Path(args.runs) if args.runs else None
@@ -127,6 +152,16 @@ def run(args: argparse.Namespace) -> int:
                 ]
                 rfigs.append(
                     tension_figure(out / "plots" / stem / "tensions.png", *tens, windows=windows)
+                )
+        # the tension spectra with the rig's modes (cdpr analyze --matrix drew them per run)
+        for pf in sorted(set(d["points_file"])):
+            spec = Path(pf).parent / "spectrum.png"
+            if spec.is_file():
+                dst = out / "plots" / stem / "spectrum.png"
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(spec, dst)
+                rfigs.append(
+                    Figure(dst.name, "Tension spectra with the rig's modes", dst.read_bytes())
                 )
         rprov = {**prov, "run": str(run_name)}
         written += write_report(

@@ -9,14 +9,18 @@ Design variables (bounds by ``--bound NAME=LO:HI``):
 
 Objectives (``--objective``, all maximised): ``sensitivity`` (S of eq. 12 at the design load),
 ``margin`` (worst tension slack over the full load range, N), ``condition`` (minus the condition
-number of A), ``uncertainty`` (minus the largest force standard deviation for the load-cell noise).
+number of A), ``uncertainty`` (minus the largest force standard deviation for the load-cell noise),
+``stiffness`` (the lowest natural frequency at the reference pose, wind off, Hz: cables EA/l plus
+the tension term, platform mass and inertia; EA by ``--EA-N``).
 Constraints: margin >= ``--min-margin`` (default 0 N: every cable within its limits for every load
-of the range) and condition number <= ``--max-condition`` (default 1000).  Optimiser: scipy's
+of the range), condition number <= ``--max-condition`` (default 1000) and lowest natural frequency
+>= ``--min-frequency-Hz`` (default 0: none).  Optimiser: scipy's
 differential evolution over the batched evaluator (a whole population per call), seeded.
 
 Writes into ``--out``: ``design.md`` (the optimum, its metrics, the paper's design for comparison),
-``design_rig.toml`` (the optimum as a rig file for ``cdpr solve``), ``pareto_samples.csv`` and
-``pareto.png`` (S vs margin of random feasible designs, the non-dominated front, the optimum).
+``design_rig.toml`` (the optimum as a rig file for ``cdpr solve``), ``pareto_samples.csv``,
+``pareto.png`` (S vs margin of random feasible designs, the non-dominated front, the optimum) and
+``stiffness_pareto.png`` (S vs the lowest natural frequency: what stiffness costs in sensitivity).
 """
 
 from __future__ import annotations
@@ -53,7 +57,7 @@ VALID = {
 }
 """Open ranges of the design variables for the default rigs (X: inside the 1 m frame less half the
 platform length; Z: inside the 1.4 m frame; the study options may narrow them further)."""
-OBJECTIVES = ("sensitivity", "margin", "condition", "uncertainty")
+OBJECTIVES = ("sensitivity", "margin", "condition", "uncertainty", "stiffness")
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -70,6 +74,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--method", default="exact", help="tension distribution method (default exact)")
     p.add_argument("--min-margin", type=float, default=0.0, help="N (default 0)")
     p.add_argument("--max-condition", type=float, default=1000.0, help="default 1000")
+    p.add_argument(
+        "--min-frequency-Hz", dest="min_frequency_Hz", type=float, default=0.0,
+        help="lowest natural frequency at least this, Hz (default 0: no constraint)",
+    )  # fmt: skip
+    p.add_argument(
+        "--EA-N", dest="EA_N", type=float, default=None,
+        help="cable axial stiffness E*A, N (default the rig files' assumed 7e4 N)",
+    )  # fmt: skip
     p.add_argument("--speed", type=float, help="flat: design airspeed, m/s (default the largest)")
     p.add_argument("--direction", choices=("x", "y"), default="x", help="cubic: design force axis")
     p.add_argument("--bound", action="append", default=[], metavar="NAME=LO:HI")
@@ -110,13 +122,23 @@ def _parse_bounds(family: str, items: list[str]) -> dict[str, tuple[float, float
 class Evaluator:
     """Batched design evaluation: X (n, 4) -> S, margin, condition, force std, validity."""
 
-    def __init__(self, family: str, opts: Any, method: str, speed: float | None, direction: str):
+    def __init__(
+        self,
+        family: str,
+        opts: Any,
+        method: str,
+        speed: float | None,
+        direction: str,
+        EA_N: float | None = None,
+    ):
         import numpy as np
 
         from cdpr.analysis import sensitivity as sens
-        from cdpr.pipelines import sensitivity_report as sr
+        from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
+        from cdpr.pipelines import sensitivity_study as sr
 
         self.family, self.o, self.method = family, opts, method
+        self.EA_N = DEFAULT_CABLE_EA_N if EA_N is None else float(EA_N)
         if family == "flat":
             f = opts.flat
             V = max(opts.aero.speeds_mps) if speed is None else speed
@@ -159,6 +181,7 @@ class Evaluator:
             "margin_N": np.full(n, -np.inf),
             "condition": np.full(n, np.inf),
             "std_force_N": np.full(n, np.inf),
+            "f1_Hz": np.full(n, np.nan),
             "valid": ok.copy(),
         }
         if not ok.any():
@@ -192,7 +215,35 @@ class Evaluator:
         out["condition"][ok] = sv.condition
         out["std_force_N"][ok] = sens.wrench_std(A, self.o.study.sigma_T_N)[:, :3].max(axis=1)
         out["valid"][ok] = np.isfinite(res.S_N) & res.feasible
+        out["f1_Hz"][ok] = self.lowest_frequency(geo, Xo, res.T0_N)
         return out
+
+    def lowest_frequency(self, geo: Any, Xo: Any, T0: Any) -> Any:
+        """Lowest natural frequency (n,) at the reference pose under the wind-off tensions T0."""
+        import numpy as np
+
+        from cdpr.analysis import rigs
+        from cdpr.analysis.stiffness import mass_matrix, natural_modes, stiffness_matrix
+
+        if self.family == "flat":
+            mass = self.o.flat.mass_kg
+            inertia = rigs.rod_inertia(mass, rigs.FLAT_DEFAULTS["model_length_m"])
+        else:
+            c = self.o.cubic
+            mass = c.mass_kg
+            inertia = rigs.box_inertia(mass, Xo[:, 0] * c.L_m, Xo[:, 1] * c.W_m, Xo[:, 2] * c.H_m)
+        f1 = np.full(len(Xo), np.nan)
+        good = np.all(np.isfinite(T0), axis=-1)
+        if not good.any():
+            return f1
+        st = stiffness_matrix(
+            geo.anchors_O_m[good], geo.attach_P_m[good], geo.position_O_m[good], np.eye(3),
+            T0[good], self.EA_N, mass,
+        )  # fmt: skip
+        M = mass_matrix(mass, np.zeros(3), inertia[good] if np.ndim(inertia) == 3 else inertia,
+                        np.eye(3))  # fmt: skip
+        f1[good] = natural_modes(st.K, M).frequencies_Hz[:, 0]
+        return f1
 
 
 def objective_value(name: str, ev: dict[str, Any]) -> Any:
@@ -203,6 +254,8 @@ def objective_value(name: str, ev: dict[str, Any]) -> Any:
         return ev["margin_N"]
     if name == "condition":
         return -ev["condition"]
+    if name == "stiffness":
+        return ev["f1_Hz"]
     return -ev["std_force_N"]
 
 
@@ -232,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
     from .. import __version__
     from ..config import atomic_output, rig_toml, write_table
     from ..plotting import png_figure
-    from ..sensitivity_report import StudyOptions, options_from_toml
+    from ..sensitivity_options import StudyOptions, options_from_toml
 
     if args.method not in METHODS:
         raise InputError(f"--method: expected one of {sorted(METHODS)}, got {args.method!r}")
@@ -253,11 +306,17 @@ def run(args: argparse.Namespace) -> int:
     names = FAMILIES[args.family]["names"]
     lo = np.array([bounds[n][0] for n in names])
     hi = np.array([bounds[n][1] for n in names])
-    ev_fn = Evaluator(args.family, opts, args.method, args.speed, args.direction)
+    if not (np.isfinite(args.min_frequency_Hz) and args.min_frequency_Hz >= 0):
+        raise InputError(f"--min-frequency-Hz: expected >= 0 Hz, got {args.min_frequency_Hz}")
+    if args.EA_N is not None and not (np.isfinite(args.EA_N) and args.EA_N > 0):
+        raise InputError(f"--EA-N: expected a finite E*A > 0 N, got {args.EA_N}")
+    ev_fn = Evaluator(args.family, opts, args.method, args.speed, args.direction, args.EA_N)
 
     def constraint_violation(ev: dict[str, Any]) -> Any:
         v = np.maximum(args.min_margin - ev["margin_N"], 0.0) / 10.0
         v = v + np.maximum(np.log10(ev["condition"] / args.max_condition), 0.0)
+        if args.min_frequency_Hz > 0:
+            v = v + np.maximum(args.min_frequency_Hz - np.nan_to_num(ev["f1_Hz"], nan=0.0), 0.0)
         v = np.where(ev["valid"], v, np.inf)
         return np.nan_to_num(v, nan=1e6, posinf=1e6)
 
@@ -280,8 +339,9 @@ def run(args: argparse.Namespace) -> int:
     if not np.any(viol == 0):
         raise InfeasibleError(
             f"design --family {args.family}: none of {args.samples} random designs within the "
-            f"bounds {bounds} meets --min-margin {args.min_margin:g} N and --max-condition "
-            f"{args.max_condition:g}; widen --bound, relax the constraints or check the rig options"
+            f"bounds {bounds} meets --min-margin {args.min_margin:g} N, --max-condition "
+            f"{args.max_condition:g} and --min-frequency-Hz {args.min_frequency_Hz:g}; widen "
+            "--bound, relax the constraints or check the rig options"
         )
     # Start the evolution from the best random designs (constraint-meeting ones first), so the
     # optimum is never worse than the random search that draws the Pareto cloud.
@@ -310,7 +370,7 @@ def run(args: argparse.Namespace) -> int:
     ev_paper = ev_fn(paper[None])
 
     samples = pd.DataFrame(Xs, columns=list(names))
-    for k in ("S_N", "margin_N", "condition", "std_force_N"):
+    for k in ("S_N", "margin_N", "condition", "std_force_N", "f1_Hz"):
         samples[k] = evs[k]
     samples["meets_constraints"] = (viol == 0).astype(int)
     feas = viol == 0
@@ -323,7 +383,6 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     header = {"cdpr": f"design {__version__}", "family": args.family, "objective": args.objective,
               "method": args.method, "load": ev_fn.load_text}  # fmt: skip
-    write_table(out / "pareto_samples.csv", samples, header)
     with png_figure(out / "pareto.png", size=(7.2, 5.0)) as (fig, axes):
         ax = axes[0, 0]
         sc = ax.scatter(
@@ -344,6 +403,24 @@ def run(args: argparse.Namespace) -> int:
         ax.set_title(f"{args.family} rig: {ev_fn.load_text}, {args.method}", fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    front_f = np.zeros(len(Xs), dtype=bool)
+    front_f[feas] = pareto_front(evs["S_N"][feas], np.nan_to_num(evs["f1_Hz"][feas], nan=-1.0))
+    samples["pareto_stiffness"] = front_f.astype(int)
+    write_table(out / "pareto_samples.csv", samples, header)
+    with png_figure(out / "stiffness_pareto.png", size=(7.2, 5.0)) as (fig, axes):
+        ax = axes[0, 0]
+        ax.scatter(evs["f1_Hz"][feas], evs["S_N"][feas], s=6, alpha=0.5, label="feasible designs")
+        fx = np.flatnonzero(front_f)
+        fx = fx[np.argsort(evs["f1_Hz"][fx])]
+        ax.plot(evs["f1_Hz"][fx], evs["S_N"][fx], "r-o", ms=3, lw=1.2, label="S-f1 Pareto front")
+        ax.plot(ev_best["f1_Hz"], ev_best["S_N"], "k*", ms=14, label=f"optimum ({args.objective})")
+        if np.isfinite(ev_paper["S_N"][0]):
+            ax.plot(ev_paper["f1_Hz"], ev_paper["S_N"], "bs", ms=8, label="paper's design")
+        ax.set_xlabel(f"lowest natural frequency (Hz), EA = {ev_fn.EA_N:g} N")
+        ax.set_ylabel("sensitivity S (N)")
+        ax.set_title(f"{args.family} rig: stiffness against sensitivity", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     if args.family == "flat":
         f = opts.flat
         rig = rigs.flat_rig(*xbest, L_m=f.L_m, l_m=f.l_m, w1_m=f.w1_m, w2_m=f.w2_m,
@@ -361,7 +438,7 @@ def run(args: argparse.Namespace) -> int:
     def row(label: str, x: Any, e: dict[str, Any]) -> str:
         vals = ", ".join(f"{n} = {v:.4g}" for n, v in zip(names, x, strict=True))
         return (f"| {label} | {vals} | {e['S_N'][0]:.4g} | {e['margin_N'][0]:.4g} | "
-                f"{e['condition'][0]:.4g} | {e['std_force_N'][0]:.3g} | "
+                f"{e['condition'][0]:.4g} | {e['std_force_N'][0]:.3g} | {e['f1_Hz'][0]:.3g} | "
                 f"{'yes' if constraint_violation(e)[0] == 0 else 'no'} |")  # fmt: skip
 
     text = "\n".join(
@@ -373,19 +450,24 @@ def run(args: argparse.Namespace) -> int:
             f"Differential evolution: {result.nit} generations, {result.nfev} evaluations, "
             f"message: {result.message}\n",
             "| design | variables | S (N) | margin (N) | condition | max force std (N) | "
-            "meets constraints |",
-            "|---|---|---|---|---|---|---|",
+            "lowest mode (Hz) | meets constraints |",
+            "|---|---|---|---|---|---|---|---|",
             row("optimum", xbest, ev_best),
             row("paper", paper, ev_paper),
             "",
             f"{int(feas.sum())} of {args.samples} random designs meet the constraints; "
             f"{int(front.sum())} are on the S-margin Pareto front (`pareto.png`, "
-            "`pareto_samples.csv`). The optimum is written as `design_rig.toml`.",
+            f"`pareto_samples.csv`) and {int(front_f.sum())} on the S-frequency front "
+            f"(`stiffness_pareto.png`; lowest natural frequency at the reference pose, wind off, "
+            f"EA = {ev_fn.EA_N:g} N). The optimum is written as `design_rig.toml`.",
             "",
         ]
     )
     with atomic_output(out / "design.md") as fh:
         fh.write(text)
     print(text)
-    print(f"cdpr design: wrote {out}/design.md, design_rig.toml, pareto.png, pareto_samples.csv")
+    print(
+        f"cdpr design: wrote {out}/design.md, design_rig.toml, pareto.png, stiffness_pareto.png, "
+        "pareto_samples.csv"
+    )
     return 0

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cdpr.analysis.rig import Rig
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -55,9 +59,48 @@ def run_show(args: argparse.Namespace) -> int:
             f"T in [{rig.t_min_N[i]:g}, {rig.t_max_N[i]:g}] N"
         )
     print(f"  singular values of A at the reference pose: {np.round(sv, 5).tolist()}")
+    _print_modes(rig)
     for k, v in rig.assumptions.items():
         print(f"  assumption {k}: {v}")
     return 0
+
+
+_DOF_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def _print_modes(rig: Rig) -> None:
+    """The rig's natural modes at its reference pose (wind off), one line per mode."""
+    import numpy as np
+
+    from cdpr.analysis.errors import InfeasibleError
+    from cdpr.analysis.rotations import rotation_from_euler
+    from cdpr.analysis.stiffness import mass_matrix, rig_modes
+
+    R_ref = rotation_from_euler(rig.reference_euler_rad)
+    try:
+        rm = rig_modes(rig)
+    except InfeasibleError as exc:
+        print(f"  natural modes: not computed: {exc}")
+        return
+    from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
+
+    ea = sorted({float(v) for v in rig.cable_EA_N})
+    assumed = " (the default: no EA_N in the rig file)" if ea == [DEFAULT_CABLE_EA_N] else ""
+    print(
+        f"  natural modes at the reference pose (wind off, tensions by {rm.method}, "
+        f"EA = {', '.join(f'{v:g}' for v in ea)} N{assumed}):"
+    )
+    M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R_ref)
+    for k in range(6):
+        phi = rm.modes.shapes[:, k]
+        # each coordinate's share of the mode's kinetic energy (phi^T M phi = 1)
+        share = np.abs(phi * (M @ phi))
+        share = share / share.sum()
+        parts = ", ".join(
+            f"{_DOF_NAMES[j]} {share[j]:.0%}" for j in np.argsort(-share)[:2] if share[j] >= 0.05
+        )
+        f = rm.modes.frequencies_Hz[k]
+        print(f"    mode {k + 1}: {f:8.2f} Hz  ({parts} of the kinetic energy)")
 
 
 def run_paper(args: argparse.Namespace) -> int:

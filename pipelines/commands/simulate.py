@@ -69,6 +69,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--markers", help="marker layout on the model (TOML), with --camera")
     p.add_argument(
+        "--tunnel",
+        help="test section ([tunnel] and [model] tables, e.g. data_samples/tunnel_section_octagon"
+        ".toml): the cables in the flow add their drag to the physics (--transport virtual)",
+    )
+    p.add_argument(
         "--camera-rate-hz", type=float, default=5.0, help="camera frame rate (default 5)"
     )
     p.add_argument(
@@ -138,6 +143,22 @@ def run(args: argparse.Namespace) -> int:
     else:
         sched_data = load_toml(args.schedule)
     rig = load_rig(args.rig)
+    section = None
+    if args.tunnel is not None:
+        if args.transport != "virtual":
+            raise InputError(
+                "--tunnel: the cable drag runs in this process: use --transport virtual"
+            )
+        from ..tunnel_section import tunnel_section_from_mapping
+
+        section = tunnel_section_from_mapping(load_toml(args.tunnel), str(args.tunnel)).geometry
+    elif matrix is not None and matrix.tunnel is not None:
+        if args.transport != "virtual":
+            raise InputError(
+                f"{args.campaign}: [tunnel] puts the cable drag in this process: use --transport "
+                "virtual"
+            )
+        section = matrix.tunnel.geometry
     cal_file = args.loadcell_calibration
     if cal_file is None and matrix is not None and matrix.loadcell_calibration is not None:
         cal_file = str(matrix.loadcell_calibration)
@@ -177,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
             schedule = schedule_from_matrix(matrix, rig, faults)
         else:
             schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
-        vr = VirtualRig(rig, schedule)
+        vr = VirtualRig(rig, schedule, section=section)
     except (
         InputError
     ) as exc:  # the schedule is checked (ConfigError): this is the rig's cable count
@@ -329,9 +350,12 @@ def run(args: argparse.Namespace) -> int:
                 "schedule": sched_data,
                 "faults_added": faults,
                 "speed": args.speed,
+                "tunnel_file": args.tunnel,
+                "cable_drag": section is not None,
                 "sources": {n: {"kind": k, **s} for n, (k, s) in settings.items()},
             },
-            notes=f"virtual rig, schedule {schedule.name}, transport {args.transport}",
+            notes=f"virtual rig, schedule {schedule.name}, transport {args.transport}, cable drag "
+            + ("on" if section is not None else "off"),
             extra={"command": "simulate", "truth_file": truth_path.name},
         )
         attachments = [
@@ -340,6 +364,10 @@ def run(args: argparse.Namespace) -> int:
                 "schedule/" + Path(args.schedule).name, sched_file.read_bytes(), "application/toml"
             ),
         ]
+        if args.tunnel is not None:
+            attachments.append(
+                Attachment.from_file(args.tunnel, "tunnel/" + Path(args.tunnel).name)
+            )
         if cal_file:
             attachments.append(Attachment.from_file(cal_file, "calibration/" + Path(cal_file).name))
         if args.campaign:
