@@ -69,11 +69,13 @@ def test_attitude_inverts_flow_angles_for_another_mounting() -> None:
 def test_sample_campaign_expands_in_run_order() -> None:
     m = load_test_matrix(SAMPLE)
     labels = [p.label for p in m.points]
-    assert len(labels) == len(set(labels)) == 1 + 6 + 18 + 1 + 1
+    assert len(labels) == len(set(labels)) == 1 + 6 + 18 + 18 + 1 + 1
     assert labels[0] == "zero-start" and labels[-1] == "zero-end"
     assert labels[1:7] == [f"tare-a{a}-b0-v0" for a in (-4, -2, 0, 2, 4, 6)]
-    # airspeed outer, aoa inner
-    assert labels[7] == "alpha-a-4-b0-v17.27" and labels[13] == "alpha-a-4-b0-v25.51"
+    # airspeed outer, aoa inner; the model-off windage points before the sweep
+    assert labels[7] == "windage-a-4-b0-v17.27" and labels[13] == "windage-a-4-b0-v25.51"
+    assert {m.point(x).kind for x in labels[7:25]} == {"windage"}
+    assert labels[25] == "alpha-a-4-b0-v17.27" and labels[31] == "alpha-a-4-b0-v25.51"
     speeds = sorted({p.airspeed_mps for p in m.points if p.kind == "wind_on"})
     assert speeds == [17.27, 25.51, 41.42]
     rep = m.point("repeat-a2-v25.51")

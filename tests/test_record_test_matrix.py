@@ -14,8 +14,9 @@ MATRIX = ROOT / "data_samples" / "campaign_alpha_sweep.toml"
 
 def test_the_matrix_points_become_test_point_events_in_run_order() -> None:
     points = _test_points(str(MATRIX))
-    # the sample file, by hand: a zero, 6 tares, 6 x 3 wind-on points, a repeat, a closing zero
-    assert len(points) == 1 + 6 + 18 + 1 + 1
+    # the sample file, by hand: a zero, 6 tares, 6 x 3 model-off windage points, 6 x 3 wind-on
+    # points, a repeat, a closing zero
+    assert len(points) == 1 + 6 + 18 + 18 + 1 + 1
     assert [p["kind"] for p in points[:2]] == ["zero", "tare"]
     assert points[-2] == {
         "point": "repeat-a2-v25.51",
@@ -25,7 +26,7 @@ def test_the_matrix_points_become_test_point_events_in_run_order() -> None:
         "target_airspeed_mps": 25.51,
         "repeat_of": "alpha-a2-b0-v25.51",
     }
-    assert sum(p["target_airspeed_mps"] == 41.42 for p in points) == 6
+    assert sum(p["target_airspeed_mps"] == 41.42 for p in points) == 6 + 6
 
     said: list[tuple[str, dict]] = []
     stepper = TestPointStepper(points, lambda msg, **kw: said.append((msg, kw)))
