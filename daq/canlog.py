@@ -1,17 +1,23 @@
-"""CAN log files read fast: candump ``-L`` ``.log`` files parsed with numpy, a block of lines at a
-time, into columns (:class:`FrameColumns`); every other format python-can reads (ASC, BLF, TRC,
-...) through python-can's own ``LogReader``, turned into the same columns.
+"""CAN log files read fast: candump ``-L`` ``.log`` files and Vector ASC ``.asc`` files parsed with
+numpy, a block of lines at a time, into columns (:class:`FrameColumns`); every other format
+python-can reads (BLF, TRC, ...) through python-can's own ``LogReader``, turned into the same
+columns.
 
-The candump parser gives exactly what python-can's ``CanutilsLogReader`` gives for each line (the
-timestamp is the same float: the text converted by the C library, like ``float()``), about an
-order of magnitude faster.  It reads ``block_bytes`` of the file at a time (bounded memory).  A
-line it cannot parse raises :class:`~cdpr.analysis.errors.ConfigError` naming the file and the line
-number; blank lines are skipped, as python-can does.
+Both parsers give exactly what python-can's reader gives for each frame (the timestamp is the same
+float: the text converted by the C library, like ``float()``), an order of magnitude faster.  They
+read ``block_bytes`` of the file at a time (bounded memory).  A line they cannot parse raises
+:class:`~cdpr.analysis.errors.ConfigError` naming the file and the line number (python-can stops
+or skips silently on some of them); blank lines are skipped, as python-can does.  A timestamp
+whose integer ns would not fit an int64 (after 2262) is an error in every format.
 
-Line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame ``<id>#<hex data>``
-(classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD, flags bit 0 bit-rate
-switch, bit 1 error-state indicator); an id of more than 3 hex digits is extended; an id with the
-error flag 0x20000000 and the bus-error bit 0x80 is an error frame.
+candump line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame
+``<id>#<hex data>`` (classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD,
+flags bit 0 bit-rate switch, bit 1 error-state indicator); an id of more than 3 hex digits is
+extended (can-utils writes 3 or 8; python-can's writer writes other lengths for CAN FD, and its
+reader reads 1-8); an id with the error flag 0x20000000 and the bus-error bit 0x80 is an error
+frame.
+
+ASC layout: see :func:`read_asc`.
 """
 
 from __future__ import annotations
@@ -30,6 +36,10 @@ from cdpr.analysis.errors import ConfigError
 #: flag bits of :attr:`FrameColumns.flags`
 EXTENDED, ERROR, REMOTE, FD, BRS, ESI, RX = 1, 2, 4, 8, 16, 32, 64
 
+#: the largest timestamp (s) whose integer ns fits an int64 (the year 2262)
+T_MAX_S = 9.2e9
+_T_PROBLEM = "timestamp out of range (its integer ns would pass the year 2262)"
+
 _CAN_ERR_FLAG = 0x20000000
 _CAN_ERR_BUSERROR = 0x00000080
 
@@ -38,6 +48,9 @@ for _i, _c in enumerate(b"0123456789abcdef"):
     _HEX[_c] = _i
 for _i, _c in enumerate(b"ABCDEF"):
     _HEX[_c] = 10 + _i
+#: control bytes no CAN log line holds (tab, carriage return and newline aside)
+_CTRL = np.zeros(256, bool)
+_CTRL[[*range(9), *range(11, 13), *range(14, 32), 127]] = True
 _DEC = np.full(256, 255, np.uint8)
 for _i, _c in enumerate(b"0123456789"):
     _DEC[_c] = _i
@@ -166,6 +179,7 @@ def _gather(buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int) 
 
 def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     """Parse complete lines ``buf`` (ends with a newline) whose first line is ``first_line``."""
+    _check_control_bytes(buf, path, first_line)
     nl = np.flatnonzero(buf == 10)
     starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
     ends = nl.astype(np.int64)
@@ -218,17 +232,11 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     tlen = rpar - starts - 1
     tw = int(tlen.max())
     ttext = _gather(buf, starts + 1, tlen, tw)
+    bad(_bad_time_text(ttext, tlen), "bad timestamp (expected <digits>.<digits>)")
     t_s = _timestamps(ttext, tlen)
-    if t_s is None:
-        try:
-            t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
-        except ValueError:
-            for i in range(n):  # find the line for the message (only on bad input)
-                try:
-                    float(bytes(ttext[i, : tlen[i]]))
-                except ValueError:
-                    bad(np.arange(n) == i, "bad timestamp")
-            raise
+    if t_s is None:  # more than 15 digits
+        t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+    bad(~(t_s < T_MAX_S), _T_PROBLEM)
 
     # id: hex digits between the second space and '#'
     idlen = h - sp2 - 1
@@ -261,6 +269,7 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
         rdlc = np.where(c < rlen, rdlc * 10 + rtext[:, c], rdlc)
     hexlen = np.where(remote, 0, dlen)
     bad((hexlen % 2 == 1) | (hexlen > 128), "bad data (expected up to 64 bytes as hex pairs)")
+    bad(~fd & (hexlen > 16), "bad data (more than 8 bytes in a classic frame)")
     nbytes = hexlen // 2
     w = max(8, int(nbytes.max()))
     htext = _HEX[_gather(buf, dstart, hexlen, 2 * w)]
@@ -300,6 +309,24 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     nbytes = np.where(remote, 0, nbytes)
     return FrameColumns(t_s, ids, flags, dlc.astype(np.int64), data, nbytes.astype(np.int64),
                         channel, line_no)  # fmt: skip
+
+
+def _check_control_bytes(buf: np.ndarray, path: str, first_line: int) -> None:
+    """A ConfigError naming the first line of ``buf`` that holds a control byte."""
+    at = np.flatnonzero(_CTRL[buf])
+    if len(at):
+        line = first_line + int(np.count_nonzero(buf[: at[0]] == 10))
+        raise ConfigError(path, f"line {line}", f"control byte 0x{int(buf[at[0]]):02x} in the line")
+
+
+def _bad_time_text(ttext: np.ndarray, tlen: np.ndarray) -> np.ndarray:
+    """Rows of (n, w) texts that are not ``<digits>.<digits>`` (the form candump and Vector
+    write; ``float()`` would also take exponents, signs, ``inf``...)."""
+    inside = np.arange(ttext.shape[1]) < tlen[:, None]
+    isdot = (ttext == 46) & inside
+    ndig = np.count_nonzero((_DEC[ttext] != 255) & inside, axis=1)
+    dot_at = np.argmax(isdot, axis=1)
+    return (isdot.sum(axis=1) != 1) | (ndig != tlen - 1) | (dot_at == 0) | (dot_at == tlen - 1)
 
 
 def _timestamps(ttext: np.ndarray, tlen: np.ndarray) -> np.ndarray | None:
@@ -369,6 +396,15 @@ def read_candump(
                 yield cols
 
 
+def _checked(cols: FrameColumns, path: Path, before: int) -> FrameColumns:
+    """``cols`` (frames ``before + 1 ...`` of a log python-can read), or a ConfigError for a
+    timestamp beyond :data:`T_MAX_S`."""
+    late = np.flatnonzero(~(cols.t_s < T_MAX_S))
+    if len(late):
+        raise ConfigError(str(path), f"frame {before + int(late[0]) + 1}", _T_PROBLEM)
+    return cols
+
+
 def read_log(
     path: str | os.PathLike[str],
     block_frames: int = 100_000,
@@ -404,10 +440,10 @@ def read_log(
             count += 1
             block.append(m)
             if len(block) >= block_frames:
-                yield FrameColumns.from_messages(block)
+                yield _checked(FrameColumns.from_messages(block), p, count - len(block))
                 block = []
         if block:
-            yield FrameColumns.from_messages(block)
+            yield _checked(FrameColumns.from_messages(block), p, count - len(block))
     finally:
         stop = getattr(reader, "stop", None)
         if stop is not None:
@@ -420,11 +456,15 @@ _DLC2LEN = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64], np.
 _FD_LENGTHS = frozenset(_DLC2LEN.tolist())
 _WS = np.zeros(256, bool)
 _WS[[9, 13, 32]] = True  # tab, carriage return, space: other control bytes are errors
-_ASC_DATE = re.compile(r"date\s+\w+\s+(?P<datetime_string>.+)", re.IGNORECASE)
+# python-can's header patterns, whitespace limited to spaces and tabs
+_ASC_DATE = re.compile(r"date[ \t]+\w+[ \t]+(?P<datetime_string>.+)", re.IGNORECASE | re.ASCII)
 _ASC_BASE = re.compile(
-    r"base\s+(?P<base>hex|dec)(?:\s+timestamps\s+(?P<ts>absolute|relative))?", re.IGNORECASE
+    r"base[ \t]+(?P<base>hex|dec)(?:[ \t]+timestamps[ \t]+(?P<ts>absolute|relative))?",
+    re.IGNORECASE | re.ASCII,
 )
-_ASC_EVENTS = re.compile(r"(?P<no_events>no)?\s*internal\s+events\s+logged", re.IGNORECASE)
+_ASC_EVENTS = re.compile(
+    r"(?P<no_events>no)?[ \t]*internal[ \t]+events[ \t]+logged", re.IGNORECASE | re.ASCII
+)
 _ASC_TIME = r"[0-9]+\.[0-9]+"
 _S = r"[ \t]+"
 #: lines python-can skips that a Vector log holds: comments, the trigger block, events (the
@@ -472,6 +512,8 @@ def read_asc_header(path: str | os.PathLike[str]) -> AscHeader:
                 text = raw.decode("utf-8").strip(" \t\r\n")
             except UnicodeDecodeError:
                 raise ConfigError(str(path), f"line {line}", "not UTF-8 text") from None
+            if _CTRL[np.frombuffer(raw, np.uint8)].any() or len(text.splitlines()) > 1:
+                break  # not a header line: the body parser names it
             if _ASC_DATE.match(text) or text.startswith("//"):
                 pass
             elif m := _ASC_BASE.match(text):
@@ -510,6 +552,7 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     a log) are parsed with numpy from the positions of the whitespace-separated tokens; every
     other line (remote, error and CAN FD frames, events, comments) one at a time with the same
     rules as python-can's ``ASCReader``."""
+    _check_control_bytes(buf, path, first_line)
     nl = np.flatnonzero(buf == 10).astype(np.int64)
     nlines = len(nl)
     if nlines == 0:
@@ -520,6 +563,8 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     next_sep = np.concatenate([sep[1:], [True]])
     tok_s = np.flatnonzero(~sep & prev_sep).astype(np.int64)
     tok_e = np.flatnonzero(~sep & next_sep).astype(np.int64) + 1
+    if len(tok_s) == 0:  # blank lines only
+        return _empty()
     tok_line = np.searchsorted(nl, tok_s)
     first_tok = np.searchsorted(tok_line, np.arange(nlines))
     ntok = np.bincount(tok_line, minlength=nlines)
@@ -547,6 +592,9 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
         & (_DEC[buf[s1]] != 255)
     )
     rows = np.flatnonzero(cand)
+    # a frame line is ASCII (Vector's attributes after the bytes included)
+    non_ascii = np.zeros(nlines, bool)
+    non_ascii[np.searchsorted(nl, np.flatnonzero(buf >= 128))] = True
 
     def bad(mask: np.ndarray, problem: str) -> None:
         if mask.any():
@@ -558,17 +606,14 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     s0, l0 = tok(0, rows)
     tw = max(1, int(l0.max())) if n else 1
     ttext = _gather(buf, s0, l0, tw)
-    inside = np.arange(tw) < l0[:, None]
-    isdot = (ttext == 46) & inside
-    ndig = np.count_nonzero((_DEC[ttext] != 255) & inside, axis=1)
-    dot_at = np.argmax(isdot, axis=1)
-    bad((isdot.sum(axis=1) != 1) | (ndig != l0 - 1) | (dot_at == 0) | (dot_at == l0 - 1),
-        "bad timestamp")  # fmt: skip
+    bad(_bad_time_text(ttext, l0), "bad timestamp (expected <digits>.<digits>)")
     t_s = _timestamps(ttext, l0)
     if t_s is None:
         t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+    bad(~(t_s < T_MAX_S), _T_PROBLEM)
     ch, ok = _tok_value(buf, *tok(1, rows), 6, 10)
     bad(~ok, "bad channel")
+    bad(non_ascii[rows], "not ASCII text in a frame line")
     s2, l2 = tok(2, rows)
     ext = (l2 >= 2) & ((buf[s2 + l2 - 1] | 32) == ord("x"))
     ids, ok = _tok_value(buf, s2, l2 - ext, 8 if base == 16 else 10, base)
@@ -605,7 +650,7 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     slow: list[Any] = []
     slow_lines: list[int] = []
     for r in other.tolist():
-        text = bytes(buf[line_start[r] : nl[r]]).decode("latin-1").strip(" \t\r")
+        text = bytes(buf[line_start[r] : nl[r]]).decode("utf-8", "replace").strip(" \t\r")
         if not text:
             continue
         msg = _asc_slow_line(text, base, path, first_line + r)
@@ -630,6 +675,11 @@ def _asc_slow_line(text: str, base: int, path: str, line: int) -> Any:
     def fail(problem: str) -> None:
         raise ConfigError(path, f"line {line}", f"{problem}: {text[:80]!r}")
 
+    if len(text.splitlines()) > 1:
+        fail("a line break character inside the line")
+    t0 = re.match(_ASC_TIME + r"(?=[ \t]|$)", text)
+    if t0 is not None and not float(t0[0]) < T_MAX_S:
+        fail(_T_PROBLEM)
     reader = asc.ASCReader(io.StringIO(""), base="dec" if base == 10 else "hex")
     digits = r"[0-9]" if base == 10 else r"[0-9A-Fa-f]"
     if m := _ASC_REMOTE.fullmatch(text):
@@ -703,7 +753,24 @@ def read_asc(
     progress: Callable[[int], None] | None = None,
 ) -> Iterator[FrameColumns]:
     """The frames of a Vector ASC log, ``block_bytes`` of text at a time, equal field by field to
-    python-can's ``LogReader`` (``ASCReader``: timestamps as written, channel ``n - 1``)."""
+    python-can's ``LogReader`` (its ``ASCReader``: timestamps as written, channel ``n - 1``).
+
+    The header (``date``, ``base hex|dec [timestamps absolute|relative]``, comments, ``[no]
+    internal events logged``) is read as python-can reads it; ``base dec`` makes ids, DLCs and
+    data decimal.  Classic data frames ``<t> <ch> <id>[x] Rx|Tx d <dlc> <bytes> [Length = ...]``
+    (the bulk of a log) are parsed with numpy; remote frames, error frames (classic and CAN FD),
+    CAN FD frames (``<t> CANFD <ch> Rx|Tx <id>[x] [<name>] <brs> <esi> <dlc> <length> <bytes>
+    ...``) are recognised line by line and made into messages by python-can's ``ASCReader`` (so
+    they are as python-can reads them; a log of many CAN FD frames reads at python-can's speed).
+    Skipped, as python-can skips them: blank lines, ``//`` comments, ``Begin/End Triggerblock``
+    and the events Vector writes (``Start of measurement``, ``CAN n Status:``, ``n Statistic:``,
+    ``n J1939TP``, ``Log trigger event``, ...).  Stricter than python-can (each a ConfigError
+    naming the file and line): any other line, a frame with fewer data bytes than its DLC, text
+    after the bytes that is not Vector's ``Name = value`` attributes, a byte not of two hex digits
+    (hex base), a standard id above 0x7FF or an extended one above 0x1FFFFFFF, a CAN FD DLC that
+    disagrees with the length, text that is not UTF-8.  One difference the other way round:
+    python-can drops the first line after a header that does not end with ``internal
+    events logged``; this parser reads it."""
     p = Path(path)
     head = read_asc_header(p)
     line = head.body_line

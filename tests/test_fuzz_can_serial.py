@@ -63,9 +63,9 @@ def _log_text(suffix: str) -> str:
 CANDUMP, ASC, DBC_TEXT = _log_text(".log"), _log_text(".asc"), DEFAULT_DBC.read_text()
 
 
-_CANDUMP_LINE = re.compile(
-    r"\(\d+\.\d+\) \w+ ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#([0-9A-Fa-f]{2}){0,8}( [RT])?"
-)
+# ids of 1-8 hex digits: can-utils writes 3 or 8, python-can's writer other lengths too (CAN FD),
+# and python-can's reader reads them all (more than 3: extended); a channel is printable ASCII
+_CANDUMP_LINE = re.compile(r"\(\d+\.\d+\) [!-~]+ [0-9A-Fa-f]{1,8}#([0-9A-Fa-f]{2}){0,8}( [RT])?")
 _ASC_FRAME = re.compile(
     r"[0-9]+\.[0-9]+[ \t]+[0-9]+[ \t]+[0-9A-Fa-f]{1,8}x?[ \t]+(Rx|Tx)[ \t]+d[ \t]+([0-9A-Fa-f])"
     r"((?:[ \t]+[0-9A-Fa-f]{2})*)"
@@ -93,7 +93,11 @@ def _asc_ok(data: bytes) -> bool:
     except UnicodeDecodeError:
         return False
     for x in (x.strip() for x in lines):
-        if not x or x.startswith(_ASC_HEADER) or x.endswith("Start of measurement"):
+        if (
+            not x
+            or x.replace("\t", " ").startswith(_ASC_HEADER)
+            or x.endswith("Start of measurement")
+        ):
             continue
         m = _ASC_FRAME.fullmatch(x)
         if not m or len(m[3].split()) != _DLC_BYTES[int(m[2], 16)]:

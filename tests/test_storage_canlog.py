@@ -89,6 +89,10 @@ def test_a_bad_line_is_named_by_file_and_line(tmp_path: Path) -> None:
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(ConfigError, match=r"line 4: bad data"):
         list(read_candump(p))
+    lines[3] = "(10700000000.000400) can1 123#0102"  # its ns do not fit an int64
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError, match=r"line 4: timestamp out of range"):
+        list(read_candump(p))
 
 
 def _import(log: Path, out: Path) -> int:
@@ -363,6 +367,8 @@ BAD_ASC = [
     ("   1.000100 A  181 Rx d 2 01 02", "not an ASC frame, event or comment line"),
     ("   1.000100 Start of measurment", "not an ASC frame, event or comment line"),
     ("garbage", "not an ASC frame, event or comment line"),
+    ("   9300000000.000100 1  181 Rx d 2 01 02", "timestamp out of range"),
+    ("   9300000000.000100 1 ErrorFrame", "timestamp out of range"),
     ("   1.000100 CANFD 1 Rx 181 1 0 9 8 01 02 03 04 05 06 07 08", "DLC and data length disagree"),
     ("   1.000100 CANFD 1 Rx 181 1 0 2 2 01", "bad CAN FD data bytes"),
 ]
