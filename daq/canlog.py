@@ -312,8 +312,11 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
 
 
 def _check_control_bytes(buf: np.ndarray, path: str, first_line: int) -> None:
-    """A ConfigError naming the first line of ``buf`` that holds a control byte."""
-    at = np.flatnonzero(_CTRL[buf])
+    """A ConfigError naming the first line of ``buf`` that holds a control byte (a carriage return
+    is one unless a newline follows it)."""
+    cr = np.flatnonzero(buf == 13)
+    lone_cr = cr[buf[np.minimum(cr + 1, len(buf) - 1)] != 10]  # a carriage return only before \n
+    at = np.union1d(np.flatnonzero(_CTRL[buf]), lone_cr)
     if len(at):
         line = first_line + int(np.count_nonzero(buf[: at[0]] == 10))
         raise ConfigError(path, f"line {line}", f"control byte 0x{int(buf[at[0]]):02x} in the line")
