@@ -3,6 +3,9 @@
 - ``import_candump``: frames/s of ``cdpr import`` of a candump ``.log`` (one minute of 8 load
   cells at 1 kHz: 240,000 frames, the shipped DBC), against python-can's ``LogReader`` just
   reading the same file;
+- ``import_asc``: the same frames as a Vector ASC file (relative times, as Vector writes them):
+  frames/s of ``cdpr import``, against python-can's ``LogReader`` reading the same file, with the
+  numpy ASC parser (``read_asc``) alone in the context;
 - ``run_read_topic``: rows/s of ``open_run(...).table("/tensions")`` on a run of one minute of 8
   cells at 1 kHz written by the project's writer, against the ``mcap`` package's
   ``iter_decoded_messages`` + ``json.loads`` on the same file;
@@ -45,6 +48,33 @@ def write_candump(path: Path, n_samples: int, seed: int = 0) -> int:
         for u, i, d in zip(us.tolist(), ids.tolist(), [bytes(r) for r in data], strict=True)
     ]
     path.write_text("".join(lines))
+    return n
+
+
+def write_asc(path: Path, n_samples: int, seed: int = 0) -> int:
+    """The frames of :func:`write_candump` as a Vector ASC log (times relative to the start, the
+    layout of python-can's ``ASCWriter``); returns the frames."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 1 << 23, (n_samples, 8))
+    n = 4 * n_samples
+    data = np.zeros((n, 8), np.uint8)
+    c = counts.reshape(n, 2)
+    for k in range(3):
+        data[:, k] = (c[:, 0] >> (8 * k)) & 0xFF
+        data[:, 3 + k] = (c[:, 1] >> (8 * k)) & 0xFF
+    data[:, 7] = np.repeat(np.arange(n_samples) % 256, 4)
+    ids = np.tile([0x181, 0x281, 0x381, 0x481], n_samples)
+    us = np.repeat(np.arange(n_samples) * 1000, 4) + np.tile([0, 100, 200, 300], n_samples)
+    head = (
+        "date Wed Nov 25 15:06:13.191 2026\nbase hex  timestamps absolute\n"
+        "internal events logged\nBegin Triggerblock Wed Nov 25 15:06:13.191 2026\n"
+        "   0.000000 Start of measurement\n"
+    )
+    lines = [
+        f"{u // 1_000_000:4d}.{u % 1_000_000:06d} 1  {i:<15X} Rx   d 8 {d.hex(' ').upper()}\n"
+        for u, i, d in zip(us.tolist(), ids.tolist(), [bytes(r) for r in data], strict=True)
+    ]
+    path.write_text(head + "".join(lines) + "End TriggerBlock\n")
     return n
 
 
@@ -124,6 +154,30 @@ def run() -> dict[str, dict]:
             "peer": "python-can LogReader reading the same candump file",
             "peer_value": n_frames / peer_s,
             "context": f"{n_frames} frames (1 min, 8 cells at 1 kHz); the numpy candump parser "
+            f"alone: {n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader)",
+        }
+
+        asc = tmp / "bench.asc"
+        assert write_asc(asc, N_SAMPLES) == n_frames
+        t = time.perf_counter()
+        assert _python_can_read(asc) == n_frames
+        peer_s = time.perf_counter() - t
+        t = time.perf_counter()
+        rc = main(["import", "--can-log", str(asc), "--dbc", str(DBC), "--rig", str(RIG),
+                   "--out", str(tmp / "imp_asc.mcap")])  # fmt: skip
+        imp_s = time.perf_counter() - t
+        assert rc == 0
+        from cdpr.daq.canlog import read_asc
+
+        t = time.perf_counter()
+        assert sum(len(c) for c in read_asc(asc)) == n_frames
+        parse_s = time.perf_counter() - t
+        out["import_asc"] = {
+            "value": n_frames / imp_s,
+            "unit": "frames/s",
+            "peer": "python-can LogReader reading the same ASC file",
+            "peer_value": n_frames / peer_s,
+            "context": f"{n_frames} frames (1 min, 8 cells at 1 kHz) in ASC; the numpy ASC parser "
             f"alone: {n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader)",
         }
 

@@ -1,22 +1,29 @@
-"""CAN log files read fast: candump ``-L`` ``.log`` files parsed with numpy, a block of lines at a
-time, into columns (:class:`FrameColumns`); every other format python-can reads (ASC, BLF, TRC,
-...) through python-can's own ``LogReader``, turned into the same columns.
+"""CAN log files read fast: candump ``-L`` ``.log`` files and Vector ASC ``.asc`` files parsed with
+numpy, a block of lines at a time, into columns (:class:`FrameColumns`); every other format
+python-can reads (BLF, TRC, ...) through python-can's own ``LogReader``, turned into the same
+columns.
 
-The candump parser gives exactly what python-can's ``CanutilsLogReader`` gives for each line (the
-timestamp is the same float: the text converted by the C library, like ``float()``), about an
-order of magnitude faster.  It reads ``block_bytes`` of the file at a time (bounded memory).  A
-line it cannot parse raises :class:`~cdpr.analysis.errors.ConfigError` naming the file and the line
-number; blank lines are skipped, as python-can does.
+Both parsers give exactly what python-can's reader gives for each frame (the timestamp is the same
+float: the text converted by the C library, like ``float()``), an order of magnitude faster.  They
+read ``block_bytes`` of the file at a time (bounded memory).  A line they cannot parse raises
+:class:`~cdpr.analysis.errors.ConfigError` naming the file and the line number (python-can stops
+or skips silently on some of them); blank lines are skipped, as python-can does.  A timestamp
+whose integer ns would not fit an int64 (after 2262) is an error in every format.
 
-Line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame ``<id>#<hex data>``
-(classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD, flags bit 0 bit-rate
-switch, bit 1 error-state indicator); an id of more than 3 hex digits is extended; an id with the
-error flag 0x20000000 and the bus-error bit 0x80 is an error frame.
+candump line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame
+``<id>#<hex data>`` (classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD,
+flags bit 0 bit-rate switch, bit 1 error-state indicator); an id of more than 3 hex digits is
+extended (can-utils writes 3 or 8; python-can's writer writes other lengths for CAN FD, and its
+reader reads 1-8); an id with the error flag 0x20000000 and the bus-error bit 0x80 is an error
+frame.
+
+ASC layout: see :func:`read_asc`.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +36,10 @@ from cdpr.analysis.errors import ConfigError
 #: flag bits of :attr:`FrameColumns.flags`
 EXTENDED, ERROR, REMOTE, FD, BRS, ESI, RX = 1, 2, 4, 8, 16, 32, 64
 
+#: the largest timestamp (s) whose integer ns fits an int64 (the year 2262)
+T_MAX_S = 9.2e9
+_T_PROBLEM = "timestamp out of range (its integer ns would pass the year 2262)"
+
 _CAN_ERR_FLAG = 0x20000000
 _CAN_ERR_BUSERROR = 0x00000080
 
@@ -37,6 +48,9 @@ for _i, _c in enumerate(b"0123456789abcdef"):
     _HEX[_c] = _i
 for _i, _c in enumerate(b"ABCDEF"):
     _HEX[_c] = 10 + _i
+#: control bytes no CAN log line holds (tab, carriage return and newline aside)
+_CTRL = np.zeros(256, bool)
+_CTRL[[*range(9), *range(11, 13), *range(14, 32), 127]] = True
 _DEC = np.full(256, 255, np.uint8)
 for _i, _c in enumerate(b"0123456789"):
     _DEC[_c] = _i
@@ -165,6 +179,7 @@ def _gather(buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int) 
 
 def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     """Parse complete lines ``buf`` (ends with a newline) whose first line is ``first_line``."""
+    _check_control_bytes(buf, path, first_line)
     nl = np.flatnonzero(buf == 10)
     starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
     ends = nl.astype(np.int64)
@@ -217,17 +232,11 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     tlen = rpar - starts - 1
     tw = int(tlen.max())
     ttext = _gather(buf, starts + 1, tlen, tw)
+    bad(_bad_time_text(ttext, tlen), "bad timestamp (expected <digits>.<digits>)")
     t_s = _timestamps(ttext, tlen)
-    if t_s is None:
-        try:
-            t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
-        except ValueError:
-            for i in range(n):  # find the line for the message (only on bad input)
-                try:
-                    float(bytes(ttext[i, : tlen[i]]))
-                except ValueError:
-                    bad(np.arange(n) == i, "bad timestamp")
-            raise
+    if t_s is None:  # more than 15 digits
+        t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+    bad(~(t_s < T_MAX_S), _T_PROBLEM)
 
     # id: hex digits between the second space and '#'
     idlen = h - sp2 - 1
@@ -260,6 +269,7 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
         rdlc = np.where(c < rlen, rdlc * 10 + rtext[:, c], rdlc)
     hexlen = np.where(remote, 0, dlen)
     bad((hexlen % 2 == 1) | (hexlen > 128), "bad data (expected up to 64 bytes as hex pairs)")
+    bad(~fd & (hexlen > 16), "bad data (more than 8 bytes in a classic frame)")
     nbytes = hexlen // 2
     w = max(8, int(nbytes.max()))
     htext = _HEX[_gather(buf, dstart, hexlen, 2 * w)]
@@ -299,6 +309,27 @@ def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     nbytes = np.where(remote, 0, nbytes)
     return FrameColumns(t_s, ids, flags, dlc.astype(np.int64), data, nbytes.astype(np.int64),
                         channel, line_no)  # fmt: skip
+
+
+def _check_control_bytes(buf: np.ndarray, path: str, first_line: int) -> None:
+    """A ConfigError naming the first line of ``buf`` that holds a control byte (a carriage return
+    is one unless a newline follows it)."""
+    cr = np.flatnonzero(buf == 13)
+    lone_cr = cr[buf[np.minimum(cr + 1, len(buf) - 1)] != 10]  # a carriage return only before \n
+    at = np.union1d(np.flatnonzero(_CTRL[buf]), lone_cr)
+    if len(at):
+        line = first_line + int(np.count_nonzero(buf[: at[0]] == 10))
+        raise ConfigError(path, f"line {line}", f"control byte 0x{int(buf[at[0]]):02x} in the line")
+
+
+def _bad_time_text(ttext: np.ndarray, tlen: np.ndarray) -> np.ndarray:
+    """Rows of (n, w) texts that are not ``<digits>.<digits>`` (the form candump and Vector
+    write; ``float()`` would also take exponents, signs, ``inf``...)."""
+    inside = np.arange(ttext.shape[1]) < tlen[:, None]
+    isdot = (ttext == 46) & inside
+    ndig = np.count_nonzero((_DEC[ttext] != 255) & inside, axis=1)
+    dot_at = np.argmax(isdot, axis=1)
+    return (isdot.sum(axis=1) != 1) | (ndig != tlen - 1) | (dot_at == 0) | (dot_at == tlen - 1)
 
 
 def _timestamps(ttext: np.ndarray, tlen: np.ndarray) -> np.ndarray | None:
@@ -368,6 +399,15 @@ def read_candump(
                 yield cols
 
 
+def _checked(cols: FrameColumns, path: Path, before: int) -> FrameColumns:
+    """``cols`` (frames ``before + 1 ...`` of a log python-can read), or a ConfigError for a
+    timestamp beyond :data:`T_MAX_S`."""
+    late = np.flatnonzero(~(cols.t_s < T_MAX_S))
+    if len(late):
+        raise ConfigError(str(path), f"frame {before + int(late[0]) + 1}", _T_PROBLEM)
+    return cols
+
+
 def read_log(
     path: str | os.PathLike[str],
     block_frames: int = 100_000,
@@ -378,6 +418,9 @@ def read_log(
     p = Path(path)
     if p.suffix.lower() == ".log":
         yield from read_candump(p, progress=progress)
+        return
+    if p.suffix.lower() == ".asc":
+        yield from read_asc(p, progress=progress)
         return
     import can
 
@@ -400,11 +443,365 @@ def read_log(
             count += 1
             block.append(m)
             if len(block) >= block_frames:
-                yield FrameColumns.from_messages(block)
+                yield _checked(FrameColumns.from_messages(block), p, count - len(block))
                 block = []
         if block:
-            yield FrameColumns.from_messages(block)
+            yield _checked(FrameColumns.from_messages(block), p, count - len(block))
     finally:
         stop = getattr(reader, "stop", None)
         if stop is not None:
             stop()
+
+
+# --- Vector ASC -----------------------------------------------------------------------------------
+
+_DLC2LEN = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64], np.int64)
+_FD_LENGTHS = frozenset(_DLC2LEN.tolist())
+_WS = np.zeros(256, bool)
+_WS[[9, 13, 32]] = True  # tab, carriage return, space: other control bytes are errors
+# python-can's header patterns, whitespace limited to spaces and tabs
+_ASC_DATE = re.compile(r"date[ \t]+\w+[ \t]+(?P<datetime_string>.+)", re.IGNORECASE | re.ASCII)
+_ASC_BASE = re.compile(
+    r"base[ \t]+(?P<base>hex|dec)(?:[ \t]+timestamps[ \t]+(?P<ts>absolute|relative))?",
+    re.IGNORECASE | re.ASCII,
+)
+_ASC_EVENTS = re.compile(
+    r"(?P<no_events>no)?[ \t]*internal[ \t]+events[ \t]+logged", re.IGNORECASE | re.ASCII
+)
+_ASC_TIME = r"[0-9]+\.[0-9]+"
+_S = r"[ \t]+"
+#: lines python-can skips that a Vector log holds: comments, the trigger block, events (the
+#: event texts as Vector writes them, case included)
+_ASC_SKIP = re.compile(
+    r"//.*|Begin[ \t]+Trigger[Bb]lock([ \t].*)?|End[ \t]+Trigger[Bb]lock|"
+    + _ASC_TIME
+    + _S
+    + r"(Start of measurement|Stop of measurement|Log trigger event.*|CAN[ \t]+[0-9]+[ \t]+Status:.*"
+    r"|[0-9]+[ \t]+(Statistic:|Status:|J1939TP[ \t]|SV:|TFS:|ErrorFrame([ \t]|$)).*"
+    r"|CANFD[ \t]+[0-9]+[ \t]+(Rx|Tx)[ \t]+ErrorFrame([ \t].*)?|(SV|TFS):.*)",
+    re.ASCII,
+)
+_ASC_ERROR = re.compile(_ASC_TIME + _S + r"[0-9]+" + _S + "ErrorFrame", re.ASCII)
+_ASC_FD_ERROR = re.compile(_ASC_TIME + _S + "CANFD" + _S, re.ASCII)
+_ASC_REMOTE = re.compile(
+    _ASC_TIME + r"[ \t]+([0-9]+)[ \t]+(\w+)[ \t]+(Rx|Tx)[ \t]+r(?:[ \t]+([0-9]+))?"
+    r"(?:[ \t]+\w+[ \t]*=.*)?",
+    re.ASCII,
+)
+_ASC_FD = re.compile(
+    _ASC_TIME + r"[ \t]+CANFD[ \t]+([0-9]+)[ \t]+(Rx|Tx)[ \t]+(\w+)(?:[ \t]+([!-~]+))??[ \t]+([01])"
+    r"[ \t]+([01])[ \t]+([0-9A-Fa-f]{1,2})[ \t]+([0-9]+)((?:[ \t]+\w+)*)",
+    re.ASCII,
+)
+
+
+@dataclass
+class AscHeader:
+    """What the header of an ASC file says (as python-can's ``ASCReader`` reads it)."""
+
+    base: int  # 16 or 10
+    timestamps: str | None  # 'absolute', 'relative' or None (no base line)
+    body_offset: int  # byte offset of the first body line
+    body_line: int  # its line number
+
+
+def read_asc_header(path: str | os.PathLike[str]) -> AscHeader:
+    """The header lines at the top of an ASC file: ``date``, ``base hex|dec [timestamps
+    absolute|relative]``, comments, up to ``[no] internal events logged``."""
+    base, ts, offset, line = 16, None, 0, 1
+    with Path(path).open("rb") as fh:
+        for raw in fh:
+            try:
+                text = raw.decode("utf-8").strip(" \t\r\n")
+            except UnicodeDecodeError:
+                raise ConfigError(str(path), f"line {line}", "not UTF-8 text") from None
+            if _CTRL[np.frombuffer(raw, np.uint8)].any() or len(text.splitlines()) > 1:
+                break  # not a header line: the body parser names it
+            if _ASC_DATE.match(text) or text.startswith("//"):
+                pass
+            elif m := _ASC_BASE.match(text):
+                base = 10 if m["base"].lower() == "dec" else 16
+                ts = (m["ts"] or "absolute").lower()
+            elif _ASC_EVENTS.match(text):
+                offset, line = offset + len(raw), line + 1
+                break
+            else:
+                break
+            offset, line = offset + len(raw), line + 1
+    return AscHeader(base, ts, offset, line)
+
+
+def _tok_value(
+    buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int, base: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Integer values of tokens of up to ``width`` digits in ``base`` and whether each is one."""
+    n = len(start)
+    if n == 0:
+        return np.zeros(0, np.int64), np.ones(0, bool)
+    table = _HEX if base == 16 else _DEC
+    dig = table[_gather(buf, start, np.minimum(length, width), width)]
+    inside = np.arange(width) < length[:, None]
+    ok = (length >= 1) & (length <= width) & ~((dig == 255) & inside).any(axis=1)
+    val = np.zeros(n, np.int64)
+    for c in range(width):
+        val = np.where(inside[:, c], val * base + dig[:, c], val)
+    return val, ok
+
+
+def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameColumns:
+    """Parse the complete body lines ``buf`` (ends with a newline) of an ASC file.
+
+    Classic data frames (``<t> <ch> <id>[x] Rx|Tx d <dlc> <bytes> [Length = ...]``: the bulk of
+    a log) are parsed with numpy from the positions of the whitespace-separated tokens; every
+    other line (remote, error and CAN FD frames, events, comments) one at a time with the same
+    rules as python-can's ``ASCReader``."""
+    _check_control_bytes(buf, path, first_line)
+    nl = np.flatnonzero(buf == 10).astype(np.int64)
+    nlines = len(nl)
+    if nlines == 0:
+        return _empty()
+    line_start = np.concatenate([[0], nl[:-1] + 1])
+    sep = _WS[buf] | (buf == 10)
+    prev_sep = np.concatenate([[True], sep[:-1]])
+    next_sep = np.concatenate([sep[1:], [True]])
+    tok_s = np.flatnonzero(~sep & prev_sep).astype(np.int64)
+    tok_e = np.flatnonzero(~sep & next_sep).astype(np.int64) + 1
+    if len(tok_s) == 0:  # blank lines only
+        return _empty()
+    tok_line = np.searchsorted(nl, tok_s)
+    first_tok = np.searchsorted(tok_line, np.arange(nlines))
+    ntok = np.bincount(tok_line, minlength=nlines)
+    tok_len = tok_e - tok_s
+
+    def tok(k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """start and length of token ``k`` of lines ``rows`` (length 0 when missing)."""
+        have = ntok[rows] > k
+        i = np.where(have, first_tok[rows] + k, 0)
+        return np.where(have, tok_s[i], 0), np.where(have, tok_len[i], 0)
+
+    lines = np.arange(nlines)
+    s4, l4 = tok(4, lines)
+    s3, l3 = tok(3, lines)
+    s1, l1 = tok(1, lines)
+    c3 = _gather(buf, s3, np.minimum(l3, 2), 2)
+    cand = (
+        (ntok >= 6)
+        & (l4 == 1)
+        & (buf[s4] == ord("d"))
+        & (l3 == 2)
+        & ((c3[:, 0] == ord("R")) | (c3[:, 0] == ord("T")))
+        & (c3[:, 1] == ord("x"))
+        & (l1 >= 1)
+        & (_DEC[buf[s1]] != 255)
+    )
+    rows = np.flatnonzero(cand)
+    # a frame line is ASCII (Vector's attributes after the bytes included)
+    non_ascii = np.zeros(nlines, bool)
+    non_ascii[np.searchsorted(nl, np.flatnonzero(buf >= 128))] = True
+
+    def bad(mask: np.ndarray, problem: str) -> None:
+        if mask.any():
+            r = int(rows[int(np.flatnonzero(mask)[0])])
+            text = bytes(buf[line_start[r] : nl[r]]).decode("latin-1").strip()
+            raise ConfigError(path, f"line {first_line + r}", f"{problem}: {text[:80]!r}")
+
+    n = len(rows)
+    s0, l0 = tok(0, rows)
+    tw = max(1, int(l0.max())) if n else 1
+    ttext = _gather(buf, s0, l0, tw)
+    bad(_bad_time_text(ttext, l0), "bad timestamp (expected <digits>.<digits>)")
+    t_s = _timestamps(ttext, l0)
+    if t_s is None:
+        t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+    bad(~(t_s < T_MAX_S), _T_PROBLEM)
+    ch, ok = _tok_value(buf, *tok(1, rows), 6, 10)
+    bad(~ok, "bad channel")
+    bad(non_ascii[rows], "not ASCII text in a frame line")
+    s2, l2 = tok(2, rows)
+    ext = (l2 >= 2) & ((buf[s2 + l2 - 1] | 32) == ord("x"))
+    ids, ok = _tok_value(buf, s2, l2 - ext, 8 if base == 16 else 10, base)
+    bad(~ok, "bad CAN id")
+    bad(ids > np.where(ext, 0x1FFFFFFF, 0x7FF), "CAN id out of range")
+    dlc_raw, ok = _tok_value(buf, *tok(5, rows), 2, base)
+    bad(~ok | (dlc_raw > 15), "bad DLC")
+    dlc = _DLC2LEN[np.minimum(dlc_raw, 15)]
+    nbytes = np.minimum(dlc, 8)
+    bad(ntok[rows] < 6 + nbytes, "fewer data bytes than the DLC says")
+    data = np.zeros((n, 8), np.uint8)
+    bw = 2 if base == 16 else 3
+    for k in range(8):
+        use = k < nbytes
+        sk, lk = tok(6 + k, rows)
+        v, ok = _tok_value(buf, sk, lk, bw, base)
+        if base == 16:
+            ok &= lk == 2
+        bad(use & (~ok | (v > 255)), f"bad data byte {k + 1}")
+        data[:, k] = np.where(use, v, 0)
+    # after the bytes: nothing, or Vector's attributes ("Length = 244016 BitCount = 125 ...")
+    more = ntok[rows] > 6 + nbytes
+    i_eq = np.minimum(np.where(more, first_tok[rows] + 7 + nbytes, 0), len(tok_s) - 1)
+    eq_ok = (ntok[rows] > 7 + nbytes) & (tok_len[i_eq] == 1) & (buf[tok_s[i_eq]] == ord("="))
+    bad(more & ~eq_ok, "unexpected text after the data bytes")
+    rx = c3[rows, 0] == ord("R")
+    fast = FrameColumns(
+        t_s, ids, (EXTENDED * ext | RX * rx).astype(np.uint8), dlc, data, nbytes,
+        np.asarray(ch - 1, object), first_line + rows,
+    )  # fmt: skip
+
+    # every other line: python-can's rules, one line at a time (rare in a load-cell log)
+    other = np.flatnonzero(~cand)
+    slow: list[Any] = []
+    slow_lines: list[int] = []
+    for r in other.tolist():
+        text = bytes(buf[line_start[r] : nl[r]]).decode("utf-8", "replace").strip(" \t\r")
+        if not text:
+            continue
+        msg = _asc_slow_line(text, base, path, first_line + r)
+        if msg is not None:
+            slow.append(msg)
+            slow_lines.append(first_line + r)
+    if not slow:
+        return fast
+    sc = FrameColumns.from_messages(slow)
+    sc.line = np.array(slow_lines, np.int64)
+    return _merge_by_line(fast, sc)
+
+
+def _asc_slow_line(text: str, base: int, path: str, line: int) -> Any:
+    """One ASC line that is not a classic data frame: a ``can.Message`` (remote, error and CAN FD
+    frames, made by python-can's ``ASCReader``) or None (an event or a comment python-can skips);
+    anything else is a ConfigError naming the line."""
+    import io
+
+    import can.io.asc as asc
+
+    def fail(problem: str) -> None:
+        raise ConfigError(path, f"line {line}", f"{problem}: {text[:80]!r}")
+
+    if len(text.splitlines()) > 1:
+        fail("a line break character inside the line")
+    t0 = re.match(_ASC_TIME + r"(?=[ \t]|$)", text)
+    if t0 is not None and not float(t0[0]) < T_MAX_S:
+        fail(_T_PROBLEM)
+    reader = asc.ASCReader(io.StringIO(""), base="dec" if base == 10 else "hex")
+    digits = r"[0-9]" if base == 10 else r"[0-9A-Fa-f]"
+    if m := _ASC_REMOTE.fullmatch(text):
+        ts, ch, rest = text.split(None, 2)
+        if not re.fullmatch(digits + r"{1,10}[xX]?", m[2]):
+            fail("bad CAN id")
+        return reader._process_classic_can_frame(
+            rest, {"timestamp": float(ts), "channel": int(ch) - 1}
+        )
+    if _ASC_SKIP.fullmatch(text):
+        if _ASC_ERROR.match(text):
+            ts, ch, rest = text.split(None, 2)
+            kw = {"timestamp": float(ts), "channel": int(ch) - 1}
+            return reader._process_classic_can_frame(rest, kw)
+        if _ASC_FD_ERROR.match(text):
+            ts, _, rest = text.split(None, 2)
+            return reader._process_fd_can_frame(rest, {"timestamp": float(ts), "is_fd": True})
+        return None
+    if m := _ASC_FD.fullmatch(text):
+        if not re.fullmatch(digits + r"{1,10}[xX]?", m[3]):
+            fail("bad CAN id")
+        dlc = int(m[7], base) if re.fullmatch(digits + "+", m[7]) else 99
+        length = int(m[8])
+        tokens = m[9].split()
+        if dlc > 15 or length not in _FD_LENGTHS or (length and int(_DLC2LEN[dlc]) != length):
+            fail("CAN FD DLC and data length disagree")
+        if len(tokens) < length or not all(
+            re.fullmatch(digits + (r"{2}" if base == 16 else r"{1,3}"), b) and int(b, base) < 256
+            for b in tokens[:length]
+        ):
+            fail("bad CAN FD data bytes")
+        ts, _, rest = text.split(None, 2)
+        return reader._process_fd_can_frame(rest, {"timestamp": float(ts), "is_fd": True})
+    fail("not an ASC frame, event or comment line")
+    return None
+
+
+def _merge_by_line(a: FrameColumns, b: FrameColumns) -> FrameColumns:
+    """The frames of ``a`` and ``b`` in line order."""
+    line = np.concatenate([a.line, b.line])
+    order = np.argsort(line, kind="stable")
+    w = max(a.data.shape[1], b.data.shape[1])
+
+    def pad(d: np.ndarray) -> np.ndarray:
+        return np.pad(d, ((0, 0), (0, w - d.shape[1])))
+
+    return FrameColumns(
+        np.concatenate([a.t_s, b.t_s])[order],
+        np.concatenate([a.arbitration_id, b.arbitration_id])[order],
+        np.concatenate([a.flags, b.flags])[order],
+        np.concatenate([a.dlc, b.dlc])[order],
+        np.concatenate([pad(a.data), pad(b.data)])[order],
+        np.concatenate([a.length, b.length])[order],
+        np.concatenate([a.channel, b.channel])[order],
+        line[order],
+    )
+
+
+def _check_utf8(text: bytes, path: str, first_line: int) -> None:
+    """python-can reads an ASC file as text: a byte sequence that is not UTF-8 is an error."""
+    try:
+        text.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = first_line + text.count(b"\n", 0, exc.start)
+        raise ConfigError(path, f"line {line}", "not UTF-8 text") from None
+
+
+def read_asc(
+    path: str | os.PathLike[str],
+    block_bytes: int = 8 << 20,
+    progress: Callable[[int], None] | None = None,
+) -> Iterator[FrameColumns]:
+    """The frames of a Vector ASC log, ``block_bytes`` of text at a time, equal field by field to
+    python-can's ``LogReader`` (its ``ASCReader``: timestamps as written, channel ``n - 1``).
+
+    The header (``date``, ``base hex|dec [timestamps absolute|relative]``, comments, ``[no]
+    internal events logged``) is read as python-can reads it; ``base dec`` makes ids, DLCs and
+    data decimal.  Classic data frames ``<t> <ch> <id>[x] Rx|Tx d <dlc> <bytes> [Length = ...]``
+    (the bulk of a log) are parsed with numpy; remote frames, error frames (classic and CAN FD),
+    CAN FD frames (``<t> CANFD <ch> Rx|Tx <id>[x] [<name>] <brs> <esi> <dlc> <length> <bytes>
+    ...``) are recognised line by line and made into messages by python-can's ``ASCReader`` (so
+    they are as python-can reads them; a log of many CAN FD frames reads at python-can's speed).
+    Skipped, as python-can skips them: blank lines, ``//`` comments, ``Begin/End Triggerblock``
+    and the events Vector writes (``Start of measurement``, ``CAN n Status:``, ``n Statistic:``,
+    ``n J1939TP``, ``Log trigger event``, ...).  Stricter than python-can (each a ConfigError
+    naming the file and line): any other line, a frame with fewer data bytes than its DLC, text
+    after the bytes that is not Vector's ``Name = value`` attributes, a byte not of two hex digits
+    (hex base), a standard id above 0x7FF or an extended one above 0x1FFFFFFF, a CAN FD DLC that
+    disagrees with the length, text that is not UTF-8.  One difference the other way round:
+    python-can drops the first line after a header that does not end with ``internal
+    events logged``; this parser reads it."""
+    p = Path(path)
+    head = read_asc_header(p)
+    line = head.body_line
+    done = head.body_offset
+    with p.open("rb") as fh:
+        fh.seek(head.body_offset)
+        rest = b""
+        while True:
+            chunk = fh.read(block_bytes)
+            if not chunk:
+                break
+            done += len(chunk)
+            if progress is not None:
+                progress(done)
+            text = rest + chunk
+            cut = text.rfind(b"\n")
+            if cut < 0:
+                rest = text
+                continue
+            rest = text[cut + 1 :]
+            _check_utf8(text[: cut + 1], str(p), line)
+            block = np.frombuffer(text[: cut + 1], np.uint8)
+            cols = _asc_block(block, str(p), line, head.base)
+            line += int(np.count_nonzero(block == 10))
+            if len(cols):
+                yield cols
+        if rest.strip():
+            _check_utf8(rest, str(p), line)
+            cols = _asc_block(np.frombuffer(rest + b"\n", np.uint8), str(p), line, head.base)
+            if len(cols):
+                yield cols

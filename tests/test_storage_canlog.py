@@ -8,10 +8,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import can
+import numpy as np
 import pytest
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.daq.canlog import read_candump
+from cdpr.daq.canlog import read_asc, read_candump
 from cdpr.daq.run_reader import open_run
 from cdpr.pipelines.cli import main
 
@@ -87,6 +88,10 @@ def test_a_bad_line_is_named_by_file_and_line(tmp_path: Path) -> None:
     lines[3] = "(1700000000.000400) can1 123#010"
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(ConfigError, match=r"line 4: bad data"):
+        list(read_candump(p))
+    lines[3] = "(10700000000.000400) can1 123#0102"  # its ns do not fit an int64
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(ConfigError, match=r"line 4: timestamp out of range"):
         list(read_candump(p))
 
 
@@ -247,3 +252,162 @@ def test_a_real_log_damaged_midway_is_an_error_naming_the_frame(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"bad.trc: frame {good + 1}: python-can cannot read it" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]
+
+
+# --- Vector ASC: the numpy parser (read_asc) against python-can's ASCReader ----------------------
+
+ASC_HEAD = """date Wed Nov 25 15:06:13.191 2026
+base {base}  timestamps {ts}
+internal events logged
+// version 9.0.0
+Begin Triggerblock Wed Nov 25 15:06:13.191 2026
+   0.000000 Start of measurement
+"""
+
+
+def _asc_lines(rng: np.random.Generator, n: int, base: int) -> list[str]:
+    """``n`` random ASC body lines of every kind python-can reads, written here by hand from the
+    Vector layout (not by python-can's writer): classic data frames (standard/extended ids, Rx/Tx,
+    DLC 0-15, Vector's ``Length = ...`` attributes), remote frames with and without a DLC, error
+    frames, CAN FD frames (symbolic names, BRS/ESI, 0-64 bytes, FD remote), events, comments."""
+
+    def num(v: int, width: int = 0) -> str:
+        return f"{v:0{width}X}" if base == 16 else str(v)
+
+    out = []
+    t = 0.0
+    for _ in range(n):
+        t += float(rng.integers(1, 2000)) * 1e-6
+        ts = f"{t:{int(rng.integers(9, 13))}.{int(rng.choice([4, 6, 9]))}f}"
+        ch = int(rng.integers(1, 5))
+        ext = bool(rng.integers(0, 2))
+        fid = int(rng.integers(0, 1 << 29 if ext else 1 << 11))
+        sid = num(fid) + ("x" if ext else "")
+        d = "Rx" if rng.integers(0, 2) else "Tx"
+        kind = int(rng.choice(8, p=[0.55, 0.08, 0.05, 0.05, 0.15, 0.04, 0.04, 0.04]))
+        if kind == 0:  # classic data frame
+            dlc = int(rng.integers(0, 16))
+            data = " ".join(num(int(b), 2) for b in rng.integers(0, 256, min(dlc, 8)))
+            tail = "  Length = 244016 BitCount = 125 ID = 384" if rng.integers(0, 2) else ""
+            sep = "\t" if rng.integers(0, 8) == 0 else " "
+            out.append(f"{ts} {ch}  {sid:<15}{sep}{d}   d {num(dlc)} {data}{tail}".rstrip())
+        elif kind == 1:  # remote
+            tail = [" r", f" r {int(rng.integers(0, 9))}", " r Length = 1704000 BitCount = 145"]
+            out.append(f"{ts} {ch} {sid} {d}" + tail[int(rng.integers(0, 3))])
+        elif kind == 2:  # error frames
+            out.append(
+                [f"{ts} {ch} ErrorFrame", f"{ts} {ch} ErrorFrame ECC: 10100010",
+                 f"{ts} CANFD {ch:>3} {d} ErrorFrame Not Acknowledge error, dominant error flag"
+                 " fffe c7 31ca Arb. 556 44 0 0 f 64 00 00"][int(rng.integers(0, 3))]
+            )  # fmt: skip
+        elif kind == 3:  # events and comments, skipped
+            out.append(
+                [f"{ts} {ch}  Statistic: D 0 R 0 XD 0 XR 0 E 0 O 0 B 0.00%",
+                 f"{ts} CAN {ch} Status:chip status error active", "// a comment",
+                 f"{ts} {ch}  J1939TP FEE3p 6 0 0 - Rx d 23 A0 0F"][int(rng.integers(0, 4))]
+            )  # fmt: skip
+        else:  # CAN FD
+            lens = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
+            dlc = int(rng.integers(0, 16))
+            length = 0 if rng.integers(0, 6) == 0 else lens[dlc]  # 0: an FD remote frame
+            data = " ".join(num(int(b), 2) for b in rng.integers(0, 256, length))
+            name = f"Name_{int(rng.integers(0, 9))}" if rng.integers(0, 2) else ""
+            brs, esi = int(rng.integers(0, 2)), int(rng.integers(0, 2))
+            out.append(
+                f"{ts} CANFD {ch:>3} {d} {sid:>8} {name:>20} {brs} {esi} {num(dlc).lower()} {length:>2}"
+                f" {data} 140000 73 200050 7a60 46500250 460a0250 20011736 20010205".replace(
+                    "  ", " "
+                )
+            )
+    return out
+
+
+def _write_asc(path: Path, lines: list[str], base: str = "hex", ts: str = "absolute") -> Path:
+    path.write_text(ASC_HEAD.format(base=base, ts=ts) + "\n".join(lines) + "\nEnd TriggerBlock\n")
+    return path
+
+
+def _read_asc_fields(path: Path, block_bytes: int = 8 << 20) -> list[tuple]:
+    return [_fields(m) for c in read_asc(path, block_bytes=block_bytes) for m in c.messages()]
+
+
+@pytest.mark.parametrize("name", [p.name for p in REAL if p.suffix == ".asc"])
+def test_asc_parser_matches_python_can_on_real_logs(name: str) -> None:
+    want = [_fields(m) for m in _python_can(DATA / name)]
+    assert want
+    for block in (40, 8 << 20):  # small blocks: lines cut across block boundaries
+        assert _read_asc_fields(DATA / name, block) == want
+
+
+@pytest.mark.parametrize(("base", "ts"), [("hex", "absolute"), ("dec", "relative")])
+def test_asc_parser_matches_python_can_on_generated_logs(
+    tmp_path: Path, base: str, ts: str
+) -> None:
+    rng = np.random.default_rng(7 if base == "hex" else 8)
+    log = _write_asc(tmp_path / f"gen_{base}.asc", _asc_lines(rng, 3000, 16 if base == "hex" else 10),
+                     base, ts)  # fmt: skip
+    want = [_fields(m) for m in _python_can(log)]
+    assert len(want) > 2500
+    kinds = {(f[2], f[3], f[4], f[5]) for f in want}  # extended, remote, error, FD
+    assert len(kinds) >= 7
+    assert _read_asc_fields(log, 4096) == want
+    assert _read_asc_fields(log) == want
+
+
+BAD_ASC = [
+    ("   1.000100 1  181 Rx d 8 01 02 03 04 05 06 07", "fewer data bytes than the DLC says"),
+    ("   1.000100 1  181 Rx d 8 01 02 03 04 05 06 07 08 09", "unexpected text after the data"),
+    ("   1.000100 1  1G1 Rx d 2 01 02", "bad CAN id"),
+    ("   1.000100 1  800 Rx d 2 01 02", "CAN id out of range"),
+    ("   1.000100 1  181 Rx d 2 01 0G2", "bad data byte 2"),
+    ("   1.000100 1  181 Rx d 2 01 102", "bad data byte 2"),
+    ("   1.000100 1  181 Rx d G 01 02", "bad DLC"),
+    ("   1.0001.00 1  181 Rx d 2 01 02", "bad timestamp"),
+    ("   1.000100 1  181 rx d 2 01 02", "not an ASC frame, event or comment line"),
+    ("   1.000100 A  181 Rx d 2 01 02", "not an ASC frame, event or comment line"),
+    ("   1.000100 Start of measurment", "not an ASC frame, event or comment line"),
+    ("garbage", "not an ASC frame, event or comment line"),
+    ("   9300000000.000100 1  181 Rx d 2 01 02", "timestamp out of range"),
+    ("   9300000000.000100 1 ErrorFrame", "timestamp out of range"),
+    ("   1.000100 CANFD 1 Rx 181 1 0 9 8 01 02 03 04 05 06 07 08", "DLC and data length disagree"),
+    ("   1.000100 CANFD 1 Rx 181 1 0 2 2 01", "bad CAN FD data bytes"),
+]
+
+
+@pytest.mark.parametrize(("line", "problem"), BAD_ASC)
+def test_a_bad_asc_line_is_named_by_file_and_line(tmp_path: Path, line: str, problem: str) -> None:
+    """python-can skips a line it does not recognise (or reads a short frame as it is): the
+    parser names the file and the line instead."""
+    good = _asc_lines(np.random.default_rng(1), 40, 16)
+    log = _write_asc(tmp_path / "bad.asc", [*good[:20], line, *good[20:]])
+    with pytest.raises(ConfigError) as exc:
+        list(read_asc(log))
+    assert str(exc.value).startswith(f"{log}: line 27: ")  # 6 header lines, 20 good ones
+    assert problem in str(exc.value)
+
+
+def test_import_of_a_malformed_asc_names_the_line_and_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    src = (DATA / "issue_1299.asc").read_bytes().splitlines(keepends=True)
+    src[7] = src[7].replace(b"221 ", b"2\xe91 ")  # not UTF-8
+    log = tmp_path / "m.asc"
+    log.write_bytes(b"".join(src))
+    out = tmp_path / "m.mcap"
+    assert _import(log, out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.asc: line 8: not UTF-8 text" in err[0]
+    src[7] = b"  13.258433 1  221             Tx   d 8 C2 4A 05 81 00 00 15\n"
+    log.write_bytes(b"".join(src))
+    assert _import(log, out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.asc: line 8: fewer data bytes than the DLC says" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.asc"]
+
+
+def test_import_of_a_generated_asc_keeps_every_frame_as_python_can_reads_it(
+    tmp_path: Path,
+) -> None:
+    log = _write_asc(tmp_path / "gen.asc", _asc_lines(np.random.default_rng(3), 500, 16))
+    assert _import(log, tmp_path / "gen.mcap") == 0
+    assert _same_as_python_can(tmp_path / "gen.mcap", log) > 400

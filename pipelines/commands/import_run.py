@@ -396,11 +396,19 @@ class _Progress:
 
 
 def _check_can_log(path: str) -> None:
-    """Bad input unless python-can reads at least one frame from the log (before any output)."""
+    """Bad input unless the log holds at least one frame (before any output): an ASC log through
+    the numpy parser (:func:`cdpr.daq.canlog.read_asc`, which names a bad line), other formats
+    through python-can."""
     import can
 
     from cdpr.analysis.errors import ConfigError
 
+    if Path(path).suffix.lower() == ".asc":
+        from cdpr.daq.canlog import read_asc
+
+        if next(iter(read_asc(path)), None) is None:
+            raise ConfigError(path, "", "no CAN frames in the log")
+        return
     try:
         reader = can.LogReader(path)
     except (ValueError, OSError) as exc:
