@@ -66,7 +66,7 @@ PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),)
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
      "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options",
-     "windage_tare", "wall_corrected"}
+     "windage_tare", "wall_corrected", "uncorrected"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -507,6 +507,9 @@ def analyze_arrays(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, di
     if opts.geometry is None:
         on = np.isin(out["kind"], ("wind_on", "unknown"))
         out = flags_from_masks(out, words=["no_geometry" if o else "" for o in on])
+    if not opts.corrections:  # balance values: no drift, windage or wall correction (no --matrix)
+        on = np.isin(out["kind"], ("wind_on", "unknown"))
+        out = flags_from_masks(out, words=["uncorrected" if o else "" for o in on])
     before = {"run": [run.path.name] * out.n}
     after: dict[str, Any] = {
         "source": [plan.source] * out.n,
