@@ -82,11 +82,48 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+_BASIC_TAGS = frozenset({"str", "int", "float", "bool", "list", "dict", "none"})
+
+
+def _is_union_tag(part: int | str) -> bool:
+    """A part of an error location that names a union member (``constrained-float``,
+    ``list[constrained-float]``, ``str``), not a key of the file."""
+    return isinstance(part, str) and ("[" in part or "-" in part or part in _BASIC_TAGS)
+
+
 def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigError:
     """The one error formatter: the first problem of ``exc`` as a :class:`ConfigError`
-    naming ``source``, the key and the problem (with the value found, shortened)."""
-    err = exc.errors(include_url=False)[0]
-    key = key_of(tuple(err["loc"]), prefix)
+    naming ``source``, the key and the problem (with the value found, shortened).
+
+    A value that fits no member of a union (``gain_N_per_count``: a number or a list) is named
+    by its key alone: if one member matched the type but not the range, that problem is told;
+    otherwise every member's expected type (``expected a valid string or a valid integer``).
+    """
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    loc = tuple(err["loc"])
+    if any(_is_union_tag(p) for p in loc):
+        # the errors of the same union: those whose location (union tags dropped) starts alike
+        stem = loc[: next(i for i, p in enumerate(loc) if _is_union_tag(p))]
+        same = [e for e in errors if tuple(e["loc"])[: len(stem)] == stem]
+        # a member that matched the type (a list whose item is wrong, a number out of range)
+        ranged = [
+            e
+            for e in same
+            if not e["type"].endswith("_type")
+            or len([p for p in e["loc"] if not _is_union_tag(p)]) > len(stem)
+        ]
+        if ranged:
+            err = ranged[0]
+        else:
+            wants = dict.fromkeys(e["msg"].removeprefix("Input should be ") for e in same)
+            return ConfigError(
+                source,
+                key_of(stem, prefix),
+                f"expected {' or '.join(wants)}, got {_shown(err.get('input'))}",
+            )
+        loc = tuple(p for p in err["loc"] if not _is_union_tag(p))
+    key = key_of(loc, prefix)
     kind, ctx, value = err["type"], err.get("ctx", {}), err.get("input")
     if kind == "extra_forbidden":
         problem = "unknown key"
