@@ -129,6 +129,8 @@ def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigE
         problem = "unknown key"
     elif kind == "missing":
         problem = "missing"
+    elif kind in ("too_short", "too_long"):  # the problem says how many came
+        problem = _problem(kind, ctx, value, err["msg"])
     else:
         problem = f"{_problem(kind, ctx, value, err['msg'])}, got {_shown(value)}"
     return ConfigError(source, key, " ".join(problem.split()))
@@ -142,12 +144,15 @@ def _problem(kind: str, ctx: dict[str, Any], value: Any, msg: str) -> str:
     if kind in ("less_than_equal", "less_than"):
         return f"must be <= {ctx.get('le', ctx.get('lt'))} (a larger value is not plausible here)"
     if kind in ("too_short", "too_long"):
-        noun = "numbers" if all(isinstance(v, int | float) for v in value or []) else "items"
+        noun = "number" if all(isinstance(v, int | float) for v in value or []) else "item"
         n = ctx.get("min_length", ctx.get("max_length"))
+        noun += "" if n == 1 else "s"
         which = "at least" if kind == "too_short" else "at most"
         return f"expected {which} {n} {noun}, got {ctx.get('actual_length')}"
     if kind == "finite_number":
         return "expected a finite number"
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return "expected a table"
     return "expected " + msg.removeprefix("Input should be ")
 
 

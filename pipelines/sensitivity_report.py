@@ -13,20 +13,29 @@ batched :mod:`cdpr.analysis.sensitivity` and writes into one folder:
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import pandas as pd
+from pydantic import Field
 
 from cdpr.analysis import sensitivity as sens
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.tension import METHODS
+from cdpr.daq.schema import (
+    MAX_FORCE_N,
+    MAX_LENGTH_M,
+    Mass_kg,
+    Position_m,
+    Schema,
+    Tension_N,
+    Text,
+    parse,
+)
 
 from .config import atomic_output, load_toml, write_table
 from .plotting import png_figure as _figure
@@ -153,47 +162,92 @@ OPTION_DOCS: dict[str, str] = {
 # ------------------------------------------------------------------------------------ options
 
 
-def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(source, key, f"expected true or false, got {value!r}")
-        return value
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(source, key, f"expected a string, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, list | tuple) or not value:
-            raise ConfigError(source, key, f"expected a non-empty list, got {value!r}")
-        if isinstance(default[0], str):
-            if not all(isinstance(v, str) for v in value):
-                raise ConfigError(source, key, f"expected a list of strings, got {value!r}")
-            return tuple(value)
-        out = []
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ConfigError(source, key, f"expected finite numbers, got {v!r}")
-            out.append(float(v))
-        return tuple(out)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(source, key, f"expected a finite number, got {value!r}")
-    return float(value)
+_Len_m = Annotated[float, Field(gt=0.0, le=MAX_LENGTH_M)]
+_K = Annotated[float, Field(ge=0.025, le=0.4)]  # paper eq. 13
+_Gain = Annotated[float, Field(gt=1.0, le=1e6)]  # K21, K22: cable length ratios
+_Speed_mps = Annotated[float, Field(gt=0.0, le=1e3)]
+
+
+def _some(item: Any) -> Any:
+    """A non-empty list of ``item`` (at most 10,000: each value is a sweep point)."""
+    return Annotated[list[item], Field(min_length=1, max_length=10_000)]
+
+
+def _exactly(item: Any, n: int) -> Any:
+    return Annotated[list[item], Field(min_length=n, max_length=n)]
+
+
+class _CubicSection(Schema):
+    L_m: _Len_m | None = None
+    W_m: _Len_m | None = None
+    H_m: _Len_m | None = None
+    mass_kg: Mass_kg | None = None
+    t_min_N: Tension_N | None = None
+    t_max_N: Tension_N | None = None
+    layout: Text | None = None
+    k1_values: _some(_K) | None = None
+    k2_values: _some(_K) | None = None
+    k3_values: _some(_K) | None = None
+    forces_N: _some(Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]) | None = None
+    baseline_k: _exactly(_K, 3) | None = None
+    Z_values_m: _some(_Len_m) | None = None
+    deflection_values_m: _some(Position_m) | None = None
+    methods: _some(Text) | None = None
+
+
+class _FlatSection(Schema):
+    L_m: _Len_m | None = None
+    l_m: _Len_m | None = None
+    w1_m: _Len_m | None = None
+    w2_m: _Len_m | None = None
+    mass_kg: Mass_kg | None = None
+    t_min_N: Tension_N | None = None
+    t_max_N: Tension_N | None = None
+    K21_values: _some(_Gain) | None = None
+    K22_values: _some(_Gain) | None = None
+    H_values_m: _some(_Len_m) | None = None
+    X_values_m: _some(_Len_m) | None = None
+    baseline: _exactly(Annotated[float, Field(gt=0.0, le=1e6)], 4) | None = None
+    methods: _some(Text) | None = None
+    full_grid: bool | None = None
+
+
+class _AeroSection(Schema):
+    speeds_mps: _some(_Speed_mps) | None = None
+    max_speed_mps: _Speed_mps | None = None
+    rho_kgpm3: Annotated[float, Field(gt=0.0, le=1e3)] | None = None
+    S_ref_m2: Annotated[float, Field(gt=0.0, le=1e4)] | None = None
+    span_m: _Len_m | None = None
+    chord_m: _Len_m | None = None
+    coefficients: _exactly(Annotated[float, Field(ge=-1e3, le=1e3)], 6) | None = None
+
+
+class _MetricSection(Schema):
+    sigma_T_N: Tension_N | None = None
+    margin_method: Text | None = None
+    near_singular_condition: Annotated[float, Field(gt=1.0)] | None = None
+
+
+class OptionsFile(Schema):
+    """A study options file: ``[cubic]``, ``[flat]``, ``[aero]``, ``[study]``, each key optional
+    (the default of :class:`StudyOptions` otherwise), typed and in a plausible range; how options
+    relate (``t_min_N < t_max_N``, the baseline inside the frame) is :func:`validate_options`."""
+
+    cubic: _CubicSection = Field(default_factory=_CubicSection)
+    flat: _FlatSection = Field(default_factory=_FlatSection)
+    aero: _AeroSection = Field(default_factory=_AeroSection)
+    study: _MetricSection = Field(default_factory=_MetricSection)
 
 
 def options_from_mapping(data: Mapping[str, Any], source: str = "<options>") -> StudyOptions:
-    """Defaults overridden by a mapping ``{section: {key: value}}``; unknown keys are errors."""
+    """Defaults overridden by a mapping ``{section: {key: value}}`` checked by
+    :class:`OptionsFile` (unknown keys, types, ranges) and :func:`validate_options`."""
+    f = parse(OptionsFile, data, source)
     opts = StudyOptions()
-    for sec, body in data.items():
-        if sec not in ("cubic", "flat", "aero", "study"):
-            raise ConfigError(source, sec, "unknown section (allowed: cubic, flat, aero, study)")
-        if not isinstance(body, Mapping):
-            raise ConfigError(source, sec, "expected a table")
+    for sec in ("cubic", "flat", "aero", "study"):
         target = getattr(opts, sec)
-        names = {f.name for f in dataclasses.fields(target)}
-        for key, value in body.items():
-            if key not in names:
-                raise ConfigError(source, f"{sec}.{key}", f"unknown key (allowed: {sorted(names)})")
-            setattr(target, key, _coerce(source, f"{sec}.{key}", value, getattr(target, key)))
+        for key, value in getattr(f, sec).model_dump(exclude_none=True).items():
+            setattr(target, key, tuple(value) if isinstance(value, list) else value)
     validate_options(opts, source)
     return opts
 
@@ -204,37 +258,27 @@ def options_from_toml(path: str) -> StudyOptions:
 
 
 def validate_options(o: StudyOptions, source: str = "<options>") -> None:
-    """Check every option's range; a :class:`ConfigError` names the option and the problem."""
+    """Check how the options relate (each option's type and range is :class:`OptionsFile`'s);
+    a :class:`ConfigError` names the option and the problem."""
 
     def need(ok: bool, key: str, problem: str) -> None:
         if not ok:
             raise ConfigError(source, key, problem)
 
-    c, f, a, s = o.cubic, o.flat, o.aero, o.study
-    for key in ("L_m", "W_m", "H_m", "mass_kg"):
-        need(getattr(c, key) > 0, f"cubic.{key}", f"expected > 0, got {getattr(c, key)}")
+    c, f, s = o.cubic, o.flat, o.study
     need(0 <= c.t_min_N < c.t_max_N, "cubic.t_min_N", "expected 0 <= t_min_N < t_max_N")
     need(c.layout in sens.CUBIC_LAYOUTS, "cubic.layout", f"expected one of {sens.CUBIC_LAYOUTS}")
-    for key in ("k1_values", "k2_values", "k3_values"):
-        v = getattr(c, key)
-        need(
-            all(0.025 <= k <= 0.4 for k in v),
-            f"cubic.{key}",
-            f"expected values in [0.025, 0.4] (paper eq. 13), got {list(v)}",
-        )
     need(
         len(tuple(_cubic_grid(c))) > 0,
         "cubic.k1_values",
         "no (k1, k2, k3) of the grids satisfies k3 <= k2 <= k1",
     )
-    need(len(c.baseline_k) == 3, "cubic.baseline_k", "expected 3 values (k1, k2, k3)")
     k1, k2, k3 = c.baseline_k
     need(
         0.025 <= k3 <= k2 <= k1 <= 0.4,
         "cubic.baseline_k",
         f"expected 0.025 <= k3 <= k2 <= k1 <= 0.4, got {tuple(c.baseline_k)}",
     )
-    need(all(x > 0 for x in c.forces_N), "cubic.forces_N", "expected forces > 0 N")
     half = 0.5 * k3 * c.H_m
     need(
         all(half < z < c.H_m - half for z in c.Z_values_m),
@@ -246,33 +290,19 @@ def validate_options(o: StudyOptions, source: str = "<options>") -> None:
         "cubic.deflection_values_m",
         f"expected |d| <= {0.5 * min(c.L_m, c.W_m):g} m (inside the frame)",
     )
-    for key in ("L_m", "l_m", "w1_m", "w2_m", "mass_kg"):
-        need(getattr(f, key) > 0, f"flat.{key}", f"expected > 0, got {getattr(f, key)}")
     need(0 <= f.t_min_N < f.t_max_N, "flat.t_min_N", "expected 0 <= t_min_N < t_max_N")
-    need(all(k > 1 for k in f.K21_values), "flat.K21_values", "expected K21 > 1")
-    need(all(k > 1 for k in f.K22_values), "flat.K22_values", "expected K22 > 1")
-    need(all(h > 0 for h in f.H_values_m), "flat.H_values_m", "expected H > 0 m")
     need(
         all(f.l_m / 2 < x < f.L_m - f.l_m / 2 for x in f.X_values_m),
         "flat.X_values_m",
         f"expected {f.l_m / 2:g} < X < {f.L_m - f.l_m / 2:g} m (inside the frame)",
     )
-    need(len(f.baseline) == 4, "flat.baseline", "expected 4 values (K21, K22, H, X)")
     b21, b22, bH, bX = f.baseline
     need(b21 > 1 and b22 > 1, "flat.baseline", "expected K21, K22 > 1")
-    need(bH > 0, "flat.baseline", "expected H > 0")
     need(f.l_m / 2 < bX < f.L_m - f.l_m / 2, "flat.baseline", "expected X inside the frame")
-    need(all(v > 0 for v in a.speeds_mps), "aero.speeds_mps", "expected speeds > 0 m/s")
-    need(a.max_speed_mps > 0, "aero.max_speed_mps", "expected > 0 m/s")
-    for key in ("rho_kgpm3", "S_ref_m2", "span_m", "chord_m"):
-        need(getattr(a, key) > 0, f"aero.{key}", f"expected > 0, got {getattr(a, key)}")
-    need(len(a.coefficients) == 6, "aero.coefficients", "expected 6 coefficients")
     for key, methods in (("cubic.methods", c.methods), ("flat.methods", f.methods)):
         bad = [m for m in methods if m not in METHODS]
         need(not bad, key, f"unknown method {bad} (known: {sorted(METHODS)})")
     need(s.margin_method in METHODS, "study.margin_method", f"expected one of {sorted(METHODS)}")
-    need(s.sigma_T_N >= 0, "study.sigma_T_N", "expected >= 0 N")
-    need(s.near_singular_condition > 1, "study.near_singular_condition", "expected > 1")
 
 
 def _cubic_grid(c: CubicOptions) -> Iterator[tuple[float, float, float]]:

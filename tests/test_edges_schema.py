@@ -79,3 +79,42 @@ def test_aero_section():
         with pytest.raises(ConfigError) as info:
             aero_from_mapping(data, "s.toml")
         assert str(info.value).startswith(expected), str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("data", "expected"),
+    [
+        ({"cubic": {"k1_values": [0.1, 0.01]}}, "cubic.k1_values[1]: must be >= 0.025, got 0.01"),
+        ({"cubic": {"L_m": "2"}}, "cubic.L_m: expected a valid number, got '2'"),
+        ({"cubic": {"forces_N": []}}, "cubic.forces_N: expected at least 1 number, got 0"),
+        ({"cubic": 3}, "cubic: expected a table, got 3"),
+        (
+            {"flat": {"baseline": [51, 28, 0.67]}},
+            "flat.baseline: expected at least 4 numbers, got 3",
+        ),
+        ({"flat": {"K21_values": [1.0]}}, "flat.K21_values[0]: must be > 1.0, got 1.0"),
+        ({"flat": {"full_grid": 1}}, "flat.full_grid: expected a valid boolean, got 1"),
+        ({"aero": {"rho_kgpm3": 1e300}}, "aero.rho_kgpm3: must be <= 1000.0 (a larger value"),
+        ({"study": {"sigma": 1}}, "study.sigma: unknown key"),
+        ({"wind": {}}, "wind: unknown key"),
+        # how options relate: validate_options
+        ({"cubic": {"t_min_N": 50.0, "t_max_N": 40.0}}, "cubic.t_min_N: expected 0 <= t_min_N"),
+        ({"cubic": {"methods": ["nope"]}}, "cubic.methods: unknown method ['nope']"),
+        ({"flat": {"X_values_m": [0.999]}}, "flat.X_values_m: expected 0.015 < X < 0.985 m"),
+    ],
+)
+def test_sensitivity_options_errors(data, expected):
+    from cdpr.pipelines.sensitivity_report import options_from_mapping
+
+    with pytest.raises(ConfigError) as info:
+        options_from_mapping(data, "s.toml")
+    assert str(info.value).startswith(f"s.toml: {expected}"), str(info.value)
+
+
+def test_sensitivity_options_override_only_what_is_given():
+    from cdpr.pipelines.sensitivity_report import StudyOptions, options_from_mapping
+
+    o = options_from_mapping({"cubic": {"forces_N": [10, 20.5]}, "flat": {"full_grid": False}})
+    d = StudyOptions()
+    assert o.cubic.forces_N == (10.0, 20.5) and o.flat.full_grid is False
+    assert o.cubic.k1_values == d.cubic.k1_values and o.aero == d.aero and o.study == d.study
