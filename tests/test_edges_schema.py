@@ -118,3 +118,48 @@ def test_sensitivity_options_override_only_what_is_given():
     d = StudyOptions()
     assert o.cubic.forces_N == (10.0, 20.5) and o.flat.full_grid is False
     assert o.cubic.k1_values == d.cubic.k1_values and o.aero == d.aero and o.study == d.study
+
+
+CHARUCO = (ROOT / "data_samples" / "board_charuco.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("squares_x = 12", "squares_x = 2", "board.squares_x: must be >= 3, got 2"),
+        ("squares_x = 12", "squares_x = 12.0", "board.squares_x: expected a valid integer, got 12.0"),
+        ("marker_m = 0.022", "marker_m = 0.022\nmarker_mm = 22", "board.marker_mm: unknown key"),
+        ("marker_m = 0.022", "", "board.marker_m: missing"),
+        ("marker_m = 0.022", "marker_m = 0.04", "board.marker_m: must be smaller than square_m"),
+        ('type = "charuco"', 'type = "dots"', "board.type: expected one of 'charuco', 'chessboard'"),
+        ('dictionary = "DICT_5X5_100"', 'dictionary = "5X5"', "board.dictionary: expected a name"),
+        ("min_views = 8", "min_views = 0", "calibration.min_views: must be >= 1, got 0"),
+        ("fix_k3 = true", "fix_k3 = 1", "calibration.fix_k3: expected a valid boolean, got 1"),
+        ("position_m = [0.44, 0.275, 0.0]", "position_m = [0.4, 0.2]", "pose_O.position_m: expected at"),
+        ("[pose_O]", "[pose]", "pose: unknown key"),
+    ],
+)  # fmt: skip
+def test_board_file_errors(tmp_path, old, new, expected):
+    from cdpr.pipelines.vision_config import load_board
+
+    assert old in CHARUCO
+    p = tmp_path / "b.toml"
+    p.write_text(CHARUCO.replace(old, new))
+    with pytest.raises(ConfigError) as info:
+        load_board(p)
+    assert str(info.value).startswith(f"{p}: {expected}"), str(info.value)
+
+
+def test_board_file_of_each_type(tmp_path):
+    from cdpr.pipelines.vision_config import load_board
+
+    p = tmp_path / "c.toml"
+    p.write_text('[board]\ntype = "circles"\ncircles_x = 4\ncircles_y = 11\nspacing_m = 0.015\n')
+    spec, limits = load_board(p)
+    assert (spec.type, spec.circles_x, spec.circles_y, spec.spacing_m) == ("circles", 4, 11, 0.015)
+    assert spec.asymmetric is False and limits.min_views == 8
+    p.write_text(p.read_text() + "[pose_O]\nposition_m = [0, 0, 0]\neuler_rad = [0, 0, 0]\n")
+    with pytest.raises(ConfigError, match="pose_O: a circles has no marks"):
+        load_board(p)
+    spec, limits = load_board(ROOT / "data_samples" / "board_chessboard.toml")
+    assert spec.type == "chessboard" and spec.detector == "classic" and limits.min_corners == 54

@@ -134,3 +134,11 @@ def test_fuzz_campaign_schedule(data):
 
     assert check_loader(load, CAMPAIGN.encode(), "campaign.toml", beside=True) is not None
     check_loader(load, data, "campaign.toml", beside=True)
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "board_charuco.toml").read_text(), "="))
+def test_fuzz_board_file(data):
+    from cdpr.pipelines.vision_config import load_board
+
+    check_loader(load_board, data, "board.toml")
