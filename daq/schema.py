@@ -14,6 +14,8 @@ the project's naming convention; the rig file's schema is here too (:class:`RigF
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 from collections.abc import Mapping
 from typing import Annotated, Any, TypeVar
@@ -179,10 +181,14 @@ class RigSection(Schema):
     reference_euler_rad: Euler_rad = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
+_Positive = Annotated[float, Field(gt=0.0)]
+
+
 class PlatformSection(Schema):
     mass_kg: Mass_kg
     com_P_m: Vec3_m = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     inertia_P_kgm2: Inertia3_kgm2 = Field(default_factory=lambda: [[0.0] * 3 for _ in range(3)])
+    windage_drag_area_m2: Annotated[float, Field(ge=0.0)] | None = None
 
 
 class CableSection(Schema):
@@ -191,6 +197,48 @@ class CableSection(Schema):
     attach_P_m: Vec3_m
     t_min_N: Tension_N
     t_max_N: Tension_N
+    diameter_m: _Positive | None = None
+    drag_coefficient: _Positive | None = None
+    EA_N: _Positive | None = None
+
+
+_WINDAGE_FIELDS = ("cable_diameter_m", "cable_drag_coefficient", "cable_EA_N")
+
+
+def _windage(f: RigFile, source: str) -> dict[str, Any]:
+    """The optional cable windage and stretch keys as :class:`Rig` arguments, per cable (the
+    ``Rig`` fills its defaults where a cable gives none); a key given to a ``Rig`` that has no
+    such field is refused, never dropped."""
+    given = [
+        (f"cables[{i}].{k}", getattr(c, k))
+        for i, c in enumerate(f.cables)
+        for k in ("diameter_m", "drag_coefficient", "EA_N")
+        if getattr(c, k) is not None
+    ]
+    if f.platform.windage_drag_area_m2 is not None:
+        given.append(("platform.windage_drag_area_m2", f.platform.windage_drag_area_m2))
+    if not given:
+        return {}
+    names = {fld.name for fld in dataclasses.fields(Rig)}
+    if not all(n in names for n in (*_WINDAGE_FIELDS, "platform_drag_area_m2")):
+        raise ConfigError(
+            source, given[0][0], "not used by this version of cdpr (no cable windage model)"
+        )
+    import cdpr.analysis.rig as rig_module
+
+    defaults = {
+        "diameter_m": rig_module.DEFAULT_CABLE_DIAMETER_M,
+        "drag_coefficient": math.nan,
+        "EA_N": rig_module.DEFAULT_CABLE_EA_N,
+    }
+    out: dict[str, Any] = {
+        field: np.array(
+            [v if (v := getattr(c, key)) is not None else defaults[key] for c in f.cables]
+        )
+        for field, key in zip(_WINDAGE_FIELDS, defaults, strict=True)
+    }
+    out["platform_drag_area_m2"] = f.platform.windage_drag_area_m2 or 0.0
+    return out
 
 
 class RigFile(Schema):
@@ -226,6 +274,7 @@ def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
         reference_euler_rad=np.array(f.rig.reference_euler_rad),
         assumptions={k: str(v) for k, v in f.assumptions.items()},
         source=source,
+        **_windage(f, source),
     )
 
 

@@ -163,3 +163,44 @@ def test_board_file_of_each_type(tmp_path):
         load_board(p)
     spec, limits = load_board(ROOT / "data_samples" / "board_chessboard.toml")
     assert spec.type == "chessboard" and spec.detector == "classic" and limits.min_corners == 54
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("t_max_N = 300.0", "t_max_N = 300.0\ndiameter_m = 0.0", "cables[0].diameter_m: must be > 0.0"),
+        ("t_max_N = 300.0", "t_max_N = 300.0\nEA_N = -1.0", "cables[0].EA_N: must be > 0.0, got -1.0"),
+        ("t_max_N = 300.0", "t_max_N = 300.0\ndrag_coefficient = nan", "cables[0].drag_coefficient:"),
+        ("mass_kg = 0.64", "mass_kg = 0.64\nwindage_drag_area_m2 = -1", "platform.windage_drag_area_m2:"),
+    ],
+)  # fmt: skip
+def test_rig_windage_keys_ranges(tmp_path, old, new, expected):
+    assert old in RIG_TEXT
+    assert _error(RIG_TEXT.replace(old, new, 1), tmp_path).startswith(expected)
+
+
+def test_rig_windage_keys_reach_the_rig_or_are_refused(tmp_path):
+    """The optional cable windage / stretch keys (another branch adds them to ``Rig``): with that
+    ``Rig`` they arrive per cable, defaults elsewhere; without it they are refused, never dropped."""
+    import dataclasses
+
+    from cdpr.analysis.rig import Rig
+
+    text = RIG_TEXT.replace("t_max_N = 300.0", "t_max_N = 300.0\ndiameter_m = 0.002", 1)
+    text = text.replace("mass_kg = 0.64", "mass_kg = 0.64\nwindage_drag_area_m2 = 0.01")
+    p = tmp_path / "w.toml"
+    p.write_text(text)
+    if "cable_diameter_m" in {f.name for f in dataclasses.fields(Rig)}:
+        rig = load_rig(p)
+        assert rig.cable_diameter_m[0] == 0.002 and rig.platform_drag_area_m2 == 0.01
+        assert (
+            rig.cable_diameter_m[1]
+            == load_rig(ROOT / "data_samples/flat_optimum.toml").cable_diameter_m[1]
+        )
+    else:
+        with pytest.raises(ConfigError) as info:
+            load_rig(p)
+        assert (
+            str(info.value)
+            == f"{p}: cables[0].diameter_m: not used by this version of cdpr (no cable windage model)"
+        )
