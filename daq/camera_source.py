@@ -21,7 +21,6 @@ unreadable files in a folder count as lost.
 
 from __future__ import annotations
 
-import json
 import time
 import tomllib
 from collections.abc import Callable
@@ -33,13 +32,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
-from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
+from cdpr.calibration.camera_model import CameraModel
 from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
+from .vision_files import load_camera
 
 PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 
@@ -47,12 +47,7 @@ PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 def _camera(camera: CameraModel | str) -> CameraModel:
     if isinstance(camera, CameraModel):
         return camera
-    try:
-        return camera_from_mapping(json.loads(Path(camera).read_text()), source=str(camera))
-    except FileNotFoundError:
-        raise ConfigError(str(camera), "", "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(str(camera), "", f"invalid JSON: {exc}") from None
+    return load_camera(camera)
 
 
 def _layout(layout: MarkerLayout | str) -> MarkerLayout:

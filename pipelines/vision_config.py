@@ -2,25 +2,27 @@
 
 The board file is checked by :class:`BoardFile` and the schema of its ``type`` (the schema library:
 :mod:`cdpr.daq.schema`).  Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the
-file, the key and the problem.
+file, the key and the problem.  The camera file's loader is :func:`cdpr.daq.vision_files.load_camera`
+(a camera source reads it too), here for the commands.
 """
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
 from cdpr.calibration.intrinsics import BoardSpec, CalibrationSettings
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 from cdpr.daq.schema import Euler_rad, Schema, Text, Vec3_m, parse
+from cdpr.daq.vision_files import load_camera
 
-from .config import load_json, load_toml
+from .config import load_toml
+
+__all__ = ["BoardFile", "layout_toml", "load_board", "load_camera", "load_marker_layout"]
 
 _Count = Annotated[int, Field(ge=3, le=1000)]
 _Size_m = Annotated[float, Field(gt=0.0, le=10.0)]
@@ -155,13 +157,6 @@ def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
         except Exception as exc:  # noqa: BLE001
             raise ConfigError(str(path), "dictionary", str(exc)) from None
     return layout
-
-
-def load_camera(path: str | os.PathLike[str]) -> CameraModel:
-    """A camera model JSON file (format in :mod:`cdpr.calibration.camera_model`)."""
-    p = Path(path)
-    data = load_json(p)
-    return camera_from_mapping(data, source=str(p))
 
 
 def layout_toml(layout: MarkerLayout, header: str = "") -> str:

@@ -204,3 +204,45 @@ def test_rig_windage_keys_reach_the_rig_or_are_refused(tmp_path):
             str(info.value)
             == f"{p}: cables[0].diameter_m: not used by this version of cdpr (no cable windage model)"
         )
+
+
+CAMERA = (ROOT / "data_samples" / "camera_virtual.json").read_text()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ('"name"', '"nmae"', "nmae: unknown key"),
+        ("1280,", "1280.5,", "image_size_px[0]: expected a valid integer, got 1280.5"),
+        ("1280,", "0,", "image_size_px[0]: must be >= 1, got 0"),
+        ("2000.0,", "1e300,", "camera_matrix[0][0]: must be <= 10000000.0"),
+        ("-0.12,", '"k1",', "dist_coeffs[0]: expected a valid number, got 'k1'"),
+        ("-0.12,", "-0.12, 1.0,", "dist_coeffs: expected 4, 5 or 8 numbers, got 6"),
+        ("-0.12,", "1, 2, 3, 4, 5,", "dist_coeffs: expected at most 8 numbers, got 9"),
+        ("0.7592566023652966,", "1.5,", "extrinsics.R_O_C[0][0]: must be <= 1.0"),
+        ("0.7592566023652966,", "0.75,", "extrinsics.R_O_C: expected a rotation matrix"),
+        ('"opencv-pinhole"', '"fisheye"', "model: expected 'opencv-pinhole', got 'fisheye'"),
+        ("0.2,", "NaN,", "NaN is not a JSON value"),
+    ],
+)
+def test_camera_file_errors(tmp_path, old, new, expected):
+    from cdpr.pipelines.vision_config import load_camera
+
+    assert old in CAMERA
+    p = tmp_path / "cam.json"
+    p.write_text(CAMERA.replace(old, new, 1))
+    with pytest.raises(ConfigError) as info:
+        load_camera(p)
+    msg = str(info.value)
+    assert msg.startswith(f"{p}: ") and expected in msg and "\n" not in msg, msg
+
+
+def test_camera_file_keeps_free_extrinsics_information():
+    from cdpr.pipelines.vision_config import load_camera
+
+    cam = load_camera(ROOT / "data_samples" / "camera_virtual.json")
+    assert cam.extrinsics_info == {
+        "method": "design value (virtual rig)",
+        "looks_at_O_m": [0.5, 0.0, 0.36],
+    }
+    assert cam.image_size_px == (1280, 1024) and cam.K[0, 0] == 2000.0 and cam.dist[0] == -0.12

@@ -142,3 +142,11 @@ def test_fuzz_board_file(data):
     from cdpr.pipelines.vision_config import load_board
 
     check_loader(load_board, data, "board.toml")
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "camera_virtual.json").read_text(), ":,"))
+def test_fuzz_camera_json(data):
+    from cdpr.pipelines.vision_config import load_camera
+
+    check_loader(load_camera, data, "camera.json")
