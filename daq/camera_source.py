@@ -22,7 +22,6 @@ unreadable files in a folder count as lost.
 from __future__ import annotations
 
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -34,12 +33,12 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
 from cdpr.calibration.camera_model import CameraModel
 from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
-from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
+from cdpr.calibration.markers import MarkerLayout
 from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
-from .vision_files import load_camera
+from .vision_files import load_camera, load_marker_layout
 
 PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 
@@ -53,13 +52,7 @@ def _camera(camera: CameraModel | str) -> CameraModel:
 def _layout(layout: MarkerLayout | str) -> MarkerLayout:
     if isinstance(layout, MarkerLayout):
         return layout
-    try:
-        with open(layout, "rb") as fh:
-            return layout_from_mapping(tomllib.load(fh), source=str(layout))
-    except FileNotFoundError:
-        raise ConfigError(str(layout), "", "file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(layout), "", f"invalid TOML: {exc}") from None
+    return load_marker_layout(layout)
 
 
 class FramePoseEstimator:

@@ -151,6 +151,10 @@ def _problem(kind: str, ctx: dict[str, Any], value: Any, msg: str) -> str:
         noun += "" if n == 1 else "s"
         which = "at least" if kind == "too_short" else "at most"
         return f"expected {which} {n} {noun}, got {ctx.get('actual_length')}"
+    if kind in ("string_too_short", "string_too_long"):
+        n = ctx.get("min_length", ctx.get("max_length"))
+        which = "at least" if kind == "string_too_short" else "at most"
+        return f"expected {which} {n} character{'' if n == 1 else 's'}"
     if kind == "finite_number":
         return "expected a finite number"
     if kind in ("model_type", "model_attributes_type", "dict_type"):

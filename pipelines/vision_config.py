@@ -2,8 +2,8 @@
 
 The board file is checked by :class:`BoardFile` and the schema of its ``type`` (the schema library:
 :mod:`cdpr.daq.schema`).  Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the
-file, the key and the problem.  The camera file's loader is :func:`cdpr.daq.vision_files.load_camera`
-(a camera source reads it too), here for the commands.
+file, the key and the problem.  The camera and marker-layout loaders are
+:mod:`cdpr.daq.vision_files`' (a camera source reads those files too), here for the commands.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from pydantic import Field
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration.intrinsics import BoardSpec, CalibrationSettings
-from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
+from cdpr.calibration.markers import MarkerLayout
 from cdpr.daq.schema import Euler_rad, Schema, Text, Vec3_m, parse
-from cdpr.daq.vision_files import load_camera
+from cdpr.daq.vision_files import load_camera, load_marker_layout
 
 from .config import load_toml
 
@@ -142,21 +142,6 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
         spec.position_O_m = np.asarray(f.pose_O.position_m, np.float64)
         spec.R_O_B = rotation_from_euler(np.asarray(f.pose_O.euler_rad, np.float64))
     return spec, CalibrationSettings(**f.calibration.model_dump())
-
-
-def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
-    """A marker layout file (format in :mod:`cdpr.calibration.markers`)."""
-    layout = layout_from_mapping(load_toml(path), source=str(path))
-    if layout.kind == "fiducial":
-        from cdpr.calibration import cv
-
-        try:
-            cv.aruco_dictionary(layout.dictionary)
-        except ConfigError:  # a custom dictionary file: its own file and key
-            raise
-        except Exception as exc:  # noqa: BLE001
-            raise ConfigError(str(path), "dictionary", str(exc)) from None
-    return layout
 
 
 def layout_toml(layout: MarkerLayout, header: str = "") -> str:

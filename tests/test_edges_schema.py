@@ -246,3 +246,32 @@ def test_camera_file_keeps_free_extrinsics_information():
         "looks_at_O_m": [0.5, 0.0, 0.36],
     }
     assert cam.image_size_px == (1280, 1024) and cam.K[0, 0] == 2000.0 and cam.dist[0] == -0.12
+
+
+IR6 = (ROOT / "data_samples" / "markers_flat_ir6.toml").read_text()
+ARUCO = (ROOT / "data_samples" / "markers_flat_aruco.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    ("text", "old", "new", "expected"),
+    [
+        (IR6, "radius_m = 0.004", "radius_m = -0.004", "point[0].radius_m: must be > 0.0, got -0.004"),
+        (IR6, 'label = "nose"', 'label = ""', "point[0].label: expected at least 1 character, got ''"),
+        (IR6, 'label = "nose"', 'label = "nose"\ncolour = "red"', "point[0].colour: unknown key"),
+        (IR6, 'kind = "points"', 'kind = "points"\ndictionary = "DICT_4X4_50"', "dictionary: not a key"),
+        (IR6, 'frame = "P"', 'frame = "Q"', "frame: expected 'P' or 'O', got 'Q'"),
+        (ARUCO, "id = 0", "id = -1", "marker[0].id: must be >= 0, got -1"),
+        (ARUCO, "id = 0", "id = 1", "marker[1].id: duplicate marker id 1"),
+        (ARUCO, 'dictionary = "DICT_4X4_50"', 'dictionary = "4x4"', "dictionary: expected a name like"),
+        (ARUCO, "quiet_zone_cells = 1.0", "quiet_zone_cells = -1.0", "quiet_zone_cells: must be >= 0.0"),
+    ],
+)  # fmt: skip
+def test_marker_layout_errors(tmp_path, text, old, new, expected):
+    from cdpr.pipelines.vision_config import load_marker_layout
+
+    assert old in text
+    p = tmp_path / "m.toml"
+    p.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError) as info:
+        load_marker_layout(p)
+    assert str(info.value).startswith(f"{p}: {expected}"), str(info.value)

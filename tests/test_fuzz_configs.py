@@ -150,3 +150,11 @@ def test_fuzz_camera_json(data):
     from cdpr.pipelines.vision_config import load_camera
 
     check_loader(load_camera, data, "camera.json")
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "markers_flat_ir6.toml").read_text(), "=,"))
+def test_fuzz_marker_layout(data):
+    from cdpr.pipelines.vision_config import load_marker_layout
+
+    check_loader(load_marker_layout, data, "markers.toml")
