@@ -100,7 +100,7 @@ def load_board(path: str | os.PathLike[str]) -> tuple[BoardSpec, CalibrationSett
     src = str(path)
     f = parse(BoardFile, load_toml(path), src)
     kind = f.board.get("type", "charuco")
-    if kind not in _BOARDS:
+    if not isinstance(kind, str) or kind not in _BOARDS:
         raise ConfigError(
             src, "board.type", f"expected one of {', '.join(map(repr, _BOARDS))}, got {kind!r}"
         )

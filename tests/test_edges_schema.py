@@ -275,3 +275,62 @@ def test_marker_layout_errors(tmp_path, text, old, new, expected):
     with pytest.raises(ConfigError) as info:
         load_marker_layout(p)
     assert str(info.value).startswith(f"{p}: {expected}"), str(info.value)
+
+
+TUNNEL = (ROOT / "data_samples" / "tunnel.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("startup_timeout_s = 5.0", "startup_timeout_s = 0.0", "recorder.startup_timeout_s: must be >"),
+        ("stall_timeout_s = 2.0", "stall_timeout_s = 1e300", "recorder.stall_timeout_s: must be <="),
+        ("stall_timeout_s = 2.0", "stall_timeout_s = 2.0\nnice = 20", "recorder.nice: must be <= 19"),
+        ("stall_timeout_s = 2.0", "stall_timeout_s = 2.0\nnice = -3.5", "recorder.nice: expected a"),
+        ('compression = "zstd"', 'compression = "gzip"', "recorder.compression: expected 'zstd'"),
+        ("chunk_size_kib = 256", "chunk_size_kib = 0", "recorder.chunk_size_kib: must be >= 1"),
+        ('operator = ""', 'operator = ""\nshift = 2', "run.shift: unknown key"),
+        ('calibrations = ["loadcell.dbc"]', 'calibrations = "loadcell.dbc"', "run.calibrations: expected"),
+        ('calibrations = ["loadcell.dbc"]', 'calibrations = ["nope.dbc"]', "run.calibrations[0]: file not"),
+    ],
+)  # fmt: skip
+def test_daq_config_run_and_recorder_errors(tmp_path, old, new, expected):
+    from cdpr.pipelines.daq_config import load_daq_config
+
+    assert old in TUNNEL
+    for f in ("flat_optimum.toml", "loadcell.dbc"):
+        (tmp_path / f).symlink_to(ROOT / "data_samples" / f)
+    p = tmp_path / "t.toml"
+    p.write_text(TUNNEL.replace(old, new, 1))
+    with pytest.raises(ConfigError) as info:
+        load_daq_config(p)
+    assert str(info.value).startswith(f"{p}: {expected}"), str(info.value)
+
+
+def test_daq_config_recorder_values_arrive():
+    from cdpr.pipelines.daq_config import load_daq_config
+
+    c = load_daq_config(ROOT / "data_samples" / "tunnel.toml")
+    assert (c.label, c.chunk_size, c.flush_interval_s, c.compression) == (
+        "tp01",
+        256 * 1024,
+        0.25,
+        "zstd",
+    )
+    assert (c.queue_readings, c.startup_timeout_s, c.stall_timeout_s, c.nice) == (
+        200_000,
+        5.0,
+        2.0,
+        -10,
+    )
+    assert c.rig == ROOT / "data_samples" / "flat_optimum.toml"
+
+
+def test_board_type_that_is_not_a_string(tmp_path):
+    """Found by the fuzzer: ``type = []`` raised a TypeError."""
+    from cdpr.pipelines.vision_config import load_board
+
+    p = tmp_path / "b.toml"
+    p.write_text(CHARUCO.replace('type = "charuco"', "type = []"))
+    with pytest.raises(ConfigError, match=r"board\.type: expected one of 'charuco'.*got \[\]"):
+        load_board(p)
