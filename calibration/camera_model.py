@@ -176,53 +176,32 @@ def _jsonable(v: Any) -> Any:
 
 
 def camera_from_mapping(data: dict[str, Any], source: str = "<camera>") -> CameraModel:
-    """Build and validate a :class:`CameraModel` from its JSON mapping; errors name the key."""
-
-    def get(
-        key: str, shape: tuple[int, ...] | None, where: dict[str, Any], prefix: str = ""
-    ) -> F64:
-        if key not in where:
-            raise ConfigError(source, prefix + key, "missing")
-        try:
-            a = np.asarray(where[key], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ConfigError(source, prefix + key, "expected numbers") from None
-        if shape is not None and a.shape != shape:
-            raise ConfigError(source, prefix + key, f"expected shape {shape}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise ConfigError(source, prefix + key, "expected finite numbers")
-        return a
-
-    if not isinstance(data, dict):
-        raise ConfigError(source, "", "expected a JSON object")
-    K = get("camera_matrix", (3, 3), data)
+    """A :class:`CameraModel` from its JSON mapping, whose keys, types and shapes a schema has
+    checked (:class:`cdpr.daq.vision_files.CameraFile`; ``load_camera`` does both); here what
+    relates the numbers: the camera matrix's form, 4, 5 or 8 distortion terms, a rotation."""
+    K = np.asarray(data["camera_matrix"], dtype=np.float64)
     if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1 or K[1, 0] or K[2, 0] or K[2, 1]:
         raise ConfigError(
             source, "camera_matrix", "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0"
         )
-    dist = get("dist_coeffs", None, data).reshape(-1)
+    dist = np.asarray(data["dist_coeffs"], dtype=np.float64).reshape(-1)
     if dist.size not in (4, 5, 8):
         raise ConfigError(source, "dist_coeffs", f"expected 4, 5 or 8 numbers, got {dist.size}")
-    size = get("image_size_px", (2,), data)
-    if np.any(size < 1) or np.any(size != np.round(size)):
-        raise ConfigError(source, "image_size_px", "expected two positive integers [width, height]")
-    ext = data.get("extrinsics", {})
-    if not isinstance(ext, dict):
-        raise ConfigError(source, "extrinsics", "expected an object")
-    R = get("R_O_C", (3, 3), ext, "extrinsics.") if "R_O_C" in ext else np.eye(3)
-    p = get("position_O_m", (3,), ext, "extrinsics.") if "position_O_m" in ext else np.zeros(3)
+    width, height = data["image_size_px"]
+    ext = dict(data.get("extrinsics") or {})
+    R = np.asarray(ext.pop("R_O_C", np.eye(3)), dtype=np.float64)
+    p = np.asarray(ext.pop("position_O_m", np.zeros(3)), dtype=np.float64)
     if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
         raise ConfigError(source, "extrinsics.R_O_C", "expected a rotation matrix")
-    info = {k: v for k, v in ext.items() if k not in ("R_O_C", "position_O_m")}
     return CameraModel(
         K,
         dist,
-        (int(size[0]), int(size[1])),
+        (int(width), int(height)),
         R,
         p,
         str(data.get("name", "camera")),
-        dict(data.get("calibration", {}) or {}),
-        info,
+        dict(data.get("calibration") or {}),
+        ext,
     )
 
 

@@ -9,7 +9,7 @@ Two kinds:
 - ``"points"``: passive point markers (retro-reflective IR disks like the paper's six marks), each
   with a label, a centre, a face normal and a disk radius.
 
-TOML layout (loaded by ``cdpr.pipelines.vision_config.load_marker_layout``)::
+TOML layout (loaded by ``cdpr.daq.vision_files.load_marker_layout``, schema ``LayoutFile``)::
 
     kind = "fiducial"            # or "points"
     frame = "P"                  # "O" for targets fixed in the tunnel (extrinsics)
@@ -150,37 +150,15 @@ def _frame_from_axes(normal: F64, x_axis: F64) -> F64:
 
 
 def layout_from_mapping(data: dict[str, Any], source: str = "<layout>") -> MarkerLayout:
-    """Validate a layout mapping (see the module docstring); errors name the file and key."""
-
-    def vec(item: dict[str, Any], key: str, where: str, default: Any = None) -> F64:
-        if key not in item:
-            if default is not None:
-                return np.asarray(default, np.float64)
-            raise ConfigError(source, f"{where}.{key}", "missing")
-        try:
-            a = np.asarray(item[key], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ConfigError(source, f"{where}.{key}", "expected 3 numbers") from None
-        if a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise ConfigError(
-                source, f"{where}.{key}", f"expected 3 finite numbers, got {item[key]!r}"
-            )
-        return a
-
-    def pos(item: dict[str, Any], key: str, where: str) -> float:
-        v = item.get(key)
-        if not isinstance(v, int | float) or isinstance(v, bool) or not np.isfinite(v) or v <= 0:
-            raise ConfigError(
-                source, f"{where}.{key}", f"expected a positive number (m), got {v!r}"
-            )
-        return float(v)
-
-    kind = data.get("kind")
-    if kind not in ("fiducial", "points"):
-        raise ConfigError(source, "kind", f"expected 'fiducial' or 'points', got {kind!r}")
-    frame = data.get("frame", "P")
-    if frame not in ("P", "O"):
-        raise ConfigError(source, "frame", f"expected 'P' or 'O', got {frame!r}")
+    """A :class:`MarkerLayout` from its mapping, whose keys, types and shapes a schema has checked
+    (:class:`cdpr.daq.vision_files.LayoutFile`; ``load_marker_layout`` does both); here what
+    relates them: the kind's own keys, a dictionary name or file, ids and labels unique, enough
+    markers, a non-zero normal and an x axis not along it.  Errors name the file and key."""
+    kind, frame = data["kind"], data.get("frame", "P")
+    own = {"fiducial": ("dictionary", "quiet_zone_cells", "marker"), "points": ("point",)}
+    for key in ("dictionary", "quiet_zone_cells", "marker", "point"):
+        if key in data and key not in own[kind]:
+            raise ConfigError(source, key, f"not a key of a {kind} layout")
     layout = MarkerLayout(kind=kind, frame=frame, name=str(data.get("name", "")))
     if kind == "fiducial":
         dictionary = data.get("dictionary")
@@ -198,60 +176,50 @@ def layout_from_mapping(data: dict[str, Any], source: str = "<layout>") -> Marke
             # a custom dictionary file is found beside the layout file
             dictionary = os.path.join(os.path.dirname(os.path.abspath(source)), dictionary)
         layout.dictionary = dictionary
-        qz = data.get("quiet_zone_cells", 1.0)
-        if not isinstance(qz, int | float) or qz < 0:
-            raise ConfigError(source, "quiet_zone_cells", f"expected a number >= 0, got {qz!r}")
-        layout.quiet_zone_cells = float(qz)
-        items = data.get("marker")
-        if not isinstance(items, list) or not items:
+        layout.quiet_zone_cells = float(data.get("quiet_zone_cells", 1.0))
+        items = data.get("marker") or []
+        if not items:
             raise ConfigError(source, "marker", "expected at least one [[marker]] table")
         seen: set[int] = set()
         for i, m in enumerate(items):
             where = f"marker[{i}]"
-            mid = m.get("id")
-            if not isinstance(mid, int) or isinstance(mid, bool) or mid < 0:
-                raise ConfigError(source, f"{where}.id", f"expected an integer >= 0, got {mid!r}")
-            if mid in seen:
-                raise ConfigError(source, f"{where}.id", f"duplicate marker id {mid}")
-            seen.add(mid)
-            normal = vec(m, "normal", where)
-            x_axis = vec(m, "x_axis", where)
+            if m["id"] in seen:
+                raise ConfigError(source, f"{where}.id", f"duplicate marker id {m['id']}")
+            seen.add(m["id"])
+            normal = np.asarray(m["normal"], np.float64)
+            x_axis = np.asarray(m["x_axis"], np.float64)
             if np.linalg.norm(normal) < 1e-9 or np.linalg.norm(np.cross(normal, x_axis)) < 1e-9:
                 raise ConfigError(
                     source, f"{where}.x_axis", "must be non-zero and not parallel to normal"
                 )
             layout.fiducials.append(
                 Fiducial(
-                    mid,
-                    vec(m, "center_m", where),
+                    m["id"],
+                    np.asarray(m["center_m"], np.float64),
                     _frame_from_axes(normal, x_axis),
-                    pos(m, "size_m", where),
+                    float(m["size_m"]),
                 )
             )
     else:
-        items = data.get("point")
-        if not isinstance(items, list) or len(items) < 4:
+        items = data.get("point") or []
+        if len(items) < 4:
             raise ConfigError(source, "point", "expected at least four [[point]] tables")
         labels: set[str] = set()
         for i, m in enumerate(items):
             where = f"point[{i}]"
-            label = m.get("label")
-            if not isinstance(label, str) or not label:
-                raise ConfigError(
-                    source, f"{where}.label", f"expected a non-empty string, got {label!r}"
-                )
+            label = m["label"]
             if label in labels:
                 raise ConfigError(source, f"{where}.label", f"duplicate label {label!r}")
             labels.add(label)
-            normal = vec(m, "normal", where, default=(0.0, 0.0, 1.0))
+            normal = np.asarray(m.get("normal", (0.0, 0.0, 1.0)), np.float64)
             if np.linalg.norm(normal) < 1e-9:
                 raise ConfigError(source, f"{where}.normal", "must be non-zero")
             layout.points.append(
                 PointMarker(
                     label,
-                    vec(m, "center_m", where),
+                    np.asarray(m["center_m"], np.float64),
                     normal / np.linalg.norm(normal),
-                    pos(m, "radius_m", where),
+                    float(m["radius_m"]),
                 )
             )
     return layout

@@ -21,9 +21,7 @@ unreadable files in a folder count as lost.
 
 from __future__ import annotations
 
-import json
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,13 +31,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
-from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
+from cdpr.calibration.camera_model import CameraModel
 from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
-from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
+from cdpr.calibration.markers import MarkerLayout
 from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
+from .vision_files import load_camera, load_marker_layout
 
 PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 
@@ -47,24 +46,13 @@ PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 def _camera(camera: CameraModel | str) -> CameraModel:
     if isinstance(camera, CameraModel):
         return camera
-    try:
-        return camera_from_mapping(json.loads(Path(camera).read_text()), source=str(camera))
-    except FileNotFoundError:
-        raise ConfigError(str(camera), "", "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(str(camera), "", f"invalid JSON: {exc}") from None
+    return load_camera(camera)
 
 
 def _layout(layout: MarkerLayout | str) -> MarkerLayout:
     if isinstance(layout, MarkerLayout):
         return layout
-    try:
-        with open(layout, "rb") as fh:
-            return layout_from_mapping(tomllib.load(fh), source=str(layout))
-    except FileNotFoundError:
-        raise ConfigError(str(layout), "", "file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(layout), "", f"invalid TOML: {exc}") from None
+    return load_marker_layout(layout)
 
 
 class FramePoseEstimator:

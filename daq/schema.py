@@ -83,16 +83,55 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+_BASIC_TAGS = frozenset({"str", "int", "float", "bool", "list", "dict", "none"})
+
+
+def _is_union_tag(part: int | str) -> bool:
+    """A part of an error location that names a union member (``constrained-float``,
+    ``list[constrained-float]``, ``str``), not a key of the file."""
+    return isinstance(part, str) and ("[" in part or "-" in part or part in _BASIC_TAGS)
+
+
 def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigError:
     """The one error formatter: the first problem of ``exc`` as a :class:`ConfigError`
-    naming ``source``, the key and the problem (with the value found, shortened)."""
-    err = exc.errors(include_url=False)[0]
-    key = key_of(tuple(err["loc"]), prefix)
+    naming ``source``, the key and the problem (with the value found, shortened).
+
+    A value that fits no member of a union (``gain_N_per_count``: a number or a list) is named
+    by its key alone: if one member matched the type but not the range, that problem is told;
+    otherwise every member's expected type (``expected a valid string or a valid integer``).
+    """
+    errors = exc.errors(include_url=False)
+    err = errors[0]
+    loc = tuple(err["loc"])
+    if any(_is_union_tag(p) for p in loc):
+        # the errors of the same union: those whose location (union tags dropped) starts alike
+        stem = loc[: next(i for i, p in enumerate(loc) if _is_union_tag(p))]
+        same = [e for e in errors if tuple(e["loc"])[: len(stem)] == stem]
+        # a member that matched the type (a list whose item is wrong, a number out of range)
+        ranged = [
+            e
+            for e in same
+            if not e["type"].endswith("_type")
+            or len([p for p in e["loc"] if not _is_union_tag(p)]) > len(stem)
+        ]
+        if ranged:
+            err = ranged[0]
+        else:
+            wants = dict.fromkeys(e["msg"].removeprefix("Input should be ") for e in same)
+            return ConfigError(
+                source,
+                key_of(stem, prefix),
+                f"expected {' or '.join(wants)}, got {_shown(err.get('input'))}",
+            )
+        loc = tuple(p for p in err["loc"] if not _is_union_tag(p))
+    key = key_of(loc, prefix)
     kind, ctx, value = err["type"], err.get("ctx", {}), err.get("input")
     if kind == "extra_forbidden":
         problem = "unknown key"
     elif kind == "missing":
         problem = "missing"
+    elif kind in ("too_short", "too_long"):  # the problem says how many came
+        problem = _problem(kind, ctx, value, err["msg"])
     else:
         problem = f"{_problem(kind, ctx, value, err['msg'])}, got {_shown(value)}"
     return ConfigError(source, key, " ".join(problem.split()))
@@ -106,12 +145,19 @@ def _problem(kind: str, ctx: dict[str, Any], value: Any, msg: str) -> str:
     if kind in ("less_than_equal", "less_than"):
         return f"must be <= {ctx.get('le', ctx.get('lt'))} (a larger value is not plausible here)"
     if kind in ("too_short", "too_long"):
-        noun = "numbers" if all(isinstance(v, int | float) for v in value or []) else "items"
+        noun = "number" if all(isinstance(v, int | float) for v in value or []) else "item"
         n = ctx.get("min_length", ctx.get("max_length"))
+        noun += "" if n == 1 else "s"
         which = "at least" if kind == "too_short" else "at most"
         return f"expected {which} {n} {noun}, got {ctx.get('actual_length')}"
+    if kind in ("string_too_short", "string_too_long"):
+        n = ctx.get("min_length", ctx.get("max_length"))
+        which = "at least" if kind == "string_too_short" else "at most"
+        return f"expected {which} {n} character{'' if n == 1 else 's'}"
     if kind == "finite_number":
         return "expected a finite number"
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return "expected a table"
     return "expected " + msg.removeprefix("Input should be ")
 
 

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
-import numpy as np
+from pydantic import Field
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import Rig
@@ -23,6 +23,17 @@ from cdpr.analysis.rig import Rig
 from .aero_model import AeroModel, aero_from_mapping
 from .files import load_toml
 from .loadcell import check_frame_budget
+from .schema import MAX_FORCE_N, Euler_rad, Force_N, Schema, Text, Vec3_m, parse
+
+MAX_RATE_HZ = 1e6
+"""Largest sample rate (Hz) a schedule may ask for."""
+MAX_TIME_S = 1e7
+"""Longest duration or start time (s): about four months of schedule."""
+MAX_SPEED_MPS = 1e3
+MAX_ANGLE_DEG = 1e4
+MAX_COUNTS = 2.0**31
+"""Largest amplifier offset (counts) in magnitude: a signed 32-bit reading."""
+MAX_BITRATE = 10_000_000
 
 FAULT_KINDS = (
     "dropout",
@@ -123,161 +134,166 @@ class Schedule:
         return float(sum(s.duration_s for s in self.segments))
 
 
-_SCHED_KEYS = {"name", "rate_hz", "tunnel_rate_hz", "method", "seed", "bitrate"}
-_SEG_KEYS = {
-    "label",
-    "duration_s",
-    "wind_mps",
-    "position_O_m",
-    "euler_rad",
-    "euler_deg",
-    "transition_s",
-    "tare",
-    "kind",
-    "target_aoa_deg",
-    "target_sideslip_deg",
-    "repeat_of",
-}
 POINT_KINDS = ("wind_on", "tare", "zero", "windage")
-_FAULT_KEYS = {"kind", "start_s", "duration_s", "cable", "factor", "value_N"}
-_TOP = {"schedule", "segments", "faults", "sensor", "aero"}
+PER_CABLE_FAULTS = ("slack", "saturate", "stuck", "sensor_fault")
+
+_Rate_hz = Annotated[float, Field(gt=0.0, le=MAX_RATE_HZ)]
+_Duration_s = Annotated[float, Field(gt=0.0, le=MAX_TIME_S)]
+_Time_s = Annotated[float, Field(ge=0.0, le=MAX_TIME_S)]
+_Speed_mps = Annotated[float, Field(ge=0.0, le=MAX_SPEED_MPS)]
+_Angle_deg = Annotated[float, Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)]
+_Sd = Annotated[float, Field(ge=0.0, le=MAX_FORCE_N)]
+_Counts = Annotated[float, Field(ge=-MAX_COUNTS, le=MAX_COUNTS)]
+_Gain = Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
 
 
-def _f(source: str, key: str, v: Any, lo: float | None = None, strict: bool = False) -> float:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise ConfigError(source, key, f"expected a number, got {v!r}") from None
-    if not math.isfinite(x):
-        raise ConfigError(source, key, "expected a finite number")
-    if lo is not None and (x < lo or (strict and x == lo)):
-        raise ConfigError(source, key, f"must be {'>' if strict else '>='} {lo:g}, got {x:g}")
-    return x
+class ScheduleSection(Schema):
+    """``[schedule]``: name, rates, the controller's tension method, seed, CAN bit rate."""
+
+    name: Text | None = None
+    rate_hz: _Rate_hz = 200.0
+    tunnel_rate_hz: _Rate_hz = 10.0
+    method: Text = "exact"
+    seed: int = 0
+    bitrate: Annotated[int, Field(gt=0, le=MAX_BITRATE)] = 1_000_000
 
 
-def _vec3(source: str, key: str, v: Any) -> tuple[float, float, float]:
-    if not isinstance(v, list | tuple) or len(v) != 3:
-        raise ConfigError(source, key, f"expected 3 numbers, got {v!r}")
-    a, b, c = (_f(source, key, x) for x in v)
-    return (a, b, c)
+class SegmentSection(Schema):
+    """One ``[[segments]]`` table (pose, wind, ramp, test-point kind and targets)."""
+
+    label: Text | None = None
+    duration_s: _Duration_s
+    wind_mps: _Speed_mps = 0.0
+    position_O_m: Vec3_m | None = None
+    euler_rad: Euler_rad | None = None
+    euler_deg: Annotated[list[_Angle_deg], Field(min_length=3, max_length=3)] | None = None
+    transition_s: _Time_s = 0.0
+    tare: bool = False
+    kind: Literal["", "wind_on", "tare", "zero", "windage"] = ""
+    target_aoa_deg: _Angle_deg = 0.0
+    target_sideslip_deg: _Angle_deg = 0.0
+    repeat_of: Text = ""
 
 
-def _table(source: str, key: str, value: Any, allowed: Collection[str]) -> Mapping[str, Any]:
-    """``value`` as a table whose keys are all in ``allowed`` (else ConfigError at ``key``)."""
-    if not isinstance(value, Mapping):
-        raise ConfigError(source, key, "expected a table")
-    for k in value:
-        if k not in allowed:
-            raise ConfigError(source, f"{key}.{k}", f"unknown key (allowed: {sorted(allowed)})")
-    return value
+class FaultSection(Schema):
+    """One ``[[faults]]`` table."""
+
+    kind: Literal[
+        "dropout", "slack", "saturate", "stuck", "noise_burst", "sensor_fault", "port_vanish"
+    ]
+    start_s: _Time_s = 0.0
+    duration_s: _Duration_s
+    cable: Text | int | None = None
+    factor: Annotated[float, Field(ge=0.0, le=1e6)] = 50.0
+    value_N: Force_N = 0.3
+
+
+class SensorSection(Schema):
+    """``[sensor]``: the load cells' noise, drift, latency, flags and true calibration."""
+
+    noise_sd_N: _Sd = SensorModel.noise_sd_N
+    drift_N_per_s: _Sd = SensorModel.drift_N_per_s
+    latency_s: Annotated[float, Field(ge=0.0, le=10.0)] = SensorModel.latency_s
+    slack_threshold_N: _Sd = SensorModel.slack_threshold_N
+    offset_counts: list[_Counts] | None = None
+    gain_N_per_count: _Gain | list[_Gain] = 5.0e-5
+    tunnel_airspeed_sd_mps: _Sd = SensorModel.tunnel_airspeed_sd_mps
+    tunnel_pressure_sd_Pa: Annotated[float, Field(ge=0.0, le=1e6)] = (
+        SensorModel.tunnel_pressure_sd_Pa
+    )
+    tunnel_temperature_sd_K: Annotated[float, Field(ge=0.0, le=1e3)] = (
+        SensorModel.tunnel_temperature_sd_K
+    )
+
+
+class ScheduleFile(Schema):
+    """A schedule file: ``[schedule]``, ``[[segments]]``, ``[[faults]]``, ``[sensor]``,
+    ``[aero]`` (the last one checked by :class:`cdpr.daq.aero_model.AeroSection`)."""
+
+    schedule: ScheduleSection = Field(default_factory=ScheduleSection)
+    segments: Annotated[list[SegmentSection], Field(min_length=1, max_length=100_000)]
+    faults: Annotated[list[FaultSection], Field(max_length=10_000)] = Field(default_factory=list)
+    sensor: SensorSection = Field(default_factory=SensorSection)
+    aero: dict[str, Any] | None = None
+
+
+def _tuple3(v: list[float]) -> tuple[float, float, float]:
+    return (v[0], v[1], v[2])
 
 
 def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Schedule:
     """Build and validate a :class:`Schedule` from a parsed schedule file (TOML mapping).
 
-    ``rig`` gives the default pose (its reference pose) and the cable names faults may use.
-    Errors are :class:`ConfigError` naming ``source`` and the key (``segments[2].wind_mps``).
+    :class:`ScheduleFile` checks keys, types and ranges; what depends on several keys or on the
+    rig is checked here.  ``rig`` gives the default pose (its reference pose) and the cable names
+    faults may use.  Errors are :class:`ConfigError` naming ``source`` and the key
+    (``segments[2].wind_mps``).
     """
-    unknown = sorted(set(data) - _TOP)
-    if unknown:
-        raise ConfigError(source, unknown[0], f"unknown key (allowed: {sorted(_TOP)})")
-    sch = _table(source, "schedule", data.get("schedule", {}), _SCHED_KEYS)
-    rate = _f(source, "schedule.rate_hz", sch.get("rate_hz", 200.0), 0.0, True)
-    t_rate = _f(source, "schedule.tunnel_rate_hz", sch.get("tunnel_rate_hz", 10.0), 0.0, True)
-    method = str(sch.get("method", "exact"))
+    f = parse(ScheduleFile, data, source)
+    sch = f.schedule
     from cdpr.analysis.tension import METHODS
 
-    if method not in METHODS:
+    if sch.method not in METHODS:
         raise ConfigError(
             source,
             "schedule.method",
-            f"unknown tension method {method!r} (known: {sorted(METHODS)})",
+            f"unknown tension method {sch.method!r} (known: {sorted(METHODS)})",
         )
-    segs_raw = data.get("segments")
-    if not isinstance(segs_raw, list) or not segs_raw:
-        raise ConfigError(source, "segments", "expected a non-empty array of [[segments]] tables")
     segs = []
     rp, re_ = rig.reference_position_O_m, rig.reference_euler_rad
-    ref_p = (float(rp[0]), float(rp[1]), float(rp[2]))
-    ref_e = (float(re_[0]), float(re_[1]), float(re_[2]))
-    prev_p, prev_e = ref_p, ref_e
-    for i, s_raw in enumerate(segs_raw):
+    prev_p = (float(rp[0]), float(rp[1]), float(rp[2]))
+    prev_e = (float(re_[0]), float(re_[1]), float(re_[2]))
+    for i, s in enumerate(f.segments):
         k = f"segments[{i}]"
-        s = _table(source, k, s_raw, _SEG_KEYS)
-        if "duration_s" not in s:
-            raise ConfigError(source, f"{k}.duration_s", "missing")
-        dur = _f(source, f"{k}.duration_s", s["duration_s"], 0.0, True)
-        wind = _f(source, f"{k}.wind_mps", s.get("wind_mps", 0.0), 0.0)
-        kind = s.get("kind", "")
-        if kind != "" and kind not in POINT_KINDS:
-            raise ConfigError(
-                source, f"{k}.kind", f"expected one of {list(POINT_KINDS)}, got {kind!r}"
-            )
-        tare = bool(s.get("tare", False)) or kind in ("tare", "zero")
-        if kind in ("wind_on", "windage") and wind == 0:
-            raise ConfigError(source, f"{k}.wind_mps", f"a {kind} point needs wind > 0")
-        if tare and wind != 0:
+        tare = s.tare or s.kind in ("tare", "zero")
+        if s.kind in ("wind_on", "windage") and s.wind_mps == 0:
+            raise ConfigError(source, f"{k}.wind_mps", f"a {s.kind} point needs wind > 0")
+        if tare and s.wind_mps != 0:
             raise ConfigError(source, f"{k}.wind_mps", "a tare segment is wind-off: must be 0")
-        pos = (
-            _vec3(source, f"{k}.position_O_m", s["position_O_m"]) if "position_O_m" in s else prev_p
-        )
-        if "euler_rad" in s and "euler_deg" in s:
+        if s.euler_rad is not None and s.euler_deg is not None:
             raise ConfigError(source, f"{k}.euler_deg", "give euler_rad or euler_deg, not both")
-        if "euler_rad" in s:
-            eul = _vec3(source, f"{k}.euler_rad", s["euler_rad"])
-        elif "euler_deg" in s:
-            d = _vec3(source, f"{k}.euler_deg", s["euler_deg"])
-            eul = (math.radians(d[0]), math.radians(d[1]), math.radians(d[2]))
+        if s.transition_s > s.duration_s:
+            raise ConfigError(
+                source, f"{k}.transition_s", f"longer than the segment ({s.duration_s:g} s)"
+            )
+        pos = _tuple3(s.position_O_m) if s.position_O_m is not None else prev_p
+        if s.euler_rad is not None:
+            eul = _tuple3(s.euler_rad)
+        elif s.euler_deg is not None:
+            eul = _tuple3([math.radians(d) for d in s.euler_deg])
         else:
             eul = prev_e
-        trans = _f(source, f"{k}.transition_s", s.get("transition_s", 0.0), 0.0)
-        if trans > dur:
-            raise ConfigError(source, f"{k}.transition_s", f"longer than the segment ({dur:g} s)")
-        repeat_of = s.get("repeat_of", "")
-        if not isinstance(repeat_of, str):
-            raise ConfigError(source, f"{k}.repeat_of", f"expected a label, got {repeat_of!r}")
         segs.append(
             Segment(
-                str(s.get("label", f"seg{i}")),
-                dur,
-                wind,
+                s.label if s.label is not None else f"seg{i}",
+                s.duration_s,
+                s.wind_mps,
                 pos,
                 eul,
-                trans,
+                s.transition_s,
                 tare,
-                kind,
-                _f(source, f"{k}.target_aoa_deg", s.get("target_aoa_deg", 0.0)),
-                _f(source, f"{k}.target_sideslip_deg", s.get("target_sideslip_deg", 0.0)),
-                repeat_of,
+                s.kind,
+                s.target_aoa_deg,
+                s.target_sideslip_deg,
+                s.repeat_of,
             )
         )
         prev_p, prev_e = pos, eul
     total = sum(s.duration_s for s in segs)
     faults = []
-    f_raw = data.get("faults", [])
-    if not isinstance(f_raw, list):
-        raise ConfigError(source, "faults", "expected an array of [[faults]] tables")
-    for i, fr_raw in enumerate(f_raw):
+    for i, fr in enumerate(f.faults):
         k = f"faults[{i}]"
-        fr = _table(source, k, fr_raw, _FAULT_KEYS)
-        kind = fr.get("kind")
-        if kind not in FAULT_KINDS:
-            raise ConfigError(
-                source, f"{k}.kind", f"expected one of {list(FAULT_KINDS)}, got {kind!r}"
-            )
-        start = _f(source, f"{k}.start_s", fr.get("start_s", 0.0), 0.0)
-        dur = _f(source, f"{k}.duration_s", fr.get("duration_s", 0.0), 0.0, True)
-        if start >= total:
+        if fr.start_s >= total:
             raise ConfigError(
                 source, f"{k}.start_s", f"after the end of the schedule ({total:g} s)"
             )
         cable = -1
-        if kind in ("slack", "saturate", "stuck", "sensor_fault"):
-            if "cable" not in fr:
+        if fr.kind in PER_CABLE_FAULTS:
+            c = fr.cable
+            if c is None:
                 raise ConfigError(
-                    source, f"{k}.cable", f"a {kind} fault needs a cable (name or index)"
+                    source, f"{k}.cable", f"a {fr.kind} fault needs a cable (name or index)"
                 )
-            c = fr["cable"]
             if isinstance(c, str):
                 if c not in rig.cable_names:
                     raise ConfigError(
@@ -286,61 +302,38 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
                         f"unknown cable {c!r} (rig has {list(rig.cable_names)})",
                     )
                 cable = rig.cable_names.index(c)
-            elif isinstance(c, int) and 0 <= c < rig.n_cables:
+            elif 0 <= c < rig.n_cables:
                 cable = c
             else:
                 raise ConfigError(
                     source, f"{k}.cable", f"expected a cable name or 0..{rig.n_cables - 1}"
                 )
-        faults.append(
-            Fault(
-                kind,
-                start,
-                dur,
-                cable,
-                _f(source, f"{k}.factor", fr.get("factor", 50.0), 0.0),
-                _f(source, f"{k}.value_N", fr.get("value_N", 0.3)),
-            )
-        )
-    sens_raw = data.get("sensor", {})
-    if not isinstance(sens_raw, Mapping):
-        raise ConfigError(source, "sensor", "expected a table")
-    sens_fields = SensorModel.__dataclass_fields__
-    kw: dict[str, Any] = {}
-    for key, v in sens_raw.items():
-        if key not in sens_fields:
-            raise ConfigError(
-                source, f"sensor.{key}", f"unknown key (allowed: {sorted(sens_fields)})"
-            )
-        if key == "offset_counts" or (key == "gain_N_per_count" and isinstance(v, list)):
-            if not isinstance(v, list) or len(v) != rig.n_cables:
-                raise ConfigError(source, f"sensor.{key}", f"expected {rig.n_cables} numbers")
-            kw[key] = tuple(_f(source, f"sensor.{key}", x) for x in v)
-        else:
-            kw[key] = _f(source, f"sensor.{key}", v, 0.0)
-    if np.any(np.asarray(kw.get("gain_N_per_count", 1.0)) <= 0):
-        raise ConfigError(source, "sensor.gain_N_per_count", "must be > 0")
-    seed = sch.get("seed", 0)
-    if not isinstance(seed, int):
-        raise ConfigError(source, "schedule.seed", f"expected an integer, got {seed!r}")
-    bitrate = sch.get("bitrate", 1_000_000)
-    if not isinstance(bitrate, int) or bitrate <= 0:
-        raise ConfigError(
-            source, "schedule.bitrate", f"expected a positive integer, got {bitrate!r}"
-        )
+        elif fr.cable is not None:
+            raise ConfigError(source, f"{k}.cable", f"a {fr.kind} fault is not on one cable")
+        faults.append(Fault(fr.kind, fr.start_s, fr.duration_s, cable, fr.factor, fr.value_N))
+    sens = f.sensor
+    kw = sens.model_dump()
+    for key in ("offset_counts", "gain_N_per_count"):
+        v = kw[key]
+        if isinstance(v, list):
+            if len(v) != rig.n_cables:
+                raise ConfigError(
+                    source, f"sensor.{key}", f"expected {rig.n_cables} numbers, got {len(v)}"
+                )
+            kw[key] = tuple(v)
     # the CAN transports send 4 frames per sample (data_samples/loadcell.dbc): they must fit the bus
-    check_frame_budget(source, "schedule", bitrate, rate, 4)
+    check_frame_budget(source, "schedule", sch.bitrate, sch.rate_hz, 4)
     return Schedule(
-        name=str(sch.get("name", Path(source).stem)),
+        name=sch.name if sch.name is not None else Path(source).stem,
         segments=tuple(segs),
-        rate_hz=rate,
-        tunnel_rate_hz=t_rate,
-        method=method,
-        seed=seed,
-        bitrate=bitrate,
+        rate_hz=sch.rate_hz,
+        tunnel_rate_hz=sch.tunnel_rate_hz,
+        method=sch.method,
+        seed=sch.seed,
+        bitrate=sch.bitrate,
         faults=tuple(faults),
         sensor=SensorModel(**kw),
-        aero=aero_from_mapping(data.get("aero"), source),
+        aero=aero_from_mapping(f.aero, source),
         source=source,
     )
 

@@ -30,12 +30,14 @@ Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the file, the
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import Field
 
 from cdpr.analysis.errors import ConfigError
+from cdpr.daq.schema import Schema, Text, parse
 
 from .config import file_sha256, load_toml
 
@@ -56,17 +58,40 @@ PATH_KEYS = (
 #: Source settings that name folders (an image folder of a ``camera`` source): resolved likewise.
 DIR_KEYS = ("folder",)
 
-_RUN_KEYS = {"label", "rig", "calibrations", "operator", "notes"}
-_REC_KEYS = {
-    "out",
-    "chunk_size_kib",
-    "flush_interval_s",
-    "compression",
-    "queue_readings",
-    "startup_timeout_s",
-    "stall_timeout_s",
-    "nice",
-}
+_Path = Annotated[str, Field(min_length=1, max_length=4096)]
+_Timeout_s = Annotated[float, Field(gt=0.0, le=3600.0)]
+
+
+class RunSection(Schema):
+    """``[run]``: label, rig file, calibration files, operator, notes."""
+
+    label: Text = "run"
+    rig: _Path | None = None
+    calibrations: Annotated[list[_Path], Field(max_length=1000)] = Field(default_factory=list)
+    operator: Text = ""
+    notes: Text = ""
+
+
+class RecorderSection(Schema):
+    """``[recorder]``: output, chunking, compression, queue, startup and stall timeouts, nice."""
+
+    out: _Path | None = None
+    chunk_size_kib: Annotated[int, Field(ge=1, le=64 * 1024)] = 256
+    flush_interval_s: Annotated[float, Field(gt=0.0, le=1.0)] = 0.25
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    queue_readings: Annotated[int, Field(ge=1, le=100_000_000)] = 200_000
+    startup_timeout_s: _Timeout_s = 5.0
+    stall_timeout_s: _Timeout_s = 2.0
+    nice: Annotated[int, Field(ge=-20, le=19)] = -10
+
+
+class DaqFile(Schema):
+    """A daq config: ``[run]`` and ``[recorder]`` checked here; each ``[sources.<name>]`` table
+    is checked by its driver when the sources are built (:func:`build_sources`)."""
+
+    run: RunSection = Field(default_factory=RunSection)
+    recorder: RecorderSection = Field(default_factory=RecorderSection)
+    sources: dict[str, Any] = Field(default_factory=dict)
 
 
 @dataclass
@@ -115,30 +140,6 @@ def _resolve(base: Path, value: Any, origin: str, key: str, must_exist: bool = T
     return p
 
 
-def _typed(
-    table: Mapping[str, Any], key: str, types: tuple[type, ...], origin: str, prefix: str
-) -> Any:
-    v = table[key]
-    if isinstance(v, bool) and bool not in types:
-        raise ConfigError(origin, f"{prefix}.{key}", f"expected {types[0].__name__}, got {v!r}")
-    if not isinstance(v, types):
-        raise ConfigError(origin, f"{prefix}.{key}", f"expected {types[0].__name__}, got {v!r}")
-    return v
-
-
-def _section(data: Mapping[str, Any], name: str, known: set[str], origin: str) -> dict[str, Any]:
-    """The optional table ``[name]`` (empty if absent); a non-table or an unknown key raises."""
-    table = data.get(name, {})
-    if not isinstance(table, dict):
-        raise ConfigError(origin, name, "expected a table")
-    bad = set(table) - known
-    if bad:
-        raise ConfigError(
-            origin, f"{name}.{sorted(bad)[0]}", f"unknown key (known: {sorted(known)})"
-        )
-    return table
-
-
 def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
     """Load and validate ``tunnel.toml`` (layout in the module docstring).
 
@@ -150,67 +151,23 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
     data = load_toml(p)
     base = p.parent
     cfg = DaqConfig(path=p, raw=data)
-    unknown = set(data) - {"run", "recorder", "sources"}
-    if unknown:
-        raise ConfigError(
-            origin, sorted(unknown)[0], "unknown section (expected run, recorder, sources)"
-        )
-
-    run = _section(data, "run", _RUN_KEYS, origin)
-    if "label" in run:
-        cfg.label = _typed(run, "label", (str,), origin, "run")
-    if "rig" in run:
-        cfg.rig = _resolve(base, run["rig"], origin, "run.rig")
-    if "calibrations" in run:
-        cals = run["calibrations"]
-        if not isinstance(cals, list):
-            raise ConfigError(origin, "run.calibrations", "expected a list of file paths")
-        cfg.calibrations = [
-            _resolve(base, c, origin, f"run.calibrations[{i}]") for i, c in enumerate(cals)
-        ]
-    for k in ("operator", "notes"):
-        if k in run:
-            setattr(cfg, k, _typed(run, k, (str,), origin, "run"))
-
-    rec = _section(data, "recorder", _REC_KEYS, origin)
-    if "out" in rec:
-        o = _typed(rec, "out", (str,), origin, "recorder")
-        cfg.out = Path(o) if Path(o).is_absolute() else base / o
-    if "chunk_size_kib" in rec:
-        v = _typed(rec, "chunk_size_kib", (int,), origin, "recorder")
-        if not 1 <= v <= 64 * 1024:
-            raise ConfigError(origin, "recorder.chunk_size_kib", f"expected 1..65536, got {v}")
-        cfg.chunk_size = v * 1024
-    if "flush_interval_s" in rec:
-        v = _typed(rec, "flush_interval_s", (int, float), origin, "recorder")
-        if not 0 < v <= 1.0:
-            raise ConfigError(
-                origin, "recorder.flush_interval_s", f"expected a value in (0, 1] s, got {v}"
-            )
-        cfg.flush_interval_s = float(v)
-    if "compression" in rec:
-        v = _typed(rec, "compression", (str,), origin, "recorder")
-        if v not in ("zstd", "lz4", "none"):
-            raise ConfigError(
-                origin, "recorder.compression", f"expected zstd, lz4 or none, got {v!r}"
-            )
-        cfg.compression = v
-    if "queue_readings" in rec:
-        v = _typed(rec, "queue_readings", (int,), origin, "recorder")
-        if v < 1:
-            raise ConfigError(origin, "recorder.queue_readings", f"expected >= 1, got {v}")
-        cfg.queue_readings = v
-    if "nice" in rec:
-        v = _typed(rec, "nice", (int,), origin, "recorder")
-        if not -20 <= v <= 19:
-            raise ConfigError(origin, "recorder.nice", f"expected -20..19, got {v}")
-        cfg.nice = v
-    for key in ("startup_timeout_s", "stall_timeout_s"):
-        if key in rec:
-            v = _typed(rec, key, (int, float), origin, "recorder")
-            if not 0 < v <= 3600:
-                raise ConfigError(origin, f"recorder.{key}", f"expected (0, 3600] s, got {v}")
-            setattr(cfg, key, float(v))
+    f = parse(DaqFile, data, origin)
+    run, rec = f.run, f.recorder
+    cfg.label, cfg.operator, cfg.notes = run.label, run.operator, run.notes
+    if run.rig is not None:
+        cfg.rig = _resolve(base, run.rig, origin, "run.rig")
+    cfg.calibrations = [
+        _resolve(base, c, origin, f"run.calibrations[{i}]") for i, c in enumerate(run.calibrations)
+    ]
+    if rec.out is not None:
+        cfg.out = Path(rec.out) if Path(rec.out).is_absolute() else base / rec.out
+    cfg.chunk_size = rec.chunk_size_kib * 1024
+    cfg.flush_interval_s = rec.flush_interval_s
+    cfg.compression = rec.compression
+    cfg.queue_readings = rec.queue_readings
+    cfg.startup_timeout_s = rec.startup_timeout_s
+    cfg.stall_timeout_s = rec.stall_timeout_s
+    cfg.nice = rec.nice
 
     sources = data.get("sources", {})
     if not isinstance(sources, dict) or not sources:

@@ -15,12 +15,11 @@ from cdpr.pipelines.cli import main
 EXAMPLES = int(os.environ.get("CDPR_FUZZ_EXAMPLES", "50"))
 """Examples per fuzzer: 50 keeps ``make test`` fast; ``CDPR_FUZZ_EXAMPLES=2000`` for a deep run."""
 RANDOM = os.environ.get("CDPR_FUZZ_RANDOM", "") not in ("", "0")
-"""Fixed cases by default (the same in every run, so CI cannot fail by chance);
-``CDPR_FUZZ_RANDOM=1`` draws new ones."""
+"""Derandomized by default (the same cases in every run); ``CDPR_FUZZ_RANDOM=1`` searches anew."""
 FUZZ = settings(
     max_examples=EXAMPLES,
-    deadline=None,
     derandomize=not RANDOM,
+    deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
 

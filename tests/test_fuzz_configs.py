@@ -1,7 +1,10 @@
-"""Property-based fuzzing (hypothesis) of the TOML and CSV readers through ``cdpr``: rig files,
-sensitivity configs, pose / wrench / load-cell tables.  Each example mutates a valid file (a value
-replaced by an absurd one, bytes flipped or inserted, truncation, lines dropped or duplicated) and
-checks the contract of ``tests/_fuzz_contract.py``."""
+"""Property-based fuzzing (hypothesis) of the TOML and CSV readers: rig files, sensitivity configs,
+pose / wrench / load-cell tables through ``cdpr`` (the contract of ``tests/_fuzz_contract.py``);
+virtual-rig schedules, campaign files, vision and daq configs through their loaders (a command
+that accepts them would run a rig or a camera): the loader returns or raises a ``CdprError``
+whose one-line message names the file, never another exception.  Each example mutates a valid
+file (a value replaced by an absurd one, bytes flipped or inserted, truncation, lines dropped or
+duplicated)."""
 
 from __future__ import annotations
 
@@ -10,6 +13,9 @@ from pathlib import Path
 
 from _fuzz_contract import EXAMPLES, FUZZ, check_cli, mutated
 from hypothesis import given, settings
+
+from cdpr.analysis.errors import CdprError
+from cdpr.daq.schema import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG_TEXT = (ROOT / "data_samples" / "flat_optimum.toml").read_text()
@@ -25,6 +31,29 @@ SENS = "[cubic]\nforces_N = [19.041, 32.183]\nmass_kg = 5.0\n[flat]\nfull_grid =
 
 def _folder() -> Path:
     return Path(tempfile.mkdtemp(prefix="fuzz-"))
+
+
+RIG = load_rig(ROOT / "data_samples" / "flat_optimum.toml")
+SAMPLES = ROOT / "data_samples"
+
+
+def check_loader(load, data: bytes, name: str, beside: bool = False) -> object | None:
+    """Write ``data`` to a file called ``name`` (``beside``: in a folder that links every file of
+    data_samples/, the files it refers to), load it: a value, or a ``CdprError`` whose one-line
+    message names the file (anything else fails the test)."""
+    folder = _folder()
+    if beside:  # links, never to the file written: writing through one would change a sample
+        for f in SAMPLES.iterdir():
+            if f.name != name:
+                (folder / f.name).symlink_to(f)
+    path = folder / name
+    path.write_bytes(data)
+    try:
+        return load(path)
+    except CdprError as exc:
+        msg = str(exc)
+        assert str(path) in msg and "\n" not in msg.strip(), msg
+        return None
 
 
 @FUZZ
@@ -77,3 +106,64 @@ def test_fuzz_loadcell_points(capsys, data):
     pts, out = d / "points.csv", d / "cal.toml"
     pts.write_bytes(data)
     check_cli(capsys, ["calibrate", "loadcells", str(pts), "--out", str(out)], d, pts, [out])
+
+
+CAMPAIGN = (SAMPLES / "campaign_alpha_sweep.toml").read_text()
+SCHEDULE = (SAMPLES / "schedule_demo.toml").read_text()
+
+
+@FUZZ
+@given(data=mutated(SCHEDULE, "="))
+def test_fuzz_vrig_schedule(data):
+    from cdpr.daq.vrig_schedule import load_schedule
+
+    def load(path: Path) -> object:
+        return load_schedule(path, RIG)
+
+    assert check_loader(load, SCHEDULE.encode(), "schedule.toml") is not None
+    check_loader(load, data, "schedule.toml")
+
+
+@FUZZ
+@given(data=mutated(CAMPAIGN, "="))
+def test_fuzz_campaign_schedule(data):
+    """The campaign's ``[virtual_rig]`` table becomes a schedule: errors name the campaign file."""
+    from cdpr.pipelines.campaign import load_test_matrix, schedule_from_matrix
+
+    def load(path: Path) -> object:
+        return schedule_from_matrix(load_test_matrix(path), RIG)
+
+    assert check_loader(load, CAMPAIGN.encode(), "campaign.toml", beside=True) is not None
+    check_loader(load, data, "campaign.toml", beside=True)
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "board_charuco.toml").read_text(), "="))
+def test_fuzz_board_file(data):
+    from cdpr.pipelines.vision_config import load_board
+
+    check_loader(load_board, data, "board.toml")
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "camera_virtual.json").read_text(), ":,"))
+def test_fuzz_camera_json(data):
+    from cdpr.pipelines.vision_config import load_camera
+
+    check_loader(load_camera, data, "camera.json")
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "markers_flat_ir6.toml").read_text(), "=,"))
+def test_fuzz_marker_layout(data):
+    from cdpr.pipelines.vision_config import load_marker_layout
+
+    check_loader(load_marker_layout, data, "markers.toml")
+
+
+@FUZZ
+@given(data=mutated((SAMPLES / "tunnel.toml").read_text(), "="))
+def test_fuzz_daq_config(data):
+    from cdpr.pipelines.daq_config import load_daq_config
+
+    check_loader(load_daq_config, data, "tunnel.toml", beside=True)

@@ -153,6 +153,17 @@ def test_truth_is_in_equilibrium(rig: Rig) -> None:
         ({"faults": [{"kind": "meteor", "duration_s": 1}]}, "faults[0].kind"),
         ({"sensor": {"noise": 1}}, "sensor.noise"),
         ({"aero": {"CL_alpha": "x"}}, "aero.CL_alpha"),
+        ({"segments": [{"duration_s": 1.0, "wind_mps": 1e300}]}, "segments[0].wind_mps"),
+        ({"segments": [{"duration_s": "1.0"}]}, "segments[0].duration_s"),
+        ({"segments": [{"duration_s": 1.0, "windy": 1}]}, "segments[0].windy"),
+        ({"segments": []}, "segments"),
+        ({"schedule": {"seed": 1.5}}, "schedule.seed"),
+        ({"schedule": {"bitrate": True}}, "schedule.bitrate"),
+        ({"faults": [{"kind": "dropout", "duration_s": 1, "cable": 2}]}, "faults[0].cable"),
+        ({"faults": [{"kind": "dropout", "duration_s": 1, "start_s": 5}]}, "faults[0].start_s"),
+        ({"sensor": {"offset_counts": [0.0, 1.0]}}, "sensor.offset_counts"),
+        ({"sensor": {"gain_N_per_count": [1e-5, -1e-5]}}, "sensor.gain_N_per_count[1]"),
+        ({"sensor": {"noise_sd_N": float("nan")}}, "sensor.noise_sd_N"),
     ],
 )
 def test_schedule_errors_name_file_and_key(rig: Rig, patch: dict, key: str) -> None:
