@@ -537,8 +537,10 @@ def point_spectra(
     from cdpr.analysis.stiffness import rig_modes, spectrum_check
 
     s, m = len(ranges), tensions_N.shape[1]
-    dt = np.diff(t_ns)
-    fs = 1e9 / float(np.median(dt)) if dt.size else float("nan")
+    # the mean sample rate over the run: reception times come in bursts (a loaded host, a pty), so
+    # the median interval can be near zero while the samples are evenly spaced at the source
+    span_ns = float(t_ns[-1] - t_ns[0]) if len(t_ns) > 1 else 0.0
+    fs = (len(t_ns) - 1) * 1e9 / span_ns if span_ns > 0 else float("nan")
     modes = np.full((s, 6), np.nan)
     few = np.zeros(s, bool)
     near = np.zeros(s, bool)
