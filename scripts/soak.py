@@ -119,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
         screen = _tmux("capture-pane", "-p", "-t", session)
         sent = run.frames_sent
+        emu = getattr(run, "emulator", None)
+        adapter_dropped = emu.frames_dropped if emu is not None else 0
         _tmux("send-keys", "-t", session, "C-c")  # the operator's Ctrl-C
         end = time.monotonic() + 120
         while not (work / "rc").exists() and time.monotonic() < end:
@@ -151,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  frames sent / recorded  {sent} / {frames} (file complete: {node['complete']})")
     print(f"  tensions, tunnel        {node['topics'].get('/tensions')}, "
           f"{node['topics'].get('/tunnel')}")  # fmt: skip
+    print(f"  dropped by the adapter  {adapter_dropped} frames (pty full: the reader fell behind)")
     print(f"  dropped                 {end_md['dropped_total']}")
     print(f"  faults                  {end_md.get('faults', '[]')}")
     print(f"  RSS after 1 min / end / max  {warm[0] / 1024:.1f} / {warm[-1] / 1024:.1f} / "
