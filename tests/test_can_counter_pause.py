@@ -102,3 +102,49 @@ def test_paused_sender_is_a_pause_and_gaps_are_counted_modulo_256() -> None:
     assert kinds["lost"] == "source lc: 170 samples lost (counter gaps) (total 170)"
     assert kinds["pauses"].startswith("source lc: 2 pause(s) longer than a counter wrap (total 2)")
     assert f"{d15:.2f} s, {d30:.2f} s" in kinds["pauses"]
+
+
+def test_sample_split_across_reads_is_whole_and_a_missing_frame_is_one_incomplete_sample() -> None:
+    """Where the soak's incomplete samples could come from, tried on a real virtual bus: frames of
+    one sample split across two reads give one complete sample; a frame missing on the bus (what
+    the soak's slcan adapter did when its buffer was full) gives exactly one incomplete sample,
+    NaN for its two channels, and no sample invented."""
+    import math
+
+    from cdpr.daq.source import STATUS_GAP
+
+    ch = f"test-{uuid.uuid4().hex}"
+    settings = {
+        "interface": "virtual",
+        "channel": ch,
+        "bitrate": 1_000_000,
+        "rate_hz": RATE_HZ,
+        "cables": CABLES,
+        "offset_counts": [0.0] * 8,
+        "gain_N_per_count": 1.0,
+        "bus_options": {"receive_own_messages": False},
+    }
+    src = create_source("can_loadcell", "lc", settings, "test.toml")
+    tx = can.Bus(interface="virtual", channel=ch, bitrate=1_000_000, receive_own_messages=False)
+    out = []
+    try:
+        src.open()
+        f0 = _frames(7)
+        for m in f0[:2]:
+            tx.send(m)
+        out += src.read(0.05)  # the first half of sample 7 alone
+        for m in f0[2:] + _frames(8)[:2] + _frames(8)[3:] + _frames(9):  # 0x381 of 8 missing
+            tx.send(m)
+        end = time.monotonic() + 30.0
+        while sum(r.stream == "tensions" for r in out) < 3 and time.monotonic() < end:
+            out += src.read(0.05)
+    finally:
+        src.close()
+        tx.shutdown()
+    t = [r for r in out if r.stream == "tensions"]
+    assert [r.values["counter"] for r in t] == [7, 8, 9]
+    assert [bool(r.status & STATUS_GAP) for r in t] == [False, True, False]
+    nan = [k for k in CABLES if math.isnan(t[1].values[f"T_{k}_N"])]
+    assert nan == ["k5", "k6"]  # frame 0x381 carries channels 5 and 6
+    assert t[0].values["T_k1_N"] == 7.0 and t[2].values["T_k8_N"] == 9.0
+    assert src.stats.lost == 0 and src.stats.extra["partial_samples"] == 1
