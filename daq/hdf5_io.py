@@ -72,9 +72,7 @@ class ExportResult(NamedTuple):
     partial: str | None
 
 
-def export_hdf5(
-    run_path: str | os.PathLike[str], out_path: str | os.PathLike[str]
-) -> ExportResult:
+def export_hdf5(run_path: str | os.PathLike[str], out_path: str | os.PathLike[str]) -> ExportResult:
     """Write the HDF5 export of ``run_path`` to ``out_path`` (never overwrites; atomic).
 
     A cut-off or damaged run is exported through the recovery path as far as it reads, and the
