@@ -132,7 +132,8 @@ class HealthMonitor:
                     if key == "pauses":
                         # durations of the new pauses: whole counter wraps may hide inside them
                         new_s = list(getattr(c, "extra", {}).get("pause_s", ()))[old:v]
-                        more = "; no sample for " + ", ".join(f"{d:.2f} s" for d in new_s)
+                        if new_s:  # the driver keeps the first 1000 durations
+                            more = "; no sample for " + ", ".join(f"{d:.2f} s" for d in new_s)
                         more += " (samples lost in whole counter wraps cannot be counted)"
                     self._fault(name, key, f"source {name}: {v - old} {words} (total {v}){more}")
             if stopping:
