@@ -14,7 +14,13 @@ Streams:
   ``t_bus_ns`` of the first frame.  A sample with a missing frame comes out with NaN for the missing
   channels and :data:`STATUS_GAP`.
 
-Counter jumps count as lost samples (``stats.lost``).  Error frames are counted (``stats.errors``,
+Counter gaps count as lost samples (``stats.lost``): the gap is what the 8-bit counter says,
+modulo 256 (a jump from 10 to 13 is 2 lost, from 250 to 3 is 8 lost, the same value again 255).
+Whole wraps cannot be seen in the counter, and are never guessed from host time: a host-time gap
+between two samples longer than one wrap (256 samples, 1.28 s at 200 Hz) is a **pause** (a sender
+or reader that stopped, or an outage of unknown size), counted in ``stats.extra["pauses"]`` with
+its duration in ``stats.extra["pause_s"]`` (the recorder makes each one a ``pauses`` fault event).
+Error frames are counted (``stats.errors``,
 ``stats.extra["error_frames"]``) and logged; a bus that raises on receive, reports bus-off
 (``bus.state == BusState.ERROR``) or floods error frames is shut down and reopened with exponential
 backoff (``stats.reopened``).
@@ -66,6 +72,10 @@ _STATUS_TO_SOURCE = (
     (CHANNEL_STATUS_SLACK, STATUS_SLACK),
     (CHANNEL_STATUS_FAULT, STATUS_SENSOR_FAULT),
 )
+
+
+#: pauses kept in :attr:`LoadCellDecoder.pauses` (the count goes on)
+MAX_PAUSES = 1000
 
 
 def load_dbc(path: str | Path, origin: str = "<config>", key: str = "dbc") -> Any:
@@ -141,6 +151,12 @@ class LoadCellDecoder:
                 ]
         self.lost = 0
         self.partial = 0
+        #: host-time gaps between two samples longer than a counter wrap: ``(t_ns, duration_ns)``
+        #: of the last sample before each (at most MAX_PAUSES kept; ``n_pauses`` counts them all)
+        self.pauses: list[tuple[int, int]] = []
+        self.n_pauses = 0
+        #: one wrap of the 8-bit counter (ns); 0: unknown rate, no pause detection
+        self.wrap_ns = int(round(256e9 / self.rate_hz)) if self.rate_hz > 0 else 0
         self.bad = 0
         self._last_counter: int | None = None
         self._last_t_ns = 0
@@ -217,6 +233,11 @@ class LoadCellDecoder:
                 v -= mask + 1
             out[name] = v
         return out
+
+    def _pause(self, t_ns: int, duration_ns: int) -> None:
+        self.n_pauses += 1
+        if len(self.pauses) < MAX_PAUSES:
+            self.pauses.append((t_ns, duration_ns))
 
     def decode_block(
         self,
@@ -325,10 +346,11 @@ class LoadCellDecoder:
         step = (c - prev_c) % 256
         step[step == 0] = 256
         if self.rate_hz > 0:
-            expected = (ts - prev_t) * 1e-9 * self.rate_hz
-            wrap = expected - step > 128
-            step = np.where(wrap, step + 256 * np.round((expected - step) / 256).astype(np.int64),
-                            step)  # fmt: skip
+            dt = ts - prev_t
+            if self._last_counter is None:
+                dt[0] = 0
+            for i in np.flatnonzero(dt > self.wrap_ns):
+                self._pause(int(prev_t[i]), int(dt[i]))
         if self._last_counter is None:
             step[0] = 0
             seq = c[0] + np.concatenate([[0], np.cumsum(step[1:])])
@@ -372,12 +394,8 @@ class LoadCellDecoder:
             step = (counter - self._last_counter) % 256
             if step == 0:
                 step = 256
-            if self.rate_hz > 0:
-                # an 8-bit counter wraps every 256 samples: over a long outage, add the whole
-                # wraps the host clock says have passed
-                expected = (t_ns - self._last_t_ns) * 1e-9 * self.rate_hz
-                if expected - step > 128:
-                    step += 256 * int(round((expected - step) / 256))
+            if self.rate_hz > 0 and t_ns - self._last_t_ns > self.wrap_ns:
+                self._pause(self._last_t_ns, t_ns - self._last_t_ns)
             self.lost += step - 1
             self._seq += step
         self._last_counter = counter
@@ -874,6 +892,11 @@ class CanLoadCellSource(Source):
             self.stats.lost += self.decoder.lost - lost0
             self.stats.bad += self.decoder.bad - bad0
             self.stats.extra["partial_samples"] = self.decoder.partial
+            if self.decoder.n_pauses != self.stats.extra.get("pauses", 0):
+                self.stats.extra["pauses"] = self.decoder.n_pauses
+                self.stats.extra["pause_s"] = tuple(
+                    round(d * 1e-9, 3) for _, d in self.decoder.pauses
+                )
 
 
 can_raw.register(CanFrameBatch, register_stream_codec)

@@ -16,8 +16,11 @@ Layout (read it with h5py, then ``pandas.DataFrame(f["streams/tensions"][()])``;
 - root attributes: ``source_file``, ``source_sha256``, ``source_complete``, ``format`` =
   ``cdpr-run-hdf5/2``.
 
-The file is written to a temporary name and moved into place only when complete.  A truncated run is
-exported as far as it reads (``source_complete`` False, and ``recovery_warning`` says what was lost).
+The file is written to a temporary name and moved into place only when complete.  A cut-off or
+damaged run (no summary, or a chunk that does not decompress or fails its CRC) is exported through
+the recovery path (every readable chunk, before and after the damage): ``source_complete`` False,
+``recovery_warning`` says what was lost, and :func:`export_hdf5` returns it as ``partial`` (the CLI
+says it in one line and exits 3, as ``cdpr recover`` does for a partial salvage).
 """
 
 from __future__ import annotations
@@ -26,13 +29,13 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from cdpr.analysis.errors import InputError
 
-from .run_reader import open_run
+from .run_reader import DamagedRunError, Run, open_run
 
 FORMAT = "cdpr-run-hdf5/2"
 
@@ -61,20 +64,41 @@ def _table(df: Any) -> tuple[np.ndarray, dict[str, list[bytes]]]:
     return table, blobs
 
 
-def export_hdf5(
-    run_path: str | os.PathLike[str], out_path: str | os.PathLike[str]
-) -> dict[str, int]:
+class ExportResult(NamedTuple):
+    """What :func:`export_hdf5` wrote: rows per stream, and why the export is partial (None: the
+    run was complete and read whole)."""
+
+    counts: dict[str, int]
+    partial: str | None
+
+
+def export_hdf5(run_path: str | os.PathLike[str], out_path: str | os.PathLike[str]) -> ExportResult:
     """Write the HDF5 export of ``run_path`` to ``out_path`` (never overwrites; atomic).
 
-    Returns the number of rows written per stream.  A truncated run is exported as far as it reads.
+    A cut-off or damaged run is exported through the recovery path as far as it reads, and the
+    result's ``partial`` says so (``recovery_warning`` in the file).
     """
-    import h5py
-
     src = Path(run_path)
     dst = Path(out_path)
     if dst.exists():
         raise InputError(f"{dst}: exists already; an export is never overwritten")
     run = open_run(src)
+    try:
+        counts = _write(run, src, dst)
+    except DamagedRunError as exc:
+        # the summary is intact but a chunk inside is not: read what the recovery path salvages
+        run.close()
+        run = open_run(src, recover=True)
+        run.warning = f"{exc}; exported what the recovery path salvaged"
+        counts = _write(run, src, dst)
+    finally:
+        run.close()
+    return ExportResult(counts, run.warning if run.recovered else None)
+
+
+def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
+    import h5py
+
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.with_name(f".{dst.name}.part")
     counts: dict[str, int] = {}
@@ -122,6 +146,4 @@ def export_hdf5(
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    finally:
-        run.close()
     return counts

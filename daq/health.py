@@ -29,6 +29,7 @@ COUNTER_FAULTS = {
 EXTRA_FAULTS = {
     "error_frames": "CAN error frames",
     "bus_off": "CAN bus-off",
+    "pauses": "pause(s) longer than a counter wrap",
 }
 
 
@@ -127,7 +128,14 @@ class HealthMonitor:
                 old = t.counts.get(key, 0)
                 if v > old:
                     t.counts[key] = v
-                    self._fault(name, key, f"source {name}: {v - old} {words} (total {v})")
+                    more = ""
+                    if key == "pauses":
+                        # durations of the new pauses: whole counter wraps may hide inside them
+                        new_s = list(getattr(c, "extra", {}).get("pause_s", ()))[old:v]
+                        if new_s:  # the driver keeps the first 1000 durations
+                            more = "; no sample for " + ", ".join(f"{d:.2f} s" for d in new_s)
+                        more += " (samples lost in whole counter wraps cannot be counted)"
+                    self._fault(name, key, f"source {name}: {v - old} {words} (total {v}){more}")
             if stopping:
                 if t.first is None and not t.startup_flagged:  # a run shorter than the timeout
                     t.startup_flagged = True

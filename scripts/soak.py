@@ -6,7 +6,10 @@ time and whether the run analyses cleanly.
     .venv/bin/python scripts/soak.py --minutes 30          # make soak
 
 Transports are real: the rig's slcan adapter and its ``$TUN`` tunnel line on two ptys.  Goals:
-zero drops and zero faults, RSS growth after the first minute under 10 %, analysis exit 0.
+zero drops and zero faults (the adapter's own drops, when its buffer is full because the recorder
+reads too slowly, show as counter gaps: ``lost`` faults, exit 3), RSS growth after the first minute
+under 10 %, the run analysed (exit 0, or 1 for the warnings of a run without camera or model
+geometry) with no sample masked.
 """
 
 from __future__ import annotations
@@ -119,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
         screen = _tmux("capture-pane", "-p", "-t", session)
         sent = run.frames_sent
+        emu = getattr(run, "emulator", None)
+        adapter_dropped = emu.frames_dropped if emu is not None else 0
         _tmux("send-keys", "-t", session, "C-c")  # the operator's Ctrl-C
         end = time.monotonic() + 120
         while not (work / "rc").exists() and time.monotonic() < end:
@@ -143,6 +148,16 @@ def main(argv: list[str] | None = None) -> int:
         capture_output=True,
         text=True,
     )
+    # analysed cleanly: reduced (exit 0, or 1 for the warnings every run without a camera and a
+    # model geometry carries) with no sample masked anywhere; the flags are printed as found
+    import csv
+
+    n_masked, flags = 0, set()
+    for pts in (out / "analysis").glob("*/points.csv"):
+        with pts.open() as fh:
+            for row in csv.DictReader(fh):
+                n_masked += int(row["n_masked"])
+                flags |= set(filter(None, row["flags"].split(";")))
     warm = [r for t, r in samples if t >= 60.0] or [r for _, r in samples]
     growth = 100.0 * (warm[-1] - warm[0]) / warm[0]
     frames = node["topics"].get("/can_raw", 0)
@@ -151,17 +166,20 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  frames sent / recorded  {sent} / {frames} (file complete: {node['complete']})")
     print(f"  tensions, tunnel        {node['topics'].get('/tensions')}, "
           f"{node['topics'].get('/tunnel')}")  # fmt: skip
+    print(f"  dropped by the adapter  {adapter_dropped} frames (pty full: the reader fell behind)")
     print(f"  dropped                 {end_md['dropped_total']}")
     print(f"  faults                  {end_md.get('faults', '[]')}")
     print(f"  RSS after 1 min / end / max  {warm[0] / 1024:.1f} / {warm[-1] / 1024:.1f} / "
           f"{max(r for _, r in samples) / 1024:.1f} MiB: growth {growth:+.1f} %")  # fmt: skip
     print(f"  analyze exit code       {ana.returncode} {ana.stdout.strip()[-200:]}")
+    print(f"  analysis                {n_masked} samples masked; flags: {', '.join(sorted(flags))}")
     print(f"  live view at the end    {out / 'live_view.txt'}")
     ok = (
         rc == 0
         and end_md["dropped_total"] == "0"
         and growth < 10.0
-        and ana.returncode == 0
+        and ana.returncode in (0, 1)
+        and n_masked == 0
         and node["complete"]
     )
     print("PASS" if ok else "FAIL")

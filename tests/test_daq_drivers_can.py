@@ -337,8 +337,9 @@ def test_slcan_bus_reopened_after_adapter_vanishes(tmp_path: Path) -> None:
     assert t2[0].values["raw_k3_counts"] == 30 and t2[0].values["counter"] == 2
 
 
-def test_long_outage_counts_whole_counter_wraps() -> None:
-    """An 8-bit counter wraps every 256 samples: the host clock resolves the wraps of an outage."""
+def test_long_gap_is_a_pause_not_invented_wraps() -> None:
+    """A gap is what the 8-bit counter says modulo 256; more than one wrap of host time between two
+    samples is a pause with its duration, never whole wraps guessed from the host clock."""
     from cdpr.daq.can_source import build_decoder
 
     dec, _ = build_decoder("t", "sources.lc", None, None, None, None, rate_hz=100.0)
@@ -347,8 +348,19 @@ def test_long_outage_counts_whole_counter_wraps() -> None:
         for m in _frames(counter, [0] * 8):
             m.timestamp = t_ns / 1e9
             dec.decode(m, t_ns)
-    # 3 s at 100 Hz = 300 samples later: counter 11 -> 21 is 10 + 256 steps, 265 lost
-    assert dec.lost == 265 and dec._seq == 11 + 266
+    # counter 11 -> 21: 9 samples missing by the counter; 3.0 s > one wrap (2.56 s at 100 Hz)
+    assert dec.lost == 9 and dec._seq == 21
+    assert dec.n_pauses == 1 and dec.pauses == [(t0 + 10_000_000, 3_000_000_000)]
+    # the import's whole-block decoding keeps the same books
+    blk, _ = build_decoder("t", "sources.lc", None, None, None, None, rate_hz=100.0)
+    msgs = [m for c in (10, 11, 21) for m in _frames(c, [0] * 8)]
+    t = np.repeat([t0, t0 + 10_000_000, t0 + 3_010_000_000], 4).astype(np.int64)
+    data = np.array([list(m.data) for m in msgs], np.uint8)
+    used, cols = blk.decode_block(
+        [m.arbitration_id for m in msgs], [False] * 12, data, [8] * 12, t, t
+    )
+    assert used == 12 and cols is not None and cols["seq"].tolist() == [10, 11, 21]
+    assert blk.lost == 9 and blk.pauses == dec.pauses
 
 
 def test_error_frame_flood_reopens_bus() -> None:

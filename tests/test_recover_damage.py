@@ -168,6 +168,51 @@ def test_a_truncated_file_keeps_every_complete_chunk(
     assert set(_recovered_ids(p.with_name("trunc.recovered.mcap"))) == set().union(*per_chunk[:k])
 
 
+def _h5_ids(path: Path) -> list[int]:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return [int(i) for i in f["streams/count"]["i"]]
+
+
+def test_export_of_a_cut_off_or_damaged_run_says_so_and_exits_3(
+    run_file: Path, tmp_path: Path, capsys
+) -> None:
+    """A cut-off run and a run with a damaged chunk inside: export keeps what reads (every complete
+    chunk, before and after the damage), says it in one line on stderr, exit 3."""
+    chunks = _chunks(run_file)
+    per_chunk = _ids_per_chunk(run_file)
+    data = run_file.read_bytes()
+    k = 5
+    off, length = chunks[k]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: off + length // 2])
+    rc, out, err = _cli(capsys, "export", str(cut), "--hdf5", str(tmp_path / "cut.h5"))
+    assert rc == 3 and out.startswith(f"wrote {tmp_path / 'cut.h5'}: ")
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("cdpr export: PARTIAL export: ")
+    assert str(cut) in lines[0]
+    assert sorted(_h5_ids(tmp_path / "cut.h5")) == sorted(set().union(*per_chunk[:k]))
+
+    k = 3
+    off, length = chunks[k]
+    bad = bytearray(data)
+    mid = off + length // 2
+    bad[mid : mid + 16] = bytes(b ^ 0xFF for b in bad[mid : mid + 16])  # inside the zstd frame
+    dmg = tmp_path / "dmg.mcap"
+    dmg.write_bytes(bytes(bad))
+    rc, out, err = _cli(capsys, "export", str(dmg), "--hdf5", str(tmp_path / "dmg.h5"))
+    assert rc == 3
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and str(dmg) in lines[0] and "damaged chunk" in lines[0]
+    kept = set().union(*per_chunk[:k], *per_chunk[k + 1 :])
+    assert sorted(_h5_ids(tmp_path / "dmg.h5")) == sorted(kept) and len(kept) < N
+
+    # the intact run: everything, exit 0, nothing on stderr
+    rc, out, err = _cli(capsys, "export", str(run_file), "--hdf5", str(tmp_path / "ok.h5"))
+    assert rc == 0 and err == "" and sorted(_h5_ids(tmp_path / "ok.h5")) == list(range(N))
+
+
 @settings(
     max_examples=60,
     deadline=None,
@@ -197,7 +242,7 @@ def test_fuzz_inspect_recover_export_never_trace_back(
         (["inspect", str(p)], (0,)),
         (["recover", str(p)], (0, 3)),
         (["export", str(p), "--hdf5", str(d / "f.h5")], ()),
-        (["export", str(p), "--hdf5", str(d / "g.h5")], (0,)),
+        (["export", str(p), "--hdf5", str(d / "g.h5")], (0, 3)),
     ):
         rc, out, err = _cli(capsys, *argv)  # an exception here is a traceback for the user
         if rc not in ok:

@@ -50,7 +50,7 @@ def test_export_reads_back_with_h5py_and_pandas(tmp_path: Path) -> None:
     run = tmp_path / "run.mcap"
     _run(run)
     out = tmp_path / "run.h5"
-    counts = export_hdf5(run, out)
+    counts = export_hdf5(run, out).counts
     assert counts == {"tensions": 300, "can_raw": 3, "pose": 1, "image_cam": 1, "event": 1}
     with h5py.File(out, "r") as f:
         assert f.attrs["format"] == "cdpr-run-hdf5/2" and f.attrs["source_file"] == "run.mcap"

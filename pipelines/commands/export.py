@@ -1,4 +1,8 @@
-"""``cdpr export RUN --hdf5 OUT``: a run's streams as HDF5 tables, metadata as attributes."""
+"""``cdpr export RUN --hdf5 OUT``: a run's streams as HDF5 tables, metadata as attributes.
+
+Exit codes: 0 the whole run exported; 2 bad input (one line, nothing written); 3 the run is cut off
+or damaged: what could be read is exported and kept, and one line on stderr says what was lost.
+"""
 
 from __future__ import annotations
 
@@ -19,8 +23,13 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.run).is_dir():
         raise ConfigError(args.run, "", "a folder, not a run file (.mcap)")
+    import sys
+
     from cdpr.daq.hdf5_io import export_hdf5
 
-    counts = export_hdf5(args.run, args.hdf5)
-    print(f"wrote {args.hdf5}: " + ", ".join(f"{k} {v} rows" for k, v in counts.items()))
+    res = export_hdf5(args.run, args.hdf5)
+    print(f"wrote {args.hdf5}: " + ", ".join(f"{k} {v} rows" for k, v in res.counts.items()))
+    if res.partial is not None:
+        print(f"cdpr export: PARTIAL export: {res.partial}", file=sys.stderr)
+        return 3
     return 0
