@@ -14,10 +14,10 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import (
     DEFAULT_CABLE_DIAMETER_M,
     DEFAULT_CABLE_EA_N,
-    rig_from_mapping,
     rig_to_mapping,
 )
 from cdpr.analysis.rigs import flat_rig
+from cdpr.daq.schema import rig_from_mapping
 from cdpr.pipelines.cli import main
 
 
