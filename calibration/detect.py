@@ -131,21 +131,23 @@ def refine_marker_corners(
     return np.where(ok[:, None, None], C, C0), ok
 
 
-def check_frame(gray: NDArray[Any], size_wh: tuple[int, int] | None = None) -> None:
+def check_frame(
+    gray: NDArray[Any], size_wh: tuple[int, int] | None = None, name: str = "frame"
+) -> None:
     """Raise :class:`InputError` unless ``gray`` is a single-channel uint8 image (of ``size_wh``
     (width, height) px when given: a frame of another size than the calibrated camera's would give
-    a pose far off, silently)."""
+    a pose far off, silently).  ``name`` (a file, or "frame 12") starts the message."""
     a = np.asarray(gray)
     if a.ndim != 2:
         raise InputError(
-            f"frame: expected a gray (H, W) image, got shape {a.shape} "
+            f"{name}: expected a gray (H, W) image, got shape {a.shape} "
             "(convert colour frames to gray first: cdpr.calibration.cv.to_gray)"
         )
     if a.dtype != np.uint8:
-        raise InputError(f"frame: expected 8-bit pixels (uint8), got {a.dtype}")
+        raise InputError(f"{name}: expected 8-bit pixels (uint8), got {a.dtype}")
     if size_wh is not None and (a.shape[1], a.shape[0]) != tuple(size_wh):
         raise InputError(
-            f"frame: {a.shape[1]}x{a.shape[0]} px, the camera model is "
+            f"{name}: {a.shape[1]}x{a.shape[0]} px, the camera model is "
             f"{size_wh[0]}x{size_wh[1]} px (wrong camera, or a resized or cropped frame)"
         )
 

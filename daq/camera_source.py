@@ -34,7 +34,13 @@ from numpy.typing import ArrayLike, NDArray
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
 from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
-from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
+from cdpr.calibration.detect import (
+    BlobSettings,
+    FiducialDetector,
+    PointMatcher,
+    check_frame,
+    detect_blobs,
+)
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
 from cdpr.calibration.render import RenderSettings, VirtualCamera
@@ -88,6 +94,7 @@ class FramePoseEstimator:
     ) -> None:
         self.camera, self.layout = camera, layout
         self.track = bool(track)
+        self._n_frames = 0
         if reference is None:
             p0 = camera.extrinsics_info.get("looks_at_O_m", [0.0, 0.0, 0.0])
             reference = (np.asarray(p0, np.float64), np.eye(3))
@@ -111,8 +118,14 @@ class FramePoseEstimator:
         else:
             self._pm.reset()
 
-    def estimate(self, gray: NDArray[np.uint8]) -> PoseEstimate:
-        """The pose in this frame (flags say when it is not usable)."""
+    def estimate(self, gray: NDArray[np.uint8], name: str | None = None) -> PoseEstimate:
+        """The pose in this frame (flags say when it is not usable).
+
+        Raises :class:`InputError` naming the frame (``name``, e.g. its file; default "frame N",
+        N counted from 0 by this estimator) when it is not gray uint8 of the camera model's size
+        (both marker kinds: a resized frame would give a pose far off, silently)."""
+        self._n_frames += 1
+        check_frame(gray, self.camera.image_size_px, name or f"frame {self._n_frames - 1}")
         if not self.track:  # unrelated snapshots: every frame acquired from scratch
             self.reset()
         if self.layout.kind == "fiducial":
