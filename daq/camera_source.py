@@ -42,7 +42,13 @@ from cdpr.calibration.detect import (
     detect_blobs,
 )
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
-from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
+from cdpr.calibration.pose import (
+    BAD_FLAGS,
+    PoseEstimate,
+    estimate_pose,
+    estimate_pose_single_marker,
+    failed_pose,
+)
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
@@ -106,10 +112,41 @@ class FramePoseEstimator:
             self._corners = layout.fiducial_corners_m  # (M, 4, 3), cached
             self._last: PoseEstimate | None = None
             self._prev: PoseEstimate | None = None
+            # corner noise measured on multi-marker frames (RSS, dof; forgetting beyond
+            # NOISE_DOF_MAX): the prior of a single-marker pose's 2-dof noise estimate
+            self._noise_rss_px2 = 0.0
+            self._noise_dof = 0.0
         else:
             self.sigma_px = POINT_SIGMA_PX if sigma_px is None else float(sigma_px)
             self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
             self._blob = blob_settings or BlobSettings()
+
+    def _learn_noise(self, est: PoseEstimate) -> None:
+        """Pool a good multi-marker frame's residuals into the running corner-noise estimate."""
+        self._noise_rss_px2 += float(np.sum(est.residuals_px[est.inliers] ** 2))
+        self._noise_dof += est.extra["dof"]
+        if self._noise_dof > NOISE_DOF_MAX:  # forget old frames (the noise may change)
+            k = NOISE_DOF_MAX / self._noise_dof
+            self._noise_rss_px2 *= k
+            self._noise_dof *= k
+
+    def _single_marker(
+        self, obj: NDArray[np.float64], img: NDArray[np.float64], guess: Any
+    ) -> PoseEstimate:
+        """One marker's pose (flagged ``single_marker``; ``ambiguous`` if the planar flip is not
+        ruled out).  The 2-dof noise estimate is pooled with the corner noise measured on this
+        camera's earlier multi-marker frames (up to ``SINGLE_PRIOR_DOF`` dof) when there are some,
+        else with the nominal ``sigma_px`` (``extra["sigma_prior_dof"]`` = 0 says so)."""
+        if self._noise_dof >= 10:
+            prior_px = float(np.sqrt(self._noise_rss_px2 / self._noise_dof))
+            prior_dof = min(self._noise_dof, SINGLE_PRIOR_DOF)
+            est = estimate_pose_single_marker(obj, img, self.camera, prior_px, guess, prior_dof)
+        else:
+            prior_px, prior_dof = self.sigma_px, 0.0
+            est = estimate_pose_single_marker(obj, img, self.camera, prior_px, guess)
+        est.extra["sigma_prior_px"] = prior_px
+        est.extra["sigma_prior_dof"] = prior_dof
+        return est
 
     def reset(self) -> None:
         """Forget the last poses: the next frame is acquired from scratch."""
@@ -146,9 +183,14 @@ class FramePoseEstimator:
                 self._last = self._prev = None
                 return failed_pose()
             obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
-            est = estimate_pose(
-                obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
-            )
+            if len(ids) == 1:
+                est = self._single_marker(obj, corners.reshape(-1, 2), guess)
+            else:
+                est = estimate_pose(
+                    obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
+                )
+                if not (est.flags & BAD_FLAGS):
+                    self._learn_noise(est)
             self._prev = self._last
             self._last = est if not (est.flags & BAD_FLAGS) else None
             return est
@@ -163,6 +205,12 @@ class FramePoseEstimator:
             blobs = detect_blobs(gray, self._blob, None)
         return self._pm.match(blobs).pose
 
+
+NOISE_DOF_MAX = 400.0
+"""Degrees of freedom of the running corner-noise estimate (about 20 six-marker frames)."""
+
+SINGLE_PRIOR_DOF = 60.0
+"""At most this many prior degrees of freedom pooled into a single-marker pose's noise estimate."""
 
 FIDUCIAL_SIGMA_PX = 0.020
 """Effective corner noise (px) of the edge-refined fiducial corners on our rendered frames, the value
