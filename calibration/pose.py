@@ -40,9 +40,8 @@ FLAG_AMBIGUOUS = 1 << 2  # labelling of point markers ambiguous (margin over run
 FLAG_HIGH_RESIDUAL = 1 << 3  # reprojection RMS above the limit
 FLAG_OUTLIERS = 1 << 4  # some correspondences rejected as outliers
 FLAG_TRACK_RESET = 1 << 5  # tracking lost, re-acquired from scratch (informational)
-FLAG_SINGLE_MARKER = (
-    1 << 6
-)  # pose from one square marker's four corners (larger sigma; informational)
+FLAG_SINGLE_MARKER = 1 << 6  # pose from one square marker's corners (informational)
+FLAG_SATURATED = 1 << 7  # markers' whites clipped at 255: edges biased (overexposed; unusable)
 FLAG_NAMES = {
     FLAG_NO_POSE: "no_pose",
     FLAG_FEW_POINTS: "few_points",
@@ -51,9 +50,11 @@ FLAG_NAMES = {
     FLAG_OUTLIERS: "outliers",
     FLAG_TRACK_RESET: "track_reset",
     FLAG_SINGLE_MARKER: "single_marker",
+    FLAG_SATURATED: "saturated",
 }
-BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL
-"""Flags that make a pose unusable for analysis (outliers and resets are informational)."""
+BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL | FLAG_SATURATED
+"""Flags that make a pose unusable for analysis (outliers, resets and a single marker are
+informational: a single-marker pose's covariance says how much less it is worth)."""
 
 
 MIN_NOISE_DOF = 6.0
@@ -149,12 +150,16 @@ def estimate_pose(
     outlier_k: float = 5.0,
     max_rms_px: float = 2.0,
     prior_dof: float | None = None,
+    noise_shape: ArrayLike | None = None,
 ) -> PoseEstimate:
     """Pose of {P} from (N, 3) points in {P} (m) and their (N, 2) image positions (px).
 
     sigma_px: nominal standard deviation of one image coordinate of one point (px): the outlier
     gate and the prior of the noise estimate (module docstring), pooled with the residuals.
     guess: optional ``(rvec_C, tvec_C)`` to start the iterative solver from (tracking).
+    noise_shape: optional (2N, 2N) relative covariance of the image coordinates (x0, y0, x1, ..),
+    e.g. block-diagonal :func:`cdpr.calibration.detect.edge_fit_corner_covariance` for edge-fitted
+    marker corners; None: independent, equal noise (module docstring).
     Returns a :class:`PoseEstimate`; on failure its flags say why (the pose is then NaN or
     untrustworthy).
     """
@@ -179,6 +184,8 @@ def estimate_pose(
     if bad.any() and (n - bad.sum()) >= max(min_points, 4):
         inl = ~bad
         flags |= FLAG_OUTLIERS
+        if 2 * bad.sum() > n:  # most points rejected: the "inliers" are not a trustworthy set
+            flags |= FLAG_FEW_POINTS
         rvec, tvec = cv.refine_pnp_lm(obj[inl], img[inl], K, dist, rvec, tvec)
         res = cv.project_points(obj, rvec, tvec, K, dist) - img
     elif bad.any():  # too few points would remain: keep them all, and say the pose is untrustworthy
@@ -193,10 +200,23 @@ def estimate_pose(
     dof = 2 * int(inl.sum()) - 6
     rss = float(np.sum(res[inl] ** 2))
     nu0 = max(0.0, MIN_NOISE_DOF - dof) if prior_dof is None else float(prior_dof)
-    sigma2 = (nu0 * sigma_px**2 + rss) / max(nu0 + dof, 1e-12)
     try:
-        cov_C = sigma2 * np.linalg.inv(J.T @ J)
+        JtJi = np.linalg.inv(J.T @ J)
+        if noise_shape is None:
+            sigma2 = (nu0 * sigma_px**2 + rss) / max(nu0 + dof, 1e-12)
+            cov_C = sigma2 * JtJi
+        else:  # correlated noise of known shape (scaled to a mean variance of 1 per coordinate)
+            idx = np.flatnonzero(np.repeat(inl, 2))
+            Sh = np.asarray(noise_shape, np.float64)[np.ix_(idx, idx)]
+            Sh = Sh / np.mean(np.diag(Sh))
+            H = J @ JtJi @ J.T
+            expected = float(np.trace(Sh) - np.trace(H @ Sh))  # E[RSS] per unit variance
+            rss_eq = rss * dof / max(expected, 1e-12)  # as if the noise were independent
+            sigma2 = (nu0 * sigma_px**2 + rss_eq) / max(nu0 + dof, 1e-12)
+            JtS = J.T @ Sh @ J
+            cov_C = sigma2 * JtJi @ JtS @ JtJi  # least squares under correlated noise
     except np.linalg.LinAlgError:
+        sigma2 = float("nan")
         cov_C = np.full((6, 6), np.inf)
         flags |= FLAG_FEW_POINTS
     B = np.zeros((6, 6))
@@ -224,6 +244,7 @@ def estimate_pose_single_marker(
     guess: tuple[F64, F64] | None = None,
     prior_dof: float | None = None,
     margin_min: float = PLANAR_MARGIN_MIN,
+    noise_shape: ArrayLike | None = None,
 ) -> PoseEstimate:
     """Pose of {P} from the four corners of one square marker (``(4, 3)`` in {P}, ``(4, 2)`` px).
 
@@ -238,7 +259,8 @@ def estimate_pose_single_marker(
     otherwise let the flip win confidently (measured: 14 % of frames at 0.6 px noise).
     The result always carries ``FLAG_SINGLE_MARKER``; its covariance is the usual ``s^2 (J^T J)^-1``
     of four points (2 residual degrees of freedom: ``s`` is pooled with ``sigma_px`` over
-    ``prior_dof``, see the module docstring), several times larger than with six markers.
+    ``prior_dof``, see the module docstring; ``noise_shape`` as :func:`estimate_pose`), several
+    times larger than with six markers.
     """
     obj = np.asarray(corners_P_m, np.float64).reshape(-1, 3)
     img = np.asarray(corners_px, np.float64).reshape(-1, 2)
@@ -250,7 +272,10 @@ def estimate_pose_single_marker(
     cands = [
         e
         for e in (
-            estimate_pose(obj, img, camera, sigma_px, guess=g, prior_dof=prior_dof) for g in starts
+            estimate_pose(
+                obj, img, camera, sigma_px, guess=g, prior_dof=prior_dof, noise_shape=noise_shape
+            )
+            for g in starts
         )
         if not (e.flags & FLAG_NO_POSE)
     ]

@@ -30,20 +30,25 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import block_diag
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
 from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
 from cdpr.calibration.detect import (
+    SATURATION_MAX_FRACTION,
     BlobSettings,
     FiducialDetector,
     PointMatcher,
     check_frame,
     detect_blobs,
+    edge_fit_corner_covariance,
+    saturated_fraction,
 )
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 from cdpr.calibration.pose import (
     BAD_FLAGS,
+    FLAG_SATURATED,
     PoseEstimate,
     estimate_pose,
     estimate_pose_single_marker,
@@ -123,7 +128,7 @@ class FramePoseEstimator:
 
     def _learn_noise(self, est: PoseEstimate) -> None:
         """Pool a good multi-marker frame's residuals into the running corner-noise estimate."""
-        self._noise_rss_px2 += float(np.sum(est.residuals_px[est.inliers] ** 2))
+        self._noise_rss_px2 += est.extra["sigma_px"] ** 2 * est.extra["dof"]
         self._noise_dof += est.extra["dof"]
         if self._noise_dof > NOISE_DOF_MAX:  # forget old frames (the noise may change)
             k = NOISE_DOF_MAX / self._noise_dof
@@ -131,7 +136,7 @@ class FramePoseEstimator:
             self._noise_dof *= k
 
     def _single_marker(
-        self, obj: NDArray[np.float64], img: NDArray[np.float64], guess: Any
+        self, obj: NDArray[np.float64], img: NDArray[np.float64], guess: Any, shape: Any
     ) -> PoseEstimate:
         """One marker's pose (flagged ``single_marker``; ``ambiguous`` if the planar flip is not
         ruled out).  The 2-dof noise estimate is pooled with the corner noise measured on this
@@ -140,10 +145,14 @@ class FramePoseEstimator:
         if self._noise_dof >= 10:
             prior_px = float(np.sqrt(self._noise_rss_px2 / self._noise_dof))
             prior_dof = min(self._noise_dof, SINGLE_PRIOR_DOF)
-            est = estimate_pose_single_marker(obj, img, self.camera, prior_px, guess, prior_dof)
+            est = estimate_pose_single_marker(
+                obj, img, self.camera, prior_px, guess, prior_dof, noise_shape=shape
+            )
         else:
             prior_px, prior_dof = self.sigma_px, 0.0
-            est = estimate_pose_single_marker(obj, img, self.camera, prior_px, guess)
+            est = estimate_pose_single_marker(
+                obj, img, self.camera, prior_px, guess, noise_shape=shape
+            )
         est.extra["sigma_prior_px"] = prior_px
         est.extra["sigma_prior_dof"] = prior_dof
         return est
@@ -183,14 +192,24 @@ class FramePoseEstimator:
                 self._last = self._prev = None
                 return failed_pose()
             obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
+            shape = block_diag(*edge_fit_corner_covariance(corners))
             if len(ids) == 1:
-                est = self._single_marker(obj, corners.reshape(-1, 2), guess)
+                est = self._single_marker(obj, corners.reshape(-1, 2), guess, shape)
             else:
                 est = estimate_pose(
-                    obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
+                    obj,
+                    corners.reshape(-1, 2),
+                    self.camera,
+                    self.sigma_px,
+                    guess=guess,
+                    noise_shape=shape,
                 )
-                if not (est.flags & BAD_FLAGS):
-                    self._learn_noise(est)
+            sat = saturated_fraction(gray, corners)
+            est.extra["saturated_fraction"] = float(sat.max())
+            if np.any(sat > SATURATION_MAX_FRACTION):
+                est.flags |= FLAG_SATURATED
+            elif len(ids) > 1 and not (est.flags & BAD_FLAGS):
+                self._learn_noise(est)
             self._prev = self._last
             self._last = est if not (est.flags & BAD_FLAGS) else None
             return est
