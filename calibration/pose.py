@@ -12,7 +12,9 @@ of squares over its ``2n - 6`` degrees of freedom, pooled with the detector's no
 only where the data are thin: ``nu0 = max(0, 6 - (2n - 6))`` (``prior_dof`` overrides it), so from
 6 points on the residuals alone decide, and with 4 or 5 points the nominal value keeps one lucky
 small residual from making the pose look exact.  ``s`` is returned in ``extra["sigma_px"]`` (and
-the residual degrees of freedom in ``extra["dof"]``).
+the residual degrees of freedom in ``extra["dof"]``).  With ``noise_shape`` (correlated image
+noise of known shape, e.g. edge-fitted marker corners) ``s^2 = RSS / tr((I - H) Sigma)`` and the
+covariance is the least-squares sandwich ``s^2 (J^T J)^-1 J^T Sigma J (J^T J)^-1``.
 
 Covariance layout (6 x 6): ``[position_O_m (3), rotation_O_rad (3)]``, the rotation part being a
 small rotation vector in {O} axes applied on the left: ``R_est = exp([dtheta]x) R_true``.
