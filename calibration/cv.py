@@ -231,6 +231,25 @@ def solve_p3p_all(
     ]
 
 
+def solve_pnp_planar_all(
+    object_points: ArrayLike, image_points: ArrayLike, K: ArrayLike, dist: ArrayLike
+) -> list[tuple[F64, F64]]:
+    """Both IPPE solutions for coplanar points (the two poses a planar target's image allows:
+    ``cv2.solvePnPGeneric(..., SOLVEPNP_IPPE)``), best reprojection first: ``(rvec, tvec)``."""
+    obj = np.ascontiguousarray(np.asarray(object_points, dtype=np.float64).reshape(-1, 1, 3))
+    img = np.ascontiguousarray(np.asarray(image_points, dtype=np.float64).reshape(-1, 1, 2))
+    try:
+        n, rs, ts, _ = cv2.solvePnPGeneric(
+            obj, img, np.asarray(K, np.float64), _dist(dist), flags=cv2.SOLVEPNP_IPPE
+        )
+    except cv2.error:
+        return []
+    return [
+        (np.asarray(r, np.float64).reshape(3), np.asarray(t, np.float64).reshape(3))
+        for r, t in zip(rs[:n], ts[:n], strict=True)
+    ]
+
+
 # ------------------------------------------------------------------------------------ images
 def to_gray(image: NDArray[Any]) -> NDArray[np.uint8]:
     """A single-channel uint8 image from a gray or BGR image."""

@@ -12,7 +12,9 @@ of squares over its ``2n - 6`` degrees of freedom, pooled with the detector's no
 only where the data are thin: ``nu0 = max(0, 6 - (2n - 6))`` (``prior_dof`` overrides it), so from
 6 points on the residuals alone decide, and with 4 or 5 points the nominal value keeps one lucky
 small residual from making the pose look exact.  ``s`` is returned in ``extra["sigma_px"]`` (and
-the residual degrees of freedom in ``extra["dof"]``).
+the residual degrees of freedom in ``extra["dof"]``).  With ``noise_shape`` (correlated image
+noise of known shape, e.g. edge-fitted marker corners) ``s^2 = RSS / tr((I - H) Sigma)`` and the
+covariance is the least-squares sandwich ``s^2 (J^T J)^-1 J^T Sigma J (J^T J)^-1``.
 
 Covariance layout (6 x 6): ``[position_O_m (3), rotation_O_rad (3)]``, the rotation part being a
 small rotation vector in {O} axes applied on the left: ``R_est = exp([dtheta]x) R_true``.
@@ -40,6 +42,8 @@ FLAG_AMBIGUOUS = 1 << 2  # labelling of point markers ambiguous (margin over run
 FLAG_HIGH_RESIDUAL = 1 << 3  # reprojection RMS above the limit
 FLAG_OUTLIERS = 1 << 4  # some correspondences rejected as outliers
 FLAG_TRACK_RESET = 1 << 5  # tracking lost, re-acquired from scratch (informational)
+FLAG_SINGLE_MARKER = 1 << 6  # pose from one square marker's corners (informational)
+FLAG_SATURATED = 1 << 7  # markers' whites clipped at 255: edges biased (overexposed; unusable)
 FLAG_NAMES = {
     FLAG_NO_POSE: "no_pose",
     FLAG_FEW_POINTS: "few_points",
@@ -47,9 +51,12 @@ FLAG_NAMES = {
     FLAG_HIGH_RESIDUAL: "high_residual",
     FLAG_OUTLIERS: "outliers",
     FLAG_TRACK_RESET: "track_reset",
+    FLAG_SINGLE_MARKER: "single_marker",
+    FLAG_SATURATED: "saturated",
 }
-BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL
-"""Flags that make a pose unusable for analysis (outliers and resets are informational)."""
+BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL | FLAG_SATURATED
+"""Flags that make a pose unusable for analysis (outliers, resets and a single marker are
+informational: a single-marker pose's covariance says how much less it is worth)."""
 
 
 MIN_NOISE_DOF = 6.0
@@ -145,12 +152,16 @@ def estimate_pose(
     outlier_k: float = 5.0,
     max_rms_px: float = 2.0,
     prior_dof: float | None = None,
+    noise_shape: ArrayLike | None = None,
 ) -> PoseEstimate:
     """Pose of {P} from (N, 3) points in {P} (m) and their (N, 2) image positions (px).
 
     sigma_px: nominal standard deviation of one image coordinate of one point (px): the outlier
     gate and the prior of the noise estimate (module docstring), pooled with the residuals.
     guess: optional ``(rvec_C, tvec_C)`` to start the iterative solver from (tracking).
+    noise_shape: optional (2N, 2N) relative covariance of the image coordinates (x0, y0, x1, ..),
+    e.g. block-diagonal :func:`cdpr.calibration.detect.edge_fit_corner_covariance` for edge-fitted
+    marker corners; None: independent, equal noise (module docstring).
     Returns a :class:`PoseEstimate`; on failure its flags say why (the pose is then NaN or
     untrustworthy).
     """
@@ -175,6 +186,8 @@ def estimate_pose(
     if bad.any() and (n - bad.sum()) >= max(min_points, 4):
         inl = ~bad
         flags |= FLAG_OUTLIERS
+        if 2 * bad.sum() > n:  # most points rejected: the "inliers" are not a trustworthy set
+            flags |= FLAG_FEW_POINTS
         rvec, tvec = cv.refine_pnp_lm(obj[inl], img[inl], K, dist, rvec, tvec)
         res = cv.project_points(obj, rvec, tvec, K, dist) - img
     elif bad.any():  # too few points would remain: keep them all, and say the pose is untrustworthy
@@ -189,10 +202,23 @@ def estimate_pose(
     dof = 2 * int(inl.sum()) - 6
     rss = float(np.sum(res[inl] ** 2))
     nu0 = max(0.0, MIN_NOISE_DOF - dof) if prior_dof is None else float(prior_dof)
-    sigma2 = (nu0 * sigma_px**2 + rss) / max(nu0 + dof, 1e-12)
     try:
-        cov_C = sigma2 * np.linalg.inv(J.T @ J)
+        JtJi = np.linalg.inv(J.T @ J)
+        if noise_shape is None:
+            sigma2 = (nu0 * sigma_px**2 + rss) / max(nu0 + dof, 1e-12)
+            cov_C = sigma2 * JtJi
+        else:  # correlated noise of known shape (scaled to a mean variance of 1 per coordinate)
+            idx = np.flatnonzero(np.repeat(inl, 2))
+            Sh = np.asarray(noise_shape, np.float64)[np.ix_(idx, idx)]
+            Sh = Sh / np.mean(np.diag(Sh))
+            H = J @ JtJi @ J.T
+            expected = float(np.trace(Sh) - np.trace(H @ Sh))  # E[RSS] per unit variance
+            rss_eq = rss * dof / max(expected, 1e-12)  # as if the noise were independent
+            sigma2 = (nu0 * sigma_px**2 + rss_eq) / max(nu0 + dof, 1e-12)
+            JtS = J.T @ Sh @ J
+            cov_C = sigma2 * JtJi @ JtS @ JtJi  # least squares under correlated noise
     except np.linalg.LinAlgError:
+        sigma2 = float("nan")
         cov_C = np.full((6, 6), np.inf)
         flags |= FLAG_FEW_POINTS
     B = np.zeros((6, 6))
@@ -203,6 +229,76 @@ def estimate_pose(
     p_O, R_O_P = camera.pose_O_from_C(R_C_P, tvec)
     extra = {"sigma_px": float(np.sqrt(sigma2)), "dof": float(dof)}
     return PoseEstimate(p_O, R_O_P, rvec, tvec, rms, res, inl, cov_O, flags, int(inl.sum()), extra)
+
+
+CHI2_2DOF_Q05 = 0.10259
+"""5 % quantile of chi-square with 2 dof (scipy.stats.chi2.ppf(0.05, 2) = -2 ln 0.95)."""
+
+PLANAR_MARGIN_MIN = 25.0
+"""Chi-square units (the best solution's ``s^2``) by which the other planar solution must fit worse."""
+
+
+def estimate_pose_single_marker(
+    corners_P_m: ArrayLike,
+    corners_px: ArrayLike,
+    camera: CameraModel,
+    sigma_px: float,
+    guess: tuple[F64, F64] | None = None,
+    prior_dof: float | None = None,
+    margin_min: float = PLANAR_MARGIN_MIN,
+    noise_shape: ArrayLike | None = None,
+) -> PoseEstimate:
+    """Pose of {P} from the four corners of one square marker (``(4, 3)`` in {P}, ``(4, 2)`` px).
+
+    Four coplanar points allow two poses (the planar "flip": both IPPE solutions of
+    ``cv.solve_pnp_planar_all``, and the tracking ``guess`` if given, are each refined by
+    :func:`estimate_pose`).  The lowest residual wins; every solution that is a different pose
+    (> 1 mm or > 0.5 deg away) must fit worse by ``margin_min`` in units of the winner's ``s^2``,
+    else the pose is flagged ``FLAG_AMBIGUOUS`` (``extra["planar_margin"]`` holds the margin).
+    ``prior_dof`` None means ``sigma_px`` is only nominal (not measured on this camera): the margin
+    is then in units of the larger of ``s^2`` and the 95 % upper bound of the noise from the four
+    corners alone (``RSS / chi2_2(0.05)``), since a nominal value far below the real noise would
+    otherwise let the flip win confidently (measured: 14 % of frames at 0.6 px noise).
+    The result always carries ``FLAG_SINGLE_MARKER``; its covariance is the usual ``s^2 (J^T J)^-1``
+    of four points (2 residual degrees of freedom: ``s`` is pooled with ``sigma_px`` over
+    ``prior_dof``, see the module docstring; ``noise_shape`` as :func:`estimate_pose`), several
+    times larger than with six markers.
+    """
+    obj = np.asarray(corners_P_m, np.float64).reshape(-1, 3)
+    img = np.asarray(corners_px, np.float64).reshape(-1, 2)
+    if len(obj) != 4:
+        return failed_pose(FLAG_FEW_POINTS | FLAG_SINGLE_MARKER)
+    starts = cv.solve_pnp_planar_all(obj, img, camera.K, camera.dist)
+    if guess is not None:
+        starts.append((np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)))
+    cands = [
+        e
+        for e in (
+            estimate_pose(
+                obj, img, camera, sigma_px, guess=g, prior_dof=prior_dof, noise_shape=noise_shape
+            )
+            for g in starts
+        )
+        if not (e.flags & FLAG_NO_POSE)
+    ]
+    if not cands:
+        return failed_pose(FLAG_NO_POSE | FLAG_SINGLE_MARKER)
+    rss = np.array([float(np.sum(e.residuals_px**2)) for e in cands])
+    order = np.argsort(rss)
+    best = cands[order[0]]
+    s2 = best.extra["sigma_px"] ** 2
+    if prior_dof is None:  # the noise is not known: its 95 % upper bound from the 2 residual dof
+        s2 = max(s2, rss[order[0]] / CHI2_2DOF_Q05)
+    margin = float("inf")
+    for k in order[1:]:
+        d = pose_error(cands[k].position_O_m, cands[k].R_O_P, best.position_O_m, best.R_O_P)
+        if np.linalg.norm(d[:3]) > 1e-3 or np.linalg.norm(d[3:]) > np.deg2rad(0.5):
+            margin = min(margin, (rss[k] - rss[order[0]]) / max(s2, 1e-30))
+    best.flags |= FLAG_SINGLE_MARKER
+    if margin < margin_min:
+        best.flags |= FLAG_AMBIGUOUS
+    best.extra["planar_margin"] = float(margin)
+    return best
 
 
 def pose_error(

@@ -28,13 +28,30 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import block_diag
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration import cv
 from cdpr.calibration.camera_model import CameraModel
-from cdpr.calibration.detect import BlobSettings, FiducialDetector, PointMatcher, detect_blobs
+from cdpr.calibration.detect import (
+    SATURATION_MAX_FRACTION,
+    BlobSettings,
+    FiducialDetector,
+    PointMatcher,
+    check_frame,
+    detect_blobs,
+    edge_fit_corner_covariance,
+    saturated_fraction,
+)
 from cdpr.calibration.markers import MarkerLayout
-from cdpr.calibration.pose import BAD_FLAGS, PoseEstimate, estimate_pose, failed_pose
+from cdpr.calibration.pose import (
+    BAD_FLAGS,
+    FLAG_SATURATED,
+    PoseEstimate,
+    estimate_pose,
+    estimate_pose_single_marker,
+    failed_pose,
+)
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
@@ -76,6 +93,7 @@ class FramePoseEstimator:
     ) -> None:
         self.camera, self.layout = camera, layout
         self.track = bool(track)
+        self._n_frames = 0
         if reference is None:
             p0 = camera.extrinsics_info.get("looks_at_O_m", [0.0, 0.0, 0.0])
             reference = (np.asarray(p0, np.float64), np.eye(3))
@@ -87,10 +105,45 @@ class FramePoseEstimator:
             self._corners = layout.fiducial_corners_m  # (M, 4, 3), cached
             self._last: PoseEstimate | None = None
             self._prev: PoseEstimate | None = None
+            # corner noise measured on multi-marker frames (RSS, dof; forgetting beyond
+            # NOISE_DOF_MAX): the prior of a single-marker pose's 2-dof noise estimate
+            self._noise_rss_px2 = 0.0
+            self._noise_dof = 0.0
         else:
             self.sigma_px = POINT_SIGMA_PX if sigma_px is None else float(sigma_px)
             self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
             self._blob = blob_settings or BlobSettings()
+
+    def _learn_noise(self, est: PoseEstimate) -> None:
+        """Pool a good multi-marker frame's residuals into the running corner-noise estimate."""
+        self._noise_rss_px2 += est.extra["sigma_px"] ** 2 * est.extra["dof"]
+        self._noise_dof += est.extra["dof"]
+        if self._noise_dof > NOISE_DOF_MAX:  # forget old frames (the noise may change)
+            k = NOISE_DOF_MAX / self._noise_dof
+            self._noise_rss_px2 *= k
+            self._noise_dof *= k
+
+    def _single_marker(
+        self, obj: NDArray[np.float64], img: NDArray[np.float64], guess: Any, shape: Any
+    ) -> PoseEstimate:
+        """One marker's pose (flagged ``single_marker``; ``ambiguous`` if the planar flip is not
+        ruled out).  The 2-dof noise estimate is pooled with the corner noise measured on this
+        camera's earlier multi-marker frames (up to ``SINGLE_PRIOR_DOF`` dof) when there are some,
+        else with the nominal ``sigma_px`` (``extra["sigma_prior_dof"]`` = 0 says so)."""
+        if self._noise_dof >= 10:
+            prior_px = float(np.sqrt(self._noise_rss_px2 / self._noise_dof))
+            prior_dof = min(self._noise_dof, SINGLE_PRIOR_DOF)
+            est = estimate_pose_single_marker(
+                obj, img, self.camera, prior_px, guess, prior_dof, noise_shape=shape
+            )
+        else:
+            prior_px, prior_dof = self.sigma_px, 0.0
+            est = estimate_pose_single_marker(
+                obj, img, self.camera, prior_px, guess, noise_shape=shape
+            )
+        est.extra["sigma_prior_px"] = prior_px
+        est.extra["sigma_prior_dof"] = prior_dof
+        return est
 
     def reset(self) -> None:
         """Forget the last poses: the next frame is acquired from scratch."""
@@ -99,8 +152,14 @@ class FramePoseEstimator:
         else:
             self._pm.reset()
 
-    def estimate(self, gray: NDArray[np.uint8]) -> PoseEstimate:
-        """The pose in this frame (flags say when it is not usable)."""
+    def estimate(self, gray: NDArray[np.uint8], name: str | None = None) -> PoseEstimate:
+        """The pose in this frame (flags say when it is not usable).
+
+        Raises :class:`InputError` naming the frame (``name``, e.g. its file; default "frame N",
+        N counted from 0 by this estimator) when it is not gray uint8 of the camera model's size
+        (both marker kinds: a resized frame would give a pose far off, silently)."""
+        self._n_frames += 1
+        check_frame(gray, self.camera.image_size_px, name or f"frame {self._n_frames - 1}")
         if not self.track:  # unrelated snapshots: every frame acquired from scratch
             self.reset()
         if self.layout.kind == "fiducial":
@@ -121,9 +180,24 @@ class FramePoseEstimator:
                 self._last = self._prev = None
                 return failed_pose()
             obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
-            est = estimate_pose(
-                obj, corners.reshape(-1, 2), self.camera, self.sigma_px, guess=guess
-            )
+            shape = block_diag(*edge_fit_corner_covariance(corners))
+            if len(ids) == 1:
+                est = self._single_marker(obj, corners.reshape(-1, 2), guess, shape)
+            else:
+                est = estimate_pose(
+                    obj,
+                    corners.reshape(-1, 2),
+                    self.camera,
+                    self.sigma_px,
+                    guess=guess,
+                    noise_shape=shape,
+                )
+            sat = saturated_fraction(gray, corners)
+            est.extra["saturated_fraction"] = float(sat.max())
+            if np.any(sat > SATURATION_MAX_FRACTION):
+                est.flags |= FLAG_SATURATED
+            elif len(ids) > 1 and not (est.flags & BAD_FLAGS):
+                self._learn_noise(est)
             self._prev = self._last
             self._last = est if not (est.flags & BAD_FLAGS) else None
             return est
@@ -138,6 +212,12 @@ class FramePoseEstimator:
             blobs = detect_blobs(gray, self._blob, None)
         return self._pm.match(blobs).pose
 
+
+NOISE_DOF_MAX = 400.0
+"""Degrees of freedom of the running corner-noise estimate (about 20 six-marker frames)."""
+
+SINGLE_PRIOR_DOF = 60.0
+"""At most this many prior degrees of freedom pooled into a single-marker pose's noise estimate."""
 
 FIDUCIAL_SIGMA_PX = 0.020
 """Effective corner noise (px) of the edge-refined fiducial corners on our rendered frames, the value

@@ -199,3 +199,20 @@ def test_colour_and_resized_frames_are_clear_errors(setup) -> None:
     fid = FiducialDetector(flat_prototype_fiducial_layout(), cam)
     with pytest.raises(InputError, match="640x512 px, the camera model is 1280x1024"):
         fid.detect(np.ascontiguousarray(img[::2, ::2]))
+
+
+def test_ir_estimator_rejects_a_half_size_frame_naming_it(setup) -> None:
+    """The IR path checks the frame against the camera model too (a half-size frame gave a pose
+    1.06 m off): an InputError naming the frame, for a counted frame and for a named one."""
+    from cdpr.analysis.errors import InputError
+
+    cam, layout = setup
+    rng = np.random.default_rng(16)
+    img = _draw(cam, layout, P0, np.eye(3), rng)
+    est = FramePoseEstimator(cam, layout, reference=(P0, np.eye(3)))
+    assert not (est.estimate(img).flags & BAD_FLAGS)  # frame 0: a good one
+    half = np.ascontiguousarray(img[::2, ::2])
+    with pytest.raises(InputError, match=r"^frame 1: 640x512 px, the camera model is 1280x1024"):
+        est.estimate(half)
+    with pytest.raises(InputError, match=r"^shot_07\.png: 640x512 px"):
+        est.estimate(half, name="shot_07.png")

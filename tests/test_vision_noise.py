@@ -25,7 +25,7 @@ from cdpr.daq.camera_source import FramePoseEstimator
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@pytest.mark.parametrize(("kind", "low"), [("points", 1 / 1.5), ("fiducial", 0.3)])
+@pytest.mark.parametrize(("kind", "low"), [("points", 1 / 1.5), ("fiducial", 1 / 1.5)])
 def test_static_scene_scatter_matches_the_reported_sigma(kind: str, low: float) -> None:
     cam = camera_from_mapping(json.loads((ROOT / "data_samples/camera_virtual.json").read_text()))
     layout = (

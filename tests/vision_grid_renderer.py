@@ -106,3 +106,73 @@ def render_ir_disks(
         img = _blur(img, blur_px)
     img = img + rng.normal(0.0, noise_dn, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def render_square_markers(
+    K: NDArray[np.float64],
+    size_wh: tuple[int, int],
+    corners_C_m: NDArray[np.float64],
+    bits: list[NDArray[np.uint8]],
+    quiet_zone_cells: float,
+    rng: np.random.Generator,
+    ss: int = 4,
+    blur_px: float = 0.8,
+    noise_dn: float = 1.5,
+    background_dn: float = 110.0,
+    dark_dn: float = 25.0,
+    light_dn: float = 225.0,
+    gain: float = 1.0,
+) -> NDArray[np.uint8]:
+    """Gray frame of square fiducials through a distortion-free pinhole camera ``K``.
+
+    ``corners_C_m`` (N, 4, 3): each marker's black-square corners in the camera frame, in the order
+    TL, TR, BR, BL; ``bits[i]`` (n, n): its cells (0 black, else white, black border included),
+    row 0 along TL->TR; a white quiet zone of ``quiet_zone_cells`` cells surrounds it.  Every one of
+    the ``ss x ss`` sample rays per pixel is intersected with the marker's plane and coloured by the
+    cell it hits (area coverage), then Gaussian optical blur, ``gain`` (exposure), clipping at 255
+    (a gain above 255 / light_dn saturates the whites, as an overexposed sensor does), noise."""
+    w, h = size_wh
+    img = np.full((h, w), background_dn)
+    Ki = np.linalg.inv(K)
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    r = int(np.ceil(4 * blur_px)) + 1
+    box = [w, h, 0, 0]  # region to blur: the markers' boxes
+    for C, b in zip(np.asarray(corners_C_m, np.float64), bits, strict=True):
+        n = b.shape[0]
+        tl = C[0]
+        side = np.linalg.norm(C[1] - C[0])
+        cell = side / n
+        eu = (C[1] - C[0]) / side
+        ev = (C[3] - C[0]) / np.linalg.norm(C[3] - C[0])
+        nrm = np.cross(eu, ev)
+        q = quiet_zone_cells * cell
+        outer = np.array([tl + a * eu + c * ev for a in (-q, side + q) for c in (-q, side + q)])
+        uv = outer @ K.T
+        uv = uv[:, :2] / uv[:, 2:]
+        x0, x1 = int(max(np.floor(uv[:, 0].min()) - 2, 0)), int(min(np.ceil(uv[:, 0].max()) + 3, w))
+        y0, y1 = int(max(np.floor(uv[:, 1].min()) - 2, 0)), int(min(np.ceil(uv[:, 1].max()) + 3, h))
+        if x1 <= x0 or y1 <= y0:
+            continue
+        box = [min(box[0], x0), min(box[1], y0), max(box[2], x1), max(box[3], y1)]
+        u = np.arange(x0, x1)[None, :, None, None] + off[None, None, None, :]
+        v = np.arange(y0, y1)[:, None, None, None] + off[None, None, :, None]
+        # ray d = Ki (u, v, 1) meets the plane at s = n.tl / n.d; plane coordinates are then
+        # s d.e - tl.e: every dot product with d is linear in (u, v)
+        ln, la, lc = Ki.T @ nrm, Ki.T @ eu, Ki.T @ ev
+        s_ = (nrm @ tl) / (ln[0] * u + ln[1] * v + ln[2])
+        a = (s_ * (la[0] * u + la[1] * v + la[2]) - tl @ eu) / cell  # column, along TL->TR
+        c = (s_ * (lc[0] * u + lc[1] * v + lc[2]) - tl @ ev) / cell  # row, along TL->BL
+        inside_zone = (a >= -quiet_zone_cells) & (a < n + quiet_zone_cells)
+        inside_zone &= (c >= -quiet_zone_cells) & (c < n + quiet_zone_cells)
+        in_marker = (a >= 0) & (a < n) & (c >= 0) & (c < n)
+        ia = np.clip(np.floor(a), 0, n - 1).astype(int)
+        ic = np.clip(np.floor(c), 0, n - 1).astype(int)
+        val = np.where(in_marker & (b[ic, ia] == 0), dark_dn, light_dn)
+        patch = img[y0:y1, x0:x1][:, :, None, None]
+        img[y0:y1, x0:x1] = np.where(inside_zone, val, patch).mean(axis=(2, 3))
+    if blur_px > 0 and box[2] > box[0]:
+        x0, y0 = max(box[0] - r, 0), max(box[1] - r, 0)
+        x1, y1 = min(box[2] + r, w), min(box[3] + r, h)
+        img[y0:y1, x0:x1] = _blur(img[y0:y1, x0:x1], blur_px)  # elsewhere: uniform background
+    img = gain * img + rng.normal(0.0, noise_dn, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
