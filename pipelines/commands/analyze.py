@@ -49,10 +49,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     geo = p.add_argument_group(
         "model geometry (for runs without a test matrix; the points are flagged geometry_from_options)"
     )
-    geo.add_argument("--area-m2", dest="area_m2", type=float, help="reference area S")
-    geo.add_argument("--span-m", dest="span_m", type=float, help="reference span b")
-    geo.add_argument("--chord-m", dest="chord_m", type=float, help="reference chord c")
-    geo.add_argument(
+    add_geometry_arguments(geo)
+    p.set_defaults(func=run)
+
+
+def add_geometry_arguments(group: argparse._ArgumentGroup) -> None:
+    """``--area-m2 --span-m --chord-m --mrp-P-m``: the model geometry given as options (read back
+    by :func:`geometry_from_args`; ``cdpr analyze`` and ``cdpr wrench``)."""
+    group.add_argument("--area-m2", dest="area_m2", type=float, help="reference area S")
+    group.add_argument("--span-m", dest="span_m", type=float, help="reference span b")
+    group.add_argument("--chord-m", dest="chord_m", type=float, help="reference chord c")
+    group.add_argument(
         "--mrp-P-m",
         dest="mrp_P_m",
         type=float,
@@ -61,7 +68,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         metavar=("X", "Y", "Z"),
         help="moment reference point in {P} (m, default P)",
     )
-    p.set_defaults(func=run)
 
 
 def geometry_from_args(args: argparse.Namespace, need: bool) -> object | None:

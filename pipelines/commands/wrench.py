@@ -20,6 +20,8 @@ import argparse
 import math
 import sys
 
+from .analyze import add_geometry_arguments
+
 DEFAULT_TENSION_SIGMA_N = 0.05
 DEFAULT_POSE_SIGMA_M = 0.5e-3
 DEFAULT_POSE_SIGMA_RAD = math.radians(0.1)
@@ -81,18 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     aero.add_argument("--density-kgpm3", dest="density_kgpm3", type=float, help="air density")
     aero.add_argument("--pressure-Pa", dest="pressure_Pa", type=float, help="static pressure")
     aero.add_argument("--temperature-K", dest="temperature_K", type=float, help="air temperature")
-    aero.add_argument("--area-m2", dest="area_m2", type=float, help="reference area S")
-    aero.add_argument("--span-m", dest="span_m", type=float, help="reference span b")
-    aero.add_argument("--chord-m", dest="chord_m", type=float, help="reference chord c")
-    aero.add_argument(
-        "--mrp-P-m",
-        dest="mrp_P_m",
-        type=float,
-        nargs=3,
-        default=(0.0, 0.0, 0.0),
-        metavar=("X", "Y", "Z"),
-        help="moment reference point in {P} (m, default P)",
-    )
+    add_geometry_arguments(aero)
     aero.add_argument(
         "--nose-P",
         dest="nose_P",
