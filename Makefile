@@ -20,13 +20,19 @@ $(STAMP): pyproject.toml
 	@$(MAKE) --no-print-directory chromium
 	@touch $(STAMP)
 
-# headless Chromium renders the HTML reports in the tests (Debian package `chromium`)
+# headless Chromium renders the HTML reports in the tests (Debian package `chromium`); tmux drives
+# the live view in its test (Debian package `tmux`)
 chromium:
 	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || { \
 	  echo "installing chromium (Debian package) for the HTML report test"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
 	    --no-install-recommends chromium || echo "could not install chromium: the report test will fail"; }
+	@command -v tmux >/dev/null 2>&1 || { \
+	  echo "installing tmux (Debian package) for the live-view test"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo -n ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
+	    --no-install-recommends tmux || echo "could not install tmux: the live-view test will fail"; }
 
 demo: $(STAMP)
 	@$(VPATH_) OUT=$(OUT) VENV=$(VENV) bash scripts/demo.sh

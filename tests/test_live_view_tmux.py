@@ -7,13 +7,10 @@ and Ctrl-C ends the run with the test-point events recorded."""
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
-
-import pytest
 
 from cdpr.daq.mcap_io import read_run
 from cdpr.daq.virtual_rig import VirtualRig, schedule_from_mapping
@@ -62,7 +59,6 @@ def _wait_screen(session: str, text: str, timeout_s: float = 60.0) -> str:
         time.sleep(0.1)
 
 
-@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux not installed")
 def test_live_view_through_tmux(tmp_path: Path) -> None:
     rig = load_rig(RIG)
     sched = schedule_from_mapping(
