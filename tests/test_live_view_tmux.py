@@ -64,8 +64,9 @@ def test_live_view_through_tmux(tmp_path: Path) -> None:
     sched = schedule_from_mapping(
         {
             "schedule": {"name": "live", "rate_hz": 200.0, "seed": 3},
-            "segments": [{"label": "hold", "duration_s": 60.0, "wind_mps": 17.27}],
-            "faults": [{"kind": "port_vanish", "start_s": 5.0, "duration_s": 30.0}],
+            "segments": [{"label": "hold", "duration_s": 90.0, "wind_mps": 17.27}],
+            # late enough that the steps before it finish first on a loaded machine
+            "faults": [{"kind": "port_vanish", "start_s": 20.0, "duration_s": 30.0}],
         },
         "<test>",
         rig,

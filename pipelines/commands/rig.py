@@ -72,7 +72,7 @@ def _print_modes(rig: Rig) -> None:
     """The rig's natural modes at its reference pose (wind off), one line per mode."""
     import numpy as np
 
-    from cdpr.analysis.errors import InfeasibleError
+    from cdpr.analysis.errors import InfeasibleError, InputError
     from cdpr.analysis.rotations import rotation_from_euler
     from cdpr.analysis.stiffness import mass_matrix, rig_modes
 
@@ -81,6 +81,9 @@ def _print_modes(rig: Rig) -> None:
         rm = rig_modes(rig)
     except InfeasibleError as exc:
         print(f"  natural modes: not computed: {exc}")
+        return
+    except InputError as exc:  # e.g. no inertia in the rig file: the rig is still a valid rig
+        print(f"  natural modes: not computed ({exc}; give [platform] inertia_P_kgm2)")
         return
     from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
 
