@@ -372,31 +372,38 @@ def read_candump(
     read)`` after each block)."""
     p = Path(path)
     line = 1
-    done = 0
     with p.open("rb") as fh:
-        rest = b""
-        while True:
-            chunk = fh.read(block_bytes)
-            if not chunk:
-                break
-            done += len(chunk)
-            if progress is not None:
-                progress(done)
-            text = rest + chunk
-            cut = text.rfind(b"\n")
-            if cut < 0:
-                rest = text
-                continue
-            rest = text[cut + 1 :]
-            block = np.frombuffer(text[: cut + 1], np.uint8)
+        for text in _line_blocks(fh, block_bytes, 0, progress):
+            block = np.frombuffer(text, np.uint8)
             cols = _parse_block(block, str(p), line)
             line += int(np.count_nonzero(block == 10))
             if len(cols):
                 yield cols
-        if rest.strip():
-            cols = _parse_block(np.frombuffer(rest + b"\n", np.uint8), str(p), line)
-            if len(cols):
-                yield cols
+
+
+def _line_blocks(
+    fh: Any, block_bytes: int, done: int, progress: Callable[[int], None] | None
+) -> Iterator[bytes]:
+    """Blocks of whole lines (each ending in a newline; a last line without one gets it) read
+    ``block_bytes`` at a time from ``fh``; ``progress(bytes read, counting from done)`` after each
+    read.  Blank trailing text is dropped."""
+    rest = b""
+    while True:
+        chunk = fh.read(block_bytes)
+        if not chunk:
+            break
+        done += len(chunk)
+        if progress is not None:
+            progress(done)
+        text = rest + chunk
+        cut = text.rfind(b"\n")
+        if cut < 0:
+            rest = text
+            continue
+        rest = text[cut + 1 :]
+        yield text[: cut + 1]
+    if rest.strip():
+        yield rest + b"\n"
 
 
 def _checked(cols: FrameColumns, path: Path, before: int) -> FrameColumns:
@@ -777,31 +784,12 @@ def read_asc(
     p = Path(path)
     head = read_asc_header(p)
     line = head.body_line
-    done = head.body_offset
     with p.open("rb") as fh:
         fh.seek(head.body_offset)
-        rest = b""
-        while True:
-            chunk = fh.read(block_bytes)
-            if not chunk:
-                break
-            done += len(chunk)
-            if progress is not None:
-                progress(done)
-            text = rest + chunk
-            cut = text.rfind(b"\n")
-            if cut < 0:
-                rest = text
-                continue
-            rest = text[cut + 1 :]
-            _check_utf8(text[: cut + 1], str(p), line)
-            block = np.frombuffer(text[: cut + 1], np.uint8)
+        for text in _line_blocks(fh, block_bytes, head.body_offset, progress):
+            _check_utf8(text, str(p), line)
+            block = np.frombuffer(text, np.uint8)
             cols = _asc_block(block, str(p), line, head.base)
             line += int(np.count_nonzero(block == 10))
-            if len(cols):
-                yield cols
-        if rest.strip():
-            _check_utf8(rest, str(p), line)
-            cols = _asc_block(np.frombuffer(rest + b"\n", np.uint8), str(p), line, head.base)
             if len(cols):
                 yield cols
