@@ -7,10 +7,11 @@
   frames/s of ``cdpr import``, against python-can's ``LogReader`` reading the same file, with the
   numpy ASC parser (``read_asc``) alone in the context;
 - ``run_read_topic``: rows/s of ``open_run(...).table("/tensions")`` on a run of one minute of 8
-  cells at 1 kHz written by the project's writer, against the ``mcap`` package's
-  ``iter_decoded_messages`` + ``json.loads`` on the same file;
-- ``storage_json_bytes_per_sample``: bytes per tension sample in that run (zstd chunks), for the
-  storage notes in docs/recording.md.
+  cells at 1 kHz written by the project's writer (column blocks), against the ``mcap`` package's
+  reader + ``json.loads`` per message on the same samples stored as per-sample JSON (the usual
+  layout);
+- ``storage_json_bytes_per_sample``, ``storage_block_bytes_per_sample``: bytes per tension sample
+  in either layout (zstd chunks), for the storage notes in docs/recording.md.
 """
 
 from __future__ import annotations
@@ -78,8 +79,10 @@ def write_asc(path: Path, n_samples: int, seed: int = 0) -> int:
     return n
 
 
-def write_tension_run(path: Path, n_samples: int) -> None:
-    """A run of ``n_samples`` tension samples of 8 cells with the recorder's fields."""
+def write_tension_run(path: Path, n_samples: int, blocks: bool | None = None) -> None:
+    """A run of ``n_samples`` tension samples of 8 cells with the recorder's fields, through the
+    recorder's path (``write_many`` of readings); ``blocks=False``: per-sample JSON messages
+    instead of the column blocks a 1 kHz stream gets."""
     from cdpr.daq.mcap_writer import McapRunWriter
     from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
@@ -93,7 +96,7 @@ def write_tension_run(path: Path, n_samples: int) -> None:
     T = rng.uniform(35.0, 300.0, (n_samples, 8)).tolist()
     t0 = T0_S * 10**9
     w = McapRunWriter(path)
-    w.add_stream("tensions", StreamDescription(fields, 1000.0, "bench"))
+    w.add_stream("tensions", StreamDescription(fields, 1000.0, "bench"), blocks=blocks)
     batch = []
     for i in range(n_samples):
         v = {f"T_{c}_N": T[i][j] for j, c in enumerate(cables)}
@@ -181,69 +184,60 @@ def run() -> dict[str, dict]:
             f"alone: {n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader)",
         }
 
-        run_path = tmp / "tensions.mcap"
+        run_path = tmp / "tensions.mcap"  # the layout runs have: column blocks
         write_tension_run(run_path, N_SAMPLES)
+        json_path = tmp / "tensions_json.mcap"  # the same samples as per-sample JSON messages
+        write_tension_run(json_path, N_SAMPLES, blocks=False)
         t = time.perf_counter()
-        n_peer = _mcap_json_read(run_path)
+        n_peer = _mcap_json_read(json_path)
         peer_s = time.perf_counter() - t
         t = time.perf_counter()
         with open_run(run_path) as r:
-            n_rows = len(r.table("/tensions"))
+            df = r.table("/tensions")
         read_s = time.perf_counter() - t
-        assert n_rows == n_peer == N_SAMPLES
+        t = time.perf_counter()
+        with open_run(json_path) as r:
+            df_json = r.table("/tensions")
+        json_s = time.perf_counter() - t
+        assert len(df) == len(df_json) == n_peer == N_SAMPLES
+        assert np.array_equal(df.to_numpy(np.float64), df_json[df.columns].to_numpy(np.float64))
         out["run_read_topic"] = {
-            "value": n_rows / read_s,
+            "value": N_SAMPLES / read_s,
             "unit": "rows/s",
-            "peer": "mcap iter_decoded_messages + json.loads, same file",
+            "peer": "mcap iter_messages + json.loads per message, same samples as per-sample JSON",
             "peer_value": n_peer / peer_s,
-            "context": f"{N_SAMPLES} samples of 8 cells (27 fields), per-sample JSON, zstd",
+            "context": f"{N_SAMPLES} samples of 8 cells (27 fields) in column blocks, zstd, "
+            f"open_run incl. opening the file; open_run on the per-sample JSON file: "
+            f"{N_SAMPLES / json_s:.0f} rows/s",
         }
-        out.update(_storage_options(tmp, run_path))
+        out.update(_storage_options(tmp, json_path))
         out["storage_json_bytes_per_sample"] = {
+            "value": json_path.stat().st_size / N_SAMPLES,
+            "unit": "B/sample",
+            "context": "file bytes per tension sample (8 cells, 27 fields), per-sample JSON, zstd",
+        }
+        out["storage_block_bytes_per_sample"] = {
             "value": run_path.stat().st_size / N_SAMPLES,
             "unit": "B/sample",
-            "context": "file bytes per tension sample (8 cells, 27 fields) with zstd chunks",
+            "context": "the same samples in column blocks (float64/int64 columns, base64 in "
+            "JSON, zstd) with the 50 Hz per-sample view beside them",
+        }
+        out["storage_block_read_rows"] = {
+            "value": N_SAMPLES / read_s,
+            "unit": "rows/s",
+            "context": "open_run(...).table('/tensions') on column blocks (= run_read_topic)",
         }
     return out
 
 
 def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
-    """The storage options measured on the same samples as ``json_run``: binary blocks (one MCAP
-    message of 100 samples: int64 times + float64/int64 columns, as raw little-endian arrays; the
-    ``mcap`` package's own ``Writer``), read back with ``numpy.frombuffer``; and the ``mcap``
-    package's ``Writer`` writing the JSON messages (the writer option)."""
+    """The writer option: the ``mcap`` package's ``Writer`` against the project's chunk writer on
+    the same JSON messages, chunking and compression."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    from cdpr.daq.run_reader import open_run
+    from cdpr.daq.mcap_writer import _ChunkedWriter
 
-    with open_run(json_run) as r:
-        df = r.table("/tensions")
-    cols = [c for c in df.columns if c != "t_ns"]
-    arr = np.empty((len(df), len(cols) + 1), np.float64)
-    block = tmp / "blocks.mcap"
-    with block.open("wb") as fh:
-        w = Writer(fh, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
-        w.start()
-        sid = w.register_schema("cdpr.tensions_block", "", b"")
-        cid = w.register_channel("/tensions_block", "cdpr.block.v0", sid)
-        t = df["t_ns"].to_numpy(np.int64)
-        vals = df[cols].to_numpy(np.float64)
-        for a in range(0, len(df), 100):
-            body = t[a : a + 100].tobytes() + np.ascontiguousarray(vals[a : a + 100]).tobytes()
-            w.add_message(cid, int(t[a]), body, int(t[a]))
-        w.finish()
-    tt = time.perf_counter()
-    parts = []
-    with block.open("rb") as fh:
-        for _, _, m in make_reader(fh).iter_messages():
-            k = len(m.data) // (8 * (len(cols) + 1))
-            parts.append(np.frombuffer(m.data, np.float64, offset=8 * k).reshape(k, len(cols)))
-    got = np.concatenate(parts)
-    block_s = time.perf_counter() - tt
-    assert got.shape == (len(df), len(cols)) and arr.shape[0] == len(df)
-
-    # the mcap package's Writer on the JSON messages (what a Writer subclass would cost)
     with json_run.open("rb") as fh:
         msgs = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages()]
     tt = time.perf_counter()
@@ -256,8 +250,6 @@ def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
             w.add_message(cid, ts, data, ts, k)
         w.finish()
     mcap_w_s = time.perf_counter() - tt
-    from cdpr.daq.mcap_writer import _ChunkedWriter
-
     tt = time.perf_counter()
     with (tmp / "w_cdpr.mcap").open("wb") as fh:
         cw = _ChunkedWriter(fh, 256 * 1024, "zstd")
@@ -268,18 +260,8 @@ def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
             cw.add_message(cid, ts, data, ts, k)
         cw.finish()
     cdpr_w_s = time.perf_counter() - tt
-    n = len(df)
+    n = len(msgs)
     return {
-        "storage_block_bytes_per_sample": {
-            "value": block.stat().st_size / n,
-            "unit": "B/sample",
-            "context": "binary blocks of 100 samples (same 27 fields), zstd",
-        },
-        "storage_block_read_rows": {
-            "value": n / block_s,
-            "unit": "rows/s",
-            "context": "binary blocks read with the mcap reader + numpy.frombuffer",
-        },
         "storage_writer_messages": {
             "value": n / cdpr_w_s,
             "unit": "messages/s",

@@ -9,11 +9,9 @@ statics, quadprog as the controller, a plausible aerodynamic load): wind-off tar
 paper's three speeds over -4..+6 deg of pitch, repeated for as long as the run lasts, with linear
 ramps between points and load-cell, camera and airspeed noise.
 
-The tension messages are formatted in bulk: every value of a column has the same number of
-characters (``T`` with 9 significant digits, e.g. ``160.123456`` or ``85.1234567``), so a window of
-samples is one ``(n, L)`` byte array handed to ``McapRunWriter.write_records`` (the writer's batch
-path); the pose, tunnel and event readings go through ``write_many`` one by one.  Memory is bounded
-by the window (60 s of samples).
+The tensions go in as columns (``McapRunWriter.write_columns``: a 1 kHz stream is stored as column
+blocks, ``cdpr.daq.column_blocks``); the pose, tunnel and event readings go through ``write_many``
+one by one.  Memory is bounded by the window (60 s of samples).
 """
 
 from __future__ import annotations
@@ -29,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from truth_rig import AOA_DEG, RIG_FILE, SPEEDS_MPS, aero_wrench, controller, statics, weight  # noqa: E402
 
-from cdpr.daq.mcap_writer import FrameRecords, McapRunWriter  # noqa: E402
+from cdpr.daq.mcap_writer import McapRunWriter  # noqa: E402
 from cdpr.daq.source import FieldDescription, Reading, StreamDescription  # noqa: E402
 
 CABLES = (
@@ -46,53 +44,7 @@ RATE_HZ = 1000
 CAMERA_HZ = 30
 TUNNEL_HZ = 10
 T0_NS = 1_700_000_000 * 10**9
-SEQ0 = 1_000_000  # 7 digits for the first 9 million samples: fixed-width bodies
-_DIGITS = 9
-
-
-def fixed_decimal(v: np.ndarray) -> np.ndarray:
-    """(n,) values in [1, 1e4) -> (n, 10) ASCII bytes: 9 significant digits and a point (valid JSON
-    numbers of one width, no padding)."""
-    v = np.asarray(v, np.float64)
-    if not np.all((v >= 1.0) & (v < 1e4)):
-        raise ValueError("fixed_decimal: values must lie in [1, 1e4)")
-    nint = np.floor(np.log10(v)).astype(np.int64) + 1
-    N = np.rint(v * 10.0 ** (_DIGITS - nint)).astype(np.int64)
-    over = N >= 10**_DIGITS  # 99.99999999 rounds to 100.0000000: one more integer digit
-    nint[over] += 1
-    N[over] = np.rint(v[over] * 10.0 ** (_DIGITS - nint[over])).astype(np.int64)
-    D = (N[:, None] // 10 ** np.arange(_DIGITS - 1, -1, -1, dtype=np.int64)) % 10 + 48
-    c = np.arange(_DIGITS + 1)
-    src = np.clip(c - (c > nint[:, None]), 0, _DIGITS - 1)
-    out = np.take_along_axis(D, src, axis=1)
-    return np.where(c == nint[:, None], 46, out).astype(np.uint8)
-
-
-def _ints(v: np.ndarray, width: int) -> np.ndarray:
-    """(n,) non-negative ints of exactly ``width`` digits -> (n, width) ASCII bytes."""
-    v = np.asarray(v, np.int64)
-    if np.any(v < 10 ** (width - 1)) or np.any(v >= 10**width):
-        raise ValueError(f"expected {width}-digit integers")
-    return ((v[:, None] // 10 ** np.arange(width - 1, -1, -1, dtype=np.int64)) % 10 + 48).astype(
-        np.uint8
-    )
-
-
-def tension_bodies(T_N: np.ndarray, seq: np.ndarray) -> np.ndarray:
-    """JSON bodies ``{"T_<c>_N":..,..,"status_<c>":0,..,"seq":..,"status":0}`` as (n, L) uint8."""
-    n = len(T_N)
-    parts: list[np.ndarray] = []
-
-    def const(s: str) -> None:
-        parts.append(np.broadcast_to(np.frombuffer(s.encode(), np.uint8), (n, len(s))))
-
-    for k, c in enumerate(CABLES):
-        const(("{" if k == 0 else ",") + f'"T_{c}_N":')
-        parts.append(fixed_decimal(T_N[:, k]))
-    const("".join(f',"status_{c}":0' for c in CABLES) + ',"seq":')
-    parts.append(_ints(seq, 7))
-    const(',"status":0}')
-    return np.ascontiguousarray(np.concatenate(parts, axis=1))
+SEQ0 = 1_000_000  # the first sample counter
 
 
 def _plan(n_points: int) -> list[tuple[str, float, float]]:
@@ -195,10 +147,10 @@ def write_campaign_run(
             i0 = counts["tensions"]
             seq = SEQ0 + i0 + np.arange(len(t_rel))
             t_abs = T0_NS + t_rel
-            bodies = tension_bodies(T, seq)
-            w.write_records(
-                "tensions", t_abs, FrameRecords(np.ones(len(t_abs), bool), bodies), _no_reading
-            )
+            cols = {f"T_{c}_N": T[:, k] for k, c in enumerate(CABLES)}
+            cols.update({f"status_{c}": np.zeros(len(t_abs), np.int64) for c in CABLES})
+            cols["seq"] = seq
+            w.write_columns("tensions", t_abs, cols, 0)
             counts["tensions"] += len(t_rel)
             readings: list[Reading] = []
             # camera
@@ -237,10 +189,6 @@ def write_campaign_run(
     finally:
         w.finish()
     return {"counts": counts, "plan": plan, "path": str(path)}
-
-
-def _no_reading(i: int) -> Reading:
-    raise AssertionError("every tension body is preformatted")
 
 
 def _quat_xyzw(euler: np.ndarray) -> np.ndarray:

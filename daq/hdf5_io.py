@@ -112,6 +112,8 @@ def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
                 f.attrs["recovery_warning"] = run.warning
             streams = f.create_group("streams")
             for topic, info in run.streams.items():
+                if info.metadata.get("view_of"):
+                    continue  # the per-sample view of a block stream: a copy of some samples
                 name = topic.lstrip("/").replace("/", ".") or "root"
                 table, blobs = _table(run.table(topic))
                 ds = streams.create_dataset(name, data=table, chunks=True if len(table) else None)

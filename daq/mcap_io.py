@@ -15,6 +15,7 @@ from typing import Any
 
 from cdpr.analysis.errors import ConfigError
 
+from .column_blocks import STORAGE, decode_blocks
 from .mcap_writer import (  # noqa: F401  (re-exported: the writer's public names)
     LIBRARY,
     LOG_LEVELS,
@@ -96,8 +97,10 @@ def _iter_records(p: Path, errors: list[str]) -> Iterator[Any]:
 
 def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContents:
     """Read a run file with the streaming reader: every record up to the end or the first damaged
-    one (a truncated file yields every complete chunk).  ``decode=False`` keeps message bodies as
-    raw bytes (under key ``"_raw"``), which is faster."""
+    one (a truncated file yields every complete chunk).  A column-block channel
+    (:mod:`cdpr.daq.column_blocks`) gives one ``(t_ns, values)`` per sample.  ``decode=False``
+    keeps message bodies as raw bytes (under key ``"_raw"``: one per block message), which is
+    faster."""
     from mcap.records import Attachment, Channel, Footer, Message, Metadata, Schema
 
     p = _check_file(path)
@@ -105,11 +108,20 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
     schemas: dict[int, Any] = {}
     by_id: dict[int, str] = {}
     errors: list[str] = []
+    blocked: set[int] = set()  # column-block channels
     loads = json.loads
     for rec in _iter_records(p, errors):
         if isinstance(rec, Message):
             topic = by_id.get(rec.channel_id)
             if topic is None:
+                continue
+            if decode and rec.channel_id in blocked:  # one (t_ns, values) per sample
+                cols = decode_blocks([rec.data], str(p))
+                t = cols.pop("t_ns").tolist()
+                vals = {k: v.tolist() for k, v in cols.items()}
+                out.messages[topic] += [
+                    (t[i], {k: v[i] for k, v in vals.items()}) for i in range(len(t))
+                ]
                 continue
             body = loads(rec.data) if decode else {"_raw": rec.data}
             out.messages[topic].append((rec.log_time, body))
@@ -134,6 +146,8 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
                 schema_json,
             )
             by_id[rec.id] = rec.topic
+            if rec.metadata.get("storage") == STORAGE:
+                blocked.add(rec.id)
             out.messages.setdefault(rec.topic, [])
         elif isinstance(rec, Metadata):
             out.metadata[rec.name] = dict(rec.metadata)

@@ -36,6 +36,7 @@ from typing import Any
 
 from cdpr.analysis.errors import InputError
 
+from . import column_blocks
 from .source import Reading, StreamDescription
 
 PROFILE = ""
@@ -733,12 +734,18 @@ class McapRunWriter:
         except FileExistsError:
             raise InputError(f"{self.path}: exists already; a run is never overwritten") from None
         self._writer = _ChunkedWriter(self._fh, chunk_size, compression)
+        self._chunk_size = chunk_size
         self._writer.start(PROFILE, LIBRARY)
         self.flush_interval_ns = int(flush_interval_s * 1e9)
         self._last_flush_ns = time.monotonic_ns()
         self._channels: dict[str, int] = {}
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
+        # block streams (cdpr.daq.column_blocks): buffered samples, view channel, block count
+        self._blocks: dict[str, column_blocks.BlockBuffer] = {}
+        self._block_view: dict[str, list[int]] = {}
+        self._block_ints: dict[str, set[str]] = {}
+        #: samples written per stream (a block stream's samples, not its block messages)
         self.counts: dict[str, int] = {}
         self.flushes = 0
         self.fsyncs = 0
@@ -751,11 +758,26 @@ class McapRunWriter:
         self.finished = False
 
     # channels ------------------------------------------------------------------------------
-    def add_stream(self, stream: str, description: StreamDescription | None = None) -> int:
-        """Register ``/<stream>`` (idempotent); returns its channel id."""
+    def add_stream(
+        self,
+        stream: str,
+        description: StreamDescription | None = None,
+        blocks: bool | None = None,
+    ) -> int:
+        """Register ``/<stream>`` (idempotent); returns its channel id.  ``blocks``: store the
+        samples as column blocks (:mod:`cdpr.daq.column_blocks`); None: when the description is
+        flat numeric at :data:`~cdpr.daq.column_blocks.MIN_RATE_HZ` or more (True also needs a flat
+        numeric description, whatever its rate: ``cdpr import`` of a log of unknown rate)."""
         if stream in self._channels:
             return self._channels[stream]
         codec = codec_for(stream, description)
+        if (
+            blocks is not False
+            and description is not None
+            and codec.schema_name == f"cdpr.{stream}"
+            and column_blocks.uses_blocks(description, any_rate=bool(blocks))
+        ):
+            return self._add_block_stream(stream, description, codec)
         schema_id = self._writer.register_schema(
             codec.schema_name,
             "jsonschema",
@@ -775,9 +797,124 @@ class McapRunWriter:
         self.counts[stream] = 0
         return cid
 
+    def _add_block_stream(
+        self, stream: str, description: StreamDescription, codec: StreamCodec
+    ) -> int:
+        """A high-rate flat numeric stream: column blocks on ``/<stream>`` and the per-sample view
+        on ``/<stream>/view`` (:mod:`cdpr.daq.column_blocks`)."""
+        w = self._writer
+        meta = {"stream": stream, "rate_hz": repr(float(description.rate_hz))}
+        units = {k: f.unit for k, f in description.fields.items() if f.unit}
+        if units:
+            meta["units"] = json.dumps(units, separators=(",", ":"))
+        sid = w.register_schema(
+            column_blocks.BLOCK_SCHEMA_NAME,
+            "jsonschema",
+            json.dumps(column_blocks.block_schema(stream, description)).encode(),
+        )
+        cid = w.register_channel(
+            topic_of(stream), "json", sid, {**meta, **column_blocks.channel_metadata(description)}
+        )
+        period = column_blocks.VIEW_PERIOD_NS
+        vsid = w.register_schema(
+            codec.schema_name,
+            "jsonschema",
+            json.dumps(codec.schema, separators=(",", ":")).encode(),
+        )
+        vmeta = {**meta, "view_of": topic_of(stream), "view_period_ns": str(period)}
+        vmeta["rate_hz"] = repr(min(float(description.rate_hz), 1e9 / period))
+        vcid = w.register_channel(topic_of(stream) + "/view", "json", vsid, vmeta)
+        self._channels[stream] = cid
+        self._codecs[stream] = codec.encode
+        # a block holds at most about one chunk of samples (so chunk_size bounds a block too)
+        ncols = len(description.fields) + 2
+        self._blocks[stream] = column_blocks.BlockBuffer(
+            max(1, min(column_blocks.MAX_BLOCK_SAMPLES, self._chunk_size // (8 * ncols)))
+        )
+        self._block_view[stream] = [vcid, -1, 0]  # channel, last view bin, view messages
+        # integer fields: a missing value (NaN in the block) is left out of the view, not null
+        self._block_ints[stream] = {
+            k
+            for k, f in description.fields.items()
+            if f.dtype not in ("float64", "float32", "float")
+        }
+        self.counts[stream] = 0
+        return cid
+
     @property
     def streams(self) -> list[str]:
         return list(self._channels)
+
+    def _emit_block(self, stream: str) -> None:
+        """Write the buffered samples of a block stream as one block (split at
+        :data:`~cdpr.daq.column_blocks.MAX_BLOCK_SAMPLES`) and their per-sample view messages."""
+        import numpy as np
+
+        got = self._blocks[stream].take()
+        if got is None:
+            return
+        t_all, cols_all = got
+        cid = self._channels[stream]
+        view = self._block_view[stream]
+        add = self._writer.add_message
+        step = self._blocks[stream].max_samples
+        for a in range(0, len(t_all), step):
+            t = t_all[a : a + step]
+            cols = {k: v[a : a + step] for k, v in cols_all.items()}
+            buf = self._blocks[stream]
+            body = column_blocks.encode_block(t, cols, buf.written)
+            add(cid, int(t[-1]), body, int(t[0]), buf.messages)
+            buf.messages += 1
+            buf.written += len(t)
+            # the view: the first sample in each VIEW_PERIOD_NS bin of time
+            bins = t // column_blocks.VIEW_PERIOD_NS
+            pick = np.flatnonzero(np.diff(bins, prepend=view[1]) != 0)
+            view[1] = int(bins[-1])
+            if len(pick):
+                names = list(cols)
+                rows = [cols[n][pick].tolist() for n in names]
+                ints = self._block_ints[stream]
+                for j, i in enumerate(pick.tolist()):
+                    body_i = {
+                        n: r[j]
+                        for n, r in zip(names, rows, strict=True)
+                        if not (n in ints and r[j] != r[j])  # NaN: missing
+                    }
+                    add(view[0], int(t[i]), encode_json(body_i), int(t[i]), view[2])
+                    view[2] += 1
+
+    def _emit_blocks(self) -> None:
+        for stream, buf in self._blocks.items():
+            if len(buf):
+                self._emit_block(stream)
+
+    def write_columns(
+        self, stream: str, t_ns: Any, columns: Mapping[str, Any], status: Any = 0
+    ) -> int:
+        """Write samples of ``stream`` given as columns (``t_ns`` (n,) int ns; each column (n,)
+        numbers, NaN for missing; ``status`` (n,) or one int): the bulk path of ``cdpr import`` and
+        the benchmarks.  A block stream takes the arrays as they are; any other stream gets one
+        message per sample.  Returns how many samples."""
+        import numpy as np
+
+        t_ns = np.asarray(t_ns, np.int64)
+        if stream not in self._channels:
+            self.add_stream(stream, None)
+        buf = self._blocks.get(stream)
+        if buf is not None:
+            buf.add_columns(t_ns, columns, status)
+            self.counts[stream] += len(t_ns)
+            if len(buf) >= buf.max_samples:
+                self._emit_block(stream)
+            return len(t_ns)
+        st = np.broadcast_to(np.asarray(status, np.int64), t_ns.shape)
+        names = list(columns)
+        arrays = [np.asarray(columns[k]) for k in names]
+        return self.write_many(
+            Reading(stream, int(t_ns[i]), {k: a[i].item() for k, a in zip(names, arrays, strict=True)},
+                    int(st[i]))
+            for i in range(len(t_ns))
+        )  # fmt: skip
 
     # data ----------------------------------------------------------------------------------
     def write(self, reading: Reading) -> None:
@@ -797,12 +934,21 @@ class McapRunWriter:
         codecs = self._codecs
         counts = self.counts
         add = self._writer.add_message
+        blocks = self._blocks
         n = 0
         for r in readings:
             stream = r.stream
             cid = channels.get(stream)
             if cid is None:
                 cid = self.add_stream(stream, None)
+            buf = blocks.get(stream)
+            if buf is not None:
+                buf.add_reading(r.t_ns, r.values, r.status)
+                counts[stream] += 1
+                if buf.n >= buf.max_samples:
+                    self._emit_block(stream)
+                n += 1
+                continue
             body = codecs[stream](r)
             data = body if type(body) is bytes else encode_json(body)
             k = counts[stream]
@@ -846,6 +992,8 @@ class McapRunWriter:
         cid = self._channels.get(stream)
         if cid is None:
             cid = self.add_stream(stream, None)
+        if stream in self._blocks:
+            raise InputError(f"{stream}: a column-block stream takes write_columns, not records")
         k0 = self.counts[stream]
         w = self._writer
         if len(records.bodies) == n:
@@ -868,19 +1016,6 @@ class McapRunWriter:
         self.counts[stream] = k0 + n
         return n
 
-    def write_bodies(self, stream: str, t_ns: Any, bodies: list[bytes]) -> int:
-        """Write preformatted JSON message bodies of a registered stream (same layout as its
-        codec's), log times ``t_ns`` (int ns), in order; returns how many."""
-        cid = self._channels[stream]
-        add = self._writer.add_message
-        k = self.counts[stream]
-        for t, body in zip(t_ns, bodies, strict=True):
-            add(cid, t, body, t, k)
-            k += 1
-        n = k - self.counts[stream]
-        self.counts[stream] = k
-        return n
-
     def maybe_flush(self) -> bool:
         """Close the open chunk and fsync if it is older than the flush interval."""
         if time.monotonic_ns() - self._last_flush_ns >= self.flush_interval_ns:
@@ -892,6 +1027,7 @@ class McapRunWriter:
         """Close the open chunk (if any) and hand it to the OS (it now survives the process being
         killed), then have it fsynced (durable across a power cut) by the fsync thread, so the
         writer does not wait for the disk."""
+        self._emit_blocks()
         self._writer.close_chunk()
         self._fh.flush()
         self._fsync_wanted.set()
@@ -928,6 +1064,7 @@ class McapRunWriter:
             return
         self.finished = True
         try:
+            self._emit_blocks()
             self._writer.finish()
             self._fh.flush()
             os.fsync(self._fh.fileno())

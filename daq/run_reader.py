@@ -45,6 +45,8 @@ import numpy as np
 
 from cdpr.analysis.errors import InputError
 
+from . import column_blocks
+
 __all__ = ["FieldInfo", "Run", "StreamInfo", "open_run"]
 
 _MAGIC = b"\x89MCAP0\r\n"
@@ -103,6 +105,19 @@ def _fields_of(schema: dict[str, Any] | None, units: dict[str, str]) -> dict[str
     return out
 
 
+def _block_fields(text: str) -> dict[str, FieldInfo]:
+    """Per-sample fields of a block channel from its ``fields`` metadata (name -> [dtype, unit])."""
+    try:
+        spec = json.loads(text)
+    except ValueError:
+        spec = {}
+    out: dict[str, FieldInfo] = {}
+    for name, v in (spec if isinstance(spec, dict) else {}).items():
+        dt, unit = (v + ["", ""])[:2] if isinstance(v, list) else ("", "")
+        out[str(name)] = FieldInfo("integer" if dt == "<i8" else "number", str(unit))
+    return out
+
+
 class DamagedRunError(InputError):
     """A chunk inside a run file cannot be read (bad compression or CRC): open the file with
     ``open_run(path, recover=True)`` to read what the recovery path salvages, or run
@@ -147,6 +162,8 @@ class Run:
         self._attachments: dict[str, tuple[str, bytes]] | None = None
         counts = dict(summary.statistics.channel_message_counts) if summary.statistics else {}
         self._topic_cid: dict[str, int] = {}
+        self._blocked: set[int] = set()  # channels stored as column blocks
+        self._block_indexes: dict[tuple[int, int], np.ndarray] = {}  # their message indexes
         self.streams: dict[str, StreamInfo] = {}
         for cid, ch in sorted(summary.channels.items()):
             sch = summary.schemas.get(ch.schema_id)
@@ -166,17 +183,29 @@ class Run:
             except ValueError:
                 rate = 0.0
             self._topic_cid[ch.topic] = cid
+            if meta.get("storage") == column_blocks.STORAGE:
+                self._blocked.add(cid)
+                fields = _block_fields(meta.get("fields", "{}"))
+            else:
+                fields = _fields_of(schema_json, units if isinstance(units, dict) else {})
+            schema_name = sch.name if sch is not None else ""
+            if cid in self._blocked:  # the per-sample schema (the view's), not the block's
+                schema_name = f"cdpr.{meta.get('stream', ch.topic.lstrip('/'))}"
             self.streams[ch.topic] = StreamInfo(
                 ch.topic,
-                sch.name if sch is not None else "",
-                _fields_of(schema_json, units if isinstance(units, dict) else {}),
+                schema_name,
+                fields,
                 rate,
                 int(counts.get(cid, 0)),
                 None,
                 None,
                 meta,
             )
-            self.streams[ch.topic].start_ns, self.streams[ch.topic].stop_ns = self._time_range(cid)
+            info = self.streams[ch.topic]
+            if cid in self._blocked:
+                info.count, info.start_ns, info.stop_ns = self._block_extent(cid)
+            else:
+                info.start_ns, info.stop_ns = self._time_range(cid)
 
     # -- opening ------------------------------------------------------------------------------
     def _open_recovered(self, path: Path) -> None:
@@ -379,18 +408,99 @@ class Run:
                 idx, t = idx[keep], t[keep]
                 if not len(t):
                     continue
-            data = self._chunk(ci)
-            buf = np.frombuffer(data, np.uint8)
-            off = idx[:, 1].astype(np.int64)
-            # message record: opcode, u64 length, u16 channel, u32 sequence, u64 log, u64 publish
-            if int(off.max()) + 31 > len(buf) or (buf[off] != 0x05).any():
-                raise self._damaged(ci.chunk_start_offset, "a message offset is not a message")
-            lens = buf[(off + 1)[:, None] + np.arange(8)].copy().view(_U64).ravel().astype(np.int64)
-            starts = off + 31
-            ends = off + 9 + lens
-            if (lens < 22).any() or int(ends.max()) > len(buf):
-                raise self._damaged(ci.chunk_start_offset, "a message runs past its chunk")
-            yield t, [data[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
+            yield t, self._extract(ci, idx)
+
+    def _extract(self, ci: Any, idx: np.ndarray) -> list[bytes]:
+        """The bodies of the messages at ``idx[:, 1]`` (offsets) in chunk ``ci``."""
+        data = self._chunk(ci)
+        buf = np.frombuffer(data, np.uint8)
+        off = idx[:, 1].astype(np.int64)
+        # message record: opcode, u64 length, u16 channel, u32 sequence, u64 log, u64 publish
+        if int(off.max()) + 31 > len(buf) or (buf[off] != 0x05).any():
+            raise self._damaged(ci.chunk_start_offset, "a message offset is not a message")
+        lens = buf[(off + 1)[:, None] + np.arange(8)].copy().view(_U64).ravel().astype(np.int64)
+        starts = off + 31
+        ends = off + 9 + lens
+        if (lens < 22).any() or int(ends.max()) > len(buf):
+            raise self._damaged(ci.chunk_start_offset, "a message runs past its chunk")
+        return [data[a:b] for a, b in zip(starts.tolist(), ends.tolist(), strict=True)]
+
+    def _block_index(self, cid: int, start_ns: int | None, stop_ns: int | None) -> list[Any]:
+        """The blocks of block channel ``cid`` that hold samples in [start_ns, stop_ns), in time
+        order, as (chunk index, (k, 2) index rows) per chunk.  A block's log time is its last
+        sample: the blocks needed run from the first with log time >= start_ns to the first with
+        log time >= stop_ns, inclusive (message indexes only, nothing decompressed)."""
+        rows = []
+        past: int | None = None  # the least log time >= stop_ns seen so far
+        for ci in self._chunks_of(cid, start_ns, None):
+            if past is not None and ci.message_start_time > past:
+                break  # chunks come by start time: none after this holds an earlier block
+            key = (ci.chunk_start_offset, cid)
+            idx = self._block_indexes.get(key)
+            if idx is None:
+                idx = self._block_indexes[key] = self._message_index(ci, cid)
+            if len(idx):
+                rows.append((ci, idx))
+                if stop_ns is not None:
+                    late = idx[:, 0][idx[:, 0] >= stop_ns]
+                    if len(late):
+                        m = int(late.min())
+                        past = m if past is None else min(past, m)
+        if not rows:
+            return []
+        t = np.concatenate([idx[:, 0] for _, idx in rows]).astype(np.int64)
+        which = np.concatenate([np.full(len(idx), i) for i, (_, idx) in enumerate(rows)])
+        order = np.argsort(t, kind="stable")
+        t, which = t[order], which[order]
+        pos = np.concatenate([np.arange(len(idx)) for _, idx in rows])[order]
+        lo = 0 if start_ns is None else int(np.searchsorted(t, start_ns, "left"))
+        hi = len(t) if stop_ns is None else int(np.searchsorted(t, stop_ns, "left")) + 1
+        out = []
+        sel_w, sel_p = which[lo:hi], pos[lo:hi]
+        for i in dict.fromkeys(sel_w.tolist()):
+            ci, idx = rows[i]
+            out.append((ci, idx[np.sort(sel_p[sel_w == i])]))
+        return out
+
+    def _block_columns(
+        self, cid: int, start_ns: int | None, stop_ns: int | None
+    ) -> dict[str, np.ndarray]:
+        """Columns (``t_ns`` first) of the samples of block channel ``cid`` in [start_ns,
+        stop_ns), sorted by time."""
+        bodies: list[bytes] = []
+        for ci, idx in self._block_index(cid, start_ns, stop_ns):
+            bodies += self._extract(ci, idx)
+        cols = column_blocks.decode_blocks(bodies, str(self.path))
+        t = cols["t_ns"]
+        keep = np.ones(len(t), bool)
+        if start_ns is not None:
+            keep &= t >= start_ns
+        if stop_ns is not None:
+            keep &= t < stop_ns
+        if not keep.all():
+            cols = {k: v[keep] for k, v in cols.items()}
+        if len(cols["t_ns"]) > 1 and np.any(np.diff(cols["t_ns"]) < 0):
+            order = np.argsort(cols["t_ns"], kind="stable")
+            cols = {k: v[order] for k, v in cols.items()}
+        return cols
+
+    def _block_extent(self, cid: int) -> tuple[int, int | None, int | None]:
+        """(samples, first, last sample time) of block channel ``cid`` from its first and last
+        blocks."""
+        blocks = self._block_index(cid, None, None)
+        if not blocks:
+            return 0, None, None
+        ci0, idx0 = blocks[0]
+        ci1, idx1 = blocks[-1]
+        first = column_blocks.decode_blocks(self._extract(ci0, idx0[:1]), str(self.path))
+        last_body = self._extract(ci1, idx1[-1:])
+        last = column_blocks.decode_blocks(last_body, str(self.path))
+        head = json.loads(last_body[0][: last_body[0].index(b',"data"')] + b"}")
+        return (
+            int(head["first_sample"]) + int(head["count"]),
+            int(first["t_ns"][0]),
+            int(last["t_ns"].max()),
+        )
 
     def _decode(self, topic: str, t: np.ndarray, bodies: list[bytes]) -> Any:
         schema = self.streams[topic].schema_name
@@ -413,6 +523,8 @@ class Run:
         """The log times (int64 ns, sorted) of every message of ``topic``, from the message indexes
         alone (no chunk is decompressed)."""
         cid = self._cid(topic)
+        if cid in self._blocked:
+            return self._block_columns(cid, None, None)["t_ns"]
         parts = [self._message_index(ci, cid)[:, 0] for ci in self._chunks_of(cid, None, None)]
         t = np.concatenate(parts).astype(np.int64) if parts else np.empty(0, np.int64)
         t.sort(kind="stable")
@@ -430,6 +542,17 @@ class Run:
         import pandas as pd
 
         cid = self._cid(topic)
+        if cid in self._blocked:
+            cols = self._block_columns(cid, start_ns, stop_ns)
+            if columns is not None:  # only the columns asked for (t_ns always)
+                keep = {"t_ns", *columns}
+                cols = {k: v for k, v in cols.items() if k in keep}
+                if len(cols["t_ns"]) and (missing := [c for c in columns if c not in cols]):
+                    raise InputError(
+                        f"{self.path}: topic {topic!r} has no column {missing[0]!r} "
+                        f"(columns: {', '.join(self.streams[topic].fields)})"
+                    )
+            return self._finish_frame(topic, pd.DataFrame(cols, copy=False), columns)
         parts = [self._decode(topic, t, b) for t, b in self._bodies(cid, start_ns, stop_ns)]
         if parts:
             df = pd.concat(parts, ignore_index=True, sort=False) if len(parts) > 1 else parts[0]

@@ -5,7 +5,6 @@ library's own reader."""
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _block_reader import messages
 from mcap.reader import make_reader
 
 from cdpr.analysis.aero import attitude_from_flow_angles, flow_angles
@@ -235,11 +235,9 @@ def test_simulate_campaign_records_test_point_events(tmp_path: Path, transport: 
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     (run,) = out.glob("*.mcap")
-    with run.open("rb") as fh:
-        msgs = [
-            (c.topic, m.log_time, json.loads(m.data))
-            for _, c, m in make_reader(fh).iter_messages(topics=["/events", "/tensions"])
-        ]
+    with run.open("rb") as fh:  # column blocks row by row (tests/_block_reader.py)
+        by_topic = messages(make_reader(fh))
+    msgs = [(top, t, b) for top in ("/events", "/tensions") for t, b in by_topic[top]]
     ev = [(t, b) for top, t, b in msgs if top == "/events"]
     assert [(b["point"], b["phase"]) for _, b in ev] == [
         ("tare", "start"), ("tare", "end"), ("on", "start"), ("on", "end"),

@@ -1,6 +1,5 @@
-"""The benchmark's campaign-run generator (bench/campaign_run.py): its bulk-formatted tension
-bodies are valid JSON with the values asked for, and the file reads back with the ``mcap``
-package's own reader."""
+"""The benchmark's campaign-run generator (bench/campaign_run.py): the file reads back with the
+``mcap`` package's own reader (the tensions' column blocks decoded by tests/_block_reader.py)."""
 
 from __future__ import annotations
 
@@ -9,35 +8,10 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-import numpy as np
-import pytest
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from campaign_run import CABLES, fixed_decimal, tension_bodies, write_campaign_run  # noqa: E402
-
-
-def test_fixed_decimal_is_json_of_one_width_and_the_value() -> None:
-    v = np.array([1.0, 35.123456789, 99.999999996, 99.99999994, 160.5, 999.9999999951, 9999.5])
-    out = fixed_decimal(v)
-    assert out.shape == (len(v), 10)
-    texts = [bytes(r).decode() for r in out]
-    assert texts[2] == "100.000000" and texts[3] == "99.9999999"  # rounding carries a digit
-    for x, s in zip(v, texts, strict=True):
-        assert float(json.loads(s)) == pytest.approx(x, rel=6e-9), s
-        assert not s.startswith("0")
-    with pytest.raises(ValueError):
-        fixed_decimal(np.array([0.5]))
-
-
-def test_tension_bodies_parse_as_json() -> None:
-    T = np.array([[35.0 + k + 0.123456 for k in range(8)], [300.0 - k for k in range(8)]])
-    bodies = tension_bodies(T, np.array([1_000_000, 1_000_001]))
-    for row, t, seq in zip(bodies, T, (1_000_000, 1_000_001), strict=True):
-        b = json.loads(bytes(row))
-        assert [b[f"T_{c}_N"] for c in CABLES] == pytest.approx(t.tolist(), rel=1e-8)
-        assert b["seq"] == seq and b["status"] == 0
-        assert all(b[f"status_{c}"] == 0 for c in CABLES)
+from _block_reader import block_rows, is_block_channel  # noqa: E402
+from campaign_run import CABLES, write_campaign_run  # noqa: E402
 
 
 def test_a_short_run_reads_back_with_the_mcap_reader(tmp_path: Path) -> None:
@@ -50,15 +24,26 @@ def test_a_short_run_reads_back_with_the_mcap_reader(tmp_path: Path) -> None:
     with open(tmp_path / "r.mcap", "rb") as fh:
         reader = make_reader(fh)
         for _, channel, msg in reader.iter_messages(log_time_order=True):
-            counts[channel.topic] += 1
             body = json.loads(msg.data)
             if channel.topic == "/tensions":
-                T = [body[f"T_{c}_N"] for c in CABLES]
-                assert all(35.0 - 1 < x < 300.0 + 1 for x in T)  # the rig file's limits + noise
-                assert last_seq is None or body["seq"] == last_seq + 1
-                last_seq = body["seq"]
-            elif channel.topic == "/events":
+                assert is_block_channel(channel)  # 1 kHz: column blocks
+                for row in block_rows(msg.data):
+                    counts["/tensions"] += 1
+                    T = [row[f"T_{c}_N"] for c in CABLES]
+                    assert all(35.0 - 1 < x < 300.0 + 1 for x in T)  # rig limits + noise
+                    assert last_seq is None or row["seq"] == last_seq + 1
+                    last_seq = row["seq"]
+                continue
+            counts[channel.topic] += 1
+            if channel.topic == "/events":
                 assert body["name"] == "test_point" and body["phase"] in ("start", "end")
         attachments = [a.name for a in reader.iter_attachments()]
-    assert counts == {"/tensions": 45_000, "/pose": 1350, "/tunnel": 450, "/events": 6}
+    # the per-sample view beside the blocks: every 20th sample (50 Hz)
+    assert counts == {
+        "/tensions": 45_000,
+        "/tensions/view": 2250,
+        "/pose": 1350,
+        "/tunnel": 450,
+        "/events": 6,
+    }
     assert attachments == ["rig/flat_experiment2.toml"]

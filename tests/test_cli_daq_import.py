@@ -85,7 +85,7 @@ def test_import_can_log_and_poses(tmp_path: Path, suffix: str, rig_frames, capsy
     node = node_read(out)
     assert node["complete"] and node["bad_json"] == 0
     assert node["topics"]["/can_raw"] == n_frames
-    assert node["topics"]["/tensions"] == n
+    assert node["samples"]["/tensions"] == n  # column blocks (docs/recording.md)
     assert node["topics"]["/pose"] == len(rows) - 1
     assert node["schemas"]["/pose"] == "foxglove.PoseInFrame"
     assert {a["name"] for a in node["attachments"]} == {

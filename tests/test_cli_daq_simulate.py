@@ -66,7 +66,8 @@ def test_simulate_inspect_independent_reader_truth_and_hdf5(tmp_path: Path, tran
     node = node_read(run)
     assert node["complete"] and node["bad_json"] == 0 and info["complete"]
     counts = {s["topic"]: s["count"] for s in info["streams"]}
-    assert {k: v for k, v in counts.items() if v} == node["topics"]  # inspect == @mcap/core
+    # inspect == @mcap/core: messages, and samples of the column-block streams
+    assert {k: v for k, v in counts.items() if v} == node["topics"] | node["samples"]
     assert counts["/tensions"] == n_samples  # every sample the rig sent
     assert counts["/tunnel"] == len(truth["tunnel_t_rel_ns"])
     if transport != "serial":

@@ -4,11 +4,11 @@ CAN log a full run (``/tunnel`` and ``/events``), read back with the mcap librar
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import can
 import pytest
+from _block_reader import messages
 from mcap.reader import make_reader
 from test_recorder_helpers import node_read
 
@@ -53,11 +53,9 @@ EVENTS = """t_s,point,phase,kind,target_aoa_deg,target_sideslip_deg,target_airsp
 
 
 def _read(path: Path) -> dict[str, list[tuple[int, dict]]]:
-    out: dict[str, list[tuple[int, dict]]] = {}
+    """Every message with the mcap package's reader (column blocks row by row)."""
     with path.open("rb") as fh:
-        for _, ch, m in make_reader(fh).iter_messages():
-            out.setdefault(ch.topic, []).append((m.log_time, json.loads(m.data)))
-    return out
+        return messages(make_reader(fh))
 
 
 def _argv(tmp: Path, *extra: str) -> list[str]:

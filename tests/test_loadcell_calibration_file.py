@@ -5,7 +5,6 @@ Expected numbers come from the known offsets and gains of the points the test ge
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +12,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from _block_reader import samples
 from mcap.reader import make_reader
 
 from cdpr.analysis.errors import ConfigError
@@ -53,9 +53,10 @@ def test_calibrate_writes_what_the_reader_reads_in_rig_order(tmp_path: Path) -> 
 
 
 def _tensions(path: Path) -> np.ndarray:
-    """(n, 8) tensions of a run's ``/tensions`` messages, read with the mcap library."""
+    """(n, 8) tensions of a run's ``/tensions`` samples, read with the mcap library (column blocks
+    decoded by tests/_block_reader.py)."""
     with path.open("rb") as fh:
-        rows = [json.loads(m.data) for _, _, m in make_reader(fh).iter_messages(["/tensions"])]
+        rows = samples(make_reader(fh), "/tensions")
     return np.array([[r[f"T_{n}_N"] for n in NAMES] for r in rows])
 
 

@@ -20,13 +20,14 @@ MCAP_CHECK = ROOT / "tools" / "mcap-check" / "mcap_check.js"
 
 
 def node_read(path: str | Path) -> dict[str, Any]:
-    """Summary of an MCAP file by @mcap/core: topics (counts), schemas, metadata, attachments,
-    chunks, complete (valid footer), statistics, error."""
+    """Summary of an MCAP file by @mcap/core: topics (message counts), samples (per column-block
+    topic), schemas, metadata, attachments, chunks, complete (valid footer), statistics, error."""
     res = subprocess.run(
         ["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True, timeout=120
     )
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
+    assert out["bad_blocks"] == 0, out  # every column block decodes, its times rise
     if out["complete"]:  # the summary's chunk and message indexes agree with the data section
         assert out["indexed"] is not None and out["indexed"]["topics"] == out["topics"], out
         assert out["indexed"]["chunk_indexes"] == out["chunks"], out

@@ -10,6 +10,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from _block_reader import samples
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.daq.canlog import read_asc, read_candump
@@ -217,18 +218,21 @@ def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
     dec, _ = build_decoder("<test>", "sources.can", str(DBC), cables, None, None)
     ref = tmp_path / "ref.mcap"
     w = McapRunWriter(ref)
-    w.add_stream("tensions", dec.describe(0.0))
+    w.add_stream("tensions", dec.describe(0.0), blocks=True)
     for m in _python_can(log):
         for r in dec.decode(m, round(m.timestamp * 1e9)):
             w.write(r)
     w.finish()
 
-    def bodies(p: Path) -> list[bytes]:
+    def columns(p: Path) -> dict[str, np.ndarray]:
         with p.open("rb") as fh:
-            return [m.data for _, _, m in make_reader(fh).iter_messages(topics=["/tensions"])]
+            rows = samples(make_reader(fh), "/tensions")
+        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
 
-    got, want = bodies(out), bodies(ref)
-    assert len(want) == 690 and got == want
+    got, want = columns(out), columns(ref)
+    assert len(want["t_ns"]) == 690 and list(got) == list(want)
+    for k in want:
+        assert np.array_equal(got[k], want[k], equal_nan=True), k
     with open_run(out) as run:
         ten = run.table("/tensions")
     assert ten["status"].astype(bool).sum() > 10  # status bits and the gap sample are there

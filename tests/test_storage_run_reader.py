@@ -64,13 +64,19 @@ def _write_run(p: Path, n: int = 3000, chunk_size: int = 4096) -> dict[str, np.n
 
 
 def _mcap_messages(p: Path, topic: str) -> list[tuple[int, dict]]:
+    """(time, values) of every sample of ``topic`` read with the ``mcap`` package's reader; column
+    blocks decoded by the independent tests/_block_reader.py."""
+    from _block_reader import block_rows, is_block_channel
     from mcap.reader import make_reader
 
+    out: list[tuple[int, dict]] = []
     with p.open("rb") as fh:
-        return [
-            (m.log_time, json.loads(m.data))
-            for _, _, m in make_reader(fh).iter_messages(topics=[topic])
-        ]
+        for _, ch, m in make_reader(fh).iter_messages(topics=[topic]):
+            if is_block_channel(ch):
+                out += [(r.pop("t_ns"), r) for r in block_rows(m.data)]
+            else:
+                out.append((m.log_time, json.loads(m.data)))
+    return out
 
 
 def test_tension_table_matches_values_written_and_the_mcap_reader(tmp_path: Path) -> None:

@@ -57,18 +57,17 @@ def _points_files(args: argparse.Namespace) -> list[Path]:
 def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
     """(t_ns, tensions (n, m), cable names) of a run file's ``/tensions`` stream, or None."""
     import numpy as np
-    import pandas as pd
 
-    from cdpr.daq.mcap_io import read_run
+    from cdpr.daq.run_reader import open_run
 
-    msgs = read_run(path).messages.get("/tensions", [])
-    if not msgs:
-        return None
-    names = [k[2:-2] for k in msgs[0][1] if k.startswith("T_") and k.endswith("_N")]
-    t = np.fromiter((t for t, _ in msgs), dtype=np.int64, count=len(msgs))
-    cols = [f"T_{n}_N" for n in names]
-    T = pd.DataFrame.from_records([b for _, b in msgs], columns=cols).to_numpy(dtype=np.float64)
-    return t, T, names
+    with open_run(path) as run:
+        info = run.streams.get("/tensions")
+        if info is None or not info.count:
+            return None
+        cols = [k for k in info.fields if k.startswith("T_") and k.endswith("_N")]
+        df = run.table("/tensions", columns=cols)
+    names = [k[2:-2] for k in cols]
+    return df["t_ns"].to_numpy(np.int64), df[cols].to_numpy(np.float64), names
 
 
 def run(args: argparse.Namespace) -> int:

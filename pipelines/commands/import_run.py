@@ -169,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
                 a = Attachment.from_file(args.poses, "poses/" + Path(args.poses).name)
                 w.add_attachment(a.name, a.data, a.media_type)
             for stream, desc in src.describe().items():
-                w.add_stream(stream, desc)
+                # the decoded samples as column blocks, whatever the log's rate
+                w.add_stream(stream, desc, blocks=True if stream == "tensions" else None)
             first_ns, can_stats = _write_can_log(w, src, args.can_log, start_ns)
             if (
                 can_stats["samples"] == 0 and not args.raw_only
@@ -354,14 +355,10 @@ def _decode_frames(
 
 
 def _write_samples(w: Any, s: dict[str, Any]) -> None:
-    """``tensions`` samples given as columns, as the stream's codec writes them (the reading's
-    values in order, then ``status``; floats as ``repr``)."""
-    keys = [k for k in s if k not in ("t_ns", "status")] + ["status"]
-    fmt = "{" + ",".join(
-        f'"{k}":%r' if s[k].dtype.kind == "f" else f'"{k}":%d' for k in keys
-    ) + "}"  # fmt: skip
-    rows = zip(*[s[k].tolist() for k in keys], strict=True)
-    w.write_bodies("tensions", s["t_ns"].tolist(), [(fmt % r).encode() for r in rows])
+    """``tensions`` samples given as columns (``t_ns``, the stream's fields, ``status``), written
+    as they are (:meth:`~cdpr.daq.mcap_writer.McapRunWriter.write_columns`)."""
+    cols = {k: v for k, v in s.items() if k not in ("t_ns", "status")}
+    w.write_columns("tensions", s["t_ns"], cols, s["status"])
 
 
 class _Progress:

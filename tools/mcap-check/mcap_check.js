@@ -1,8 +1,9 @@
 #!/usr/bin/env node
 // Independent MCAP reader for the cdpr tests: parses a file with the TypeScript reference
 // implementation (@mcap/core, streaming reader, chunk CRCs validated), decodes every JSON message,
-// and prints a JSON summary: message counts per topic, schemas, metadata, attachments, chunks,
-// whether the file ends with a valid footer, and the Statistics record's counts if present.
+// and prints a JSON summary: message counts per topic, samples per column-block topic, schemas,
+// metadata, attachments, chunks, whether the file ends with a valid footer, and the Statistics
+// record's counts if present.
 // Usage: node mcap_check.js FILE.mcap
 "use strict";
 const fs = require("fs");
@@ -24,6 +25,33 @@ async function indexedCounts(buf, decompressHandlers) {
     topics[topic] = (topics[topic] || 0) + 1;
   }
   return { topics, chunk_indexes: reader.chunkIndexes.length };
+}
+
+// A column block (docs/recording.md, "Column blocks"): base64 of the columns one after the other,
+// little-endian int64 ("<i8") or float64 ("<f8"); count its samples, check its length and that its
+// t_ns column (first) rises and ends at the message's timestamp.
+const ITEMSIZE = { "<i8": 8, "<f8": 8 };
+function countBlock(out, topic, body) {
+  const raw = Buffer.from(body.data, "base64");
+  let size = 0;
+  for (const dt of body.dtypes) {
+    if (!(dt in ITEMSIZE)) throw new Error(`block dtype ${dt}`);
+    size += ITEMSIZE[dt] * body.count;
+  }
+  if (size !== raw.length || body.columns[0] !== "t_ns") {
+    out.bad_blocks += 1;
+    return;
+  }
+  const dv = new DataView(raw.buffer, raw.byteOffset, raw.byteLength);
+  let prev = null;
+  for (let i = 0; i < body.count; i++) {
+    const t = dv.getBigInt64(8 * i, true);
+    if (prev !== null && t < prev) out.bad_blocks += 1;
+    prev = t;
+  }
+  const last = BigInt(body.timestamp.sec) * 1000000000n + BigInt(body.timestamp.nsec);
+  if (prev !== last) out.bad_blocks += 1;
+  out.samples[topic] = (out.samples[topic] || 0) + body.count;
 }
 
 async function main() {
@@ -50,6 +78,8 @@ async function main() {
     chunks: 0,
     messages: 0,
     bad_json: 0,
+    samples: {},
+    bad_blocks: 0,
     statistics: null,
     indexed: null,
     error: null,
@@ -74,7 +104,8 @@ async function main() {
           out.messages += 1;
           if (ch && ch.messageEncoding === "json") {
             try {
-              JSON.parse(decoder.decode(rec.data));
+              const body = JSON.parse(decoder.decode(rec.data));
+              if (ch.metadata.get("storage") === "column_blocks") countBlock(out, topic, body);
             } catch (e) {
               out.bad_json += 1;
             }

@@ -1,0 +1,289 @@
+"""Column blocks: how run files store high-rate flat numeric streams (load cells at 1 kHz).
+
+One JSON message per block of consecutive samples instead of one per sample, so an hour of 8 cells
+at 1 kHz reads back at about a million samples per second (``np.frombuffer``) instead of being
+parsed sample by sample.  A block message (schema ``cdpr.column_block``, JSON, valid against its
+schema, so Foxglove and any MCAP reader open it) is::
+
+    {"timestamp": {"sec", "nsec"},   # the block's last sample (also the message's log_time)
+     "first_sample": 12000,         # index of the block's first sample in the stream (0-based)
+     "count": 250,                  # samples in the block
+     "columns": ["t_ns", "T_front_left_top_N", ..., "status"],
+     "dtypes": ["<i8", "<f8", ..., "<i8"],   # little-endian int64 or float64 (NaN: missing)
+     "data": "<base64 of the columns' bytes, one column after the other>"}
+
+``t_ns`` (the sample times, int64 ns since the Unix epoch) is always the first column.  The message's
+``log_time`` is the block's *last* sample time and its ``publish_time`` the first, so a time window
+``[a, b)`` needs the blocks from the first whose log_time is ``>= a`` to the first whose log_time is
+``>= b``, inclusive (the run reader does that from the message indexes alone).  The channel's
+metadata says ``storage = "column_blocks"`` and describes the per-sample fields (``fields``: name ->
+[dtype, unit]).
+
+Beside the blocks the writer keeps a per-sample JSON *view* (``/<stream>/view``, the stream's flat
+schema: the first sample of every :data:`VIEW_PERIOD_NS` of time, at most 50 Hz), so a Foxglove plot
+panel graphs the tensions; analysis never reads the view.
+
+Which streams: a stream whose description is flat and numeric (scalar int/float fields) and whose
+nominal rate is at least :data:`MIN_RATE_HZ` (``docs/recording.md`` has the measured bytes per
+sample and read speeds of both layouts).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from cdpr.analysis.errors import InputError
+
+__all__ = [
+    "BLOCK_SCHEMA_NAME",
+    "MAX_BLOCK_SAMPLES",
+    "MIN_RATE_HZ",
+    "STORAGE",
+    "VIEW_PERIOD_NS",
+    "BlockBuffer",
+    "block_schema",
+    "decode_blocks",
+    "encode_block",
+    "uses_blocks",
+]
+
+BLOCK_SCHEMA_NAME = "cdpr.column_block"
+#: channel metadata ``storage`` of a block channel
+STORAGE = "column_blocks"
+#: streams at this nominal rate or above are stored as blocks
+MIN_RATE_HZ = 200.0
+#: the per-sample JSON view beside the blocks: the first sample of every 20 ms of time (<= 50 Hz)
+VIEW_PERIOD_NS = 20_000_000
+#: a block is closed at this many samples (and at every chunk close of the writer)
+MAX_BLOCK_SAMPLES = 2048
+
+_INT, _FLOAT = "<i8", "<f8"
+_DATA_KEY = b',"data":"'
+_DTYPES = {_INT: np.dtype(_INT), _FLOAT: np.dtype(_FLOAT)}
+_NUMERIC = {"float64", "float32", "float", "int64", "int32", "int", "uint8", "bool"}
+
+
+def uses_blocks(description: Any, any_rate: bool = False) -> bool:
+    """True when a stream of this :class:`~cdpr.daq.source.StreamDescription` is stored as column
+    blocks: nominal rate >= :data:`MIN_RATE_HZ` (unless ``any_rate``) and every field a numeric
+    scalar."""
+    if description is None or not description.fields:
+        return False
+    if not any_rate and not float(description.rate_hz) >= MIN_RATE_HZ:
+        return False
+    return all(
+        getattr(f, "dtype", "float64") in _NUMERIC and not tuple(getattr(f, "shape", ()) or ())
+        for f in description.fields.values()
+    )
+
+
+def block_schema(stream: str, description: Any) -> dict[str, Any]:
+    """JSON schema of the block messages of ``stream`` (the per-sample fields in its description)."""
+    fields = ", ".join(description.fields) if description is not None else ""
+    return {
+        "type": "object",
+        "title": BLOCK_SCHEMA_NAME,
+        "description": (
+            f"Samples of {stream} in column blocks: 'data' is base64 of the columns' little-endian "
+            f"bytes one after the other, names and dtypes in 'columns' and 'dtypes' (t_ns first). "
+            f"Fields: {fields}, status. log_time: the block's last sample."
+        ),
+        "properties": {
+            "timestamp": {
+                "type": "object",
+                "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+            },
+            "first_sample": {"type": "integer", "minimum": 0},
+            "count": {"type": "integer", "minimum": 1},
+            "columns": {"type": "array", "items": {"type": "string"}},
+            "dtypes": {"type": "array", "items": {"type": "string", "enum": [_INT, _FLOAT]}},
+            "data": {"type": "string", "contentEncoding": "base64"},
+        },
+        "required": ["first_sample", "count", "columns", "dtypes", "data"],
+    }
+
+
+def channel_metadata(description: Any) -> dict[str, str]:
+    """The block channel's metadata: storage kind and the per-sample fields (name -> [dtype,
+    unit])."""
+    fields = {
+        name: [_INT if f.dtype in ("int64", "int32", "int", "uint8", "bool") else _FLOAT, f.unit]
+        for name, f in description.fields.items()
+    }
+    fields["status"] = [_INT, ""]
+    return {"storage": STORAGE, "fields": json.dumps(fields, separators=(",", ":"))}
+
+
+def _column(values: Any) -> np.ndarray:
+    """A block column: int64 when every value is an integer (or bool), else float64 (None: NaN)."""
+    a = np.asarray(values)
+    if a.dtype.kind in "USV":
+        raise InputError(f"column block: expected numbers, got {a.dtype.kind!r} values")
+    if a.dtype.kind in "iub":
+        return a.astype(_INT)
+    if a.dtype.kind == "f":
+        return a.astype(_FLOAT)
+    try:
+        return np.asarray(values, dtype=_FLOAT)  # None -> NaN
+    except (TypeError, ValueError):
+        raise InputError(
+            f"column block: expected numbers, got {type(next(iter(values))).__name__}"
+        ) from None
+
+
+def encode_block(t_ns: np.ndarray, columns: Mapping[str, np.ndarray], first_sample: int) -> bytes:
+    """One block message body: ``t_ns`` (n,) int64 and the columns (n,) int64 or float64."""
+    t_ns = np.ascontiguousarray(t_ns, dtype=_INT)
+    n = len(t_ns)
+    names = ["t_ns", *columns]
+    arrays = [t_ns, *(np.ascontiguousarray(c) for c in columns.values())]
+    for name, a in zip(names, arrays, strict=True):
+        if a.shape != (n,) or a.dtype.str not in _DTYPES:
+            raise InputError(f"column block: {name}: expected ({n},) int64/float64, got {a.shape}")
+    sec, nsec = divmod(int(t_ns[-1]), 1_000_000_000)
+    head = {
+        "timestamp": {"sec": sec, "nsec": nsec},
+        "first_sample": int(first_sample),
+        "count": n,
+        "columns": names,
+        "dtypes": [a.dtype.str for a in arrays],
+    }
+    data = base64.b64encode(b"".join([memoryview(a).cast("B") for a in arrays]))
+    return b"".join(
+        [json.dumps(head, separators=(",", ":"))[:-1].encode(), b',"data":"', data, b'"}']
+    )
+
+
+def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndarray]:
+    """Columns (``t_ns`` first) of block message bodies, concatenated in the given order; a column
+    some blocks lack is NaN there (and float64).  Bad blocks raise InputError naming ``where``."""
+    if not bodies:
+        return {"t_ns": np.empty(0, np.int64)}
+    # the writer puts "data" last: the header is parsed as JSON, the base64 decoded straight from
+    # the body's bytes (a JSON parser would scan every character of it); other layouts go through
+    # json.loads whole
+    heads: list[dict[str, Any]] = []
+    datas: list[Any] = []
+    for body in bodies:
+        k = body.rfind(_DATA_KEY)
+        try:
+            if k > 0 and body.endswith(b'"}'):
+                heads.append(json.loads(body[:k] + b"}"))
+                datas.append(memoryview(body)[k + len(_DATA_KEY) : -2])
+            else:
+                h = json.loads(body)
+                heads.append(h)
+                datas.append(h.get("data") if isinstance(h, dict) else None)
+        except ValueError as exc:
+            raise InputError(f"{where}: a column block is not valid JSON ({exc})") from None
+    parts: list[dict[str, np.ndarray]] = []
+    for h, data in zip(heads, datas, strict=True):
+        try:
+            n = int(h["count"])
+            raw = base64.b64decode(data, validate=True)
+            cols: dict[str, np.ndarray] = {}
+            pos = 0
+            for name, dt in zip(h["columns"], h["dtypes"], strict=True):
+                d = _DTYPES[dt]
+                cols[name] = np.frombuffer(raw, d, n, pos)
+                pos += n * d.itemsize
+            if pos != len(raw) or "t_ns" not in cols:
+                raise ValueError("data length does not match count x columns")
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: a column block is malformed ({exc})") from None
+        parts.append(cols)
+    names: list[str] = []
+    for p in parts:
+        names += [c for c in p if c not in names]
+    out: dict[str, np.ndarray] = {}
+    for name in names:
+        if all(name in p for p in parts):
+            out[name] = np.concatenate([p[name] for p in parts])
+        else:
+            out[name] = np.concatenate(
+                [
+                    p[name].astype(_FLOAT) if name in p else np.full(len(p["t_ns"]), np.nan)
+                    for p in parts
+                ]
+            )
+    return out
+
+
+class BlockBuffer:
+    """The samples of one block stream not yet written: readings (one at a time, the recorder) and
+    column arrays (bulk writers, ``cdpr import``) in arrival order."""
+
+    def __init__(self, max_samples: int = MAX_BLOCK_SAMPLES) -> None:
+        #: the writer closes a block at this many samples
+        self.max_samples = int(max_samples)
+        #: samples written out in blocks so far, and block messages
+        self.written = 0
+        self.messages = 0
+        self._pieces: list[tuple[np.ndarray, dict[str, Any]]] = []
+        self._t: list[int] = []
+        self._rows: list[dict[str, Any]] = []
+        self.n = 0
+
+    def __len__(self) -> int:
+        return self.n
+
+    def add_reading(self, t_ns: int, values: Mapping[str, Any], status: int) -> None:
+        row = dict(values)
+        row["status"] = status
+        self._t.append(t_ns)
+        self._rows.append(row)
+        self.n += 1
+
+    def add_columns(self, t_ns: np.ndarray, columns: Mapping[str, Any], status: Any) -> None:
+        t_ns = np.asarray(t_ns, np.int64)
+        cols = {k: _column(v) for k, v in columns.items()}
+        cols["status"] = np.broadcast_to(np.asarray(status, np.int64), t_ns.shape).astype(_INT)
+        for k, v in cols.items():
+            if v.shape != t_ns.shape:
+                raise InputError(f"column block: {k}: expected {t_ns.shape} values, got {v.shape}")
+        self._close_rows()
+        self._pieces.append((t_ns, cols))
+        self.n += len(t_ns)
+
+    def _close_rows(self) -> None:
+        if not self._rows:
+            return
+        names: list[str] = []
+        for r in self._rows[:1] + self._rows[-1:]:
+            names += [k for k in r if k not in names]
+        if any(r.keys() != self._rows[0].keys() for r in self._rows):
+            for r in self._rows:
+                names += [k for k in r if k not in names]
+        cols = {k: _column([r.get(k) for r in self._rows]) for k in names}
+        self._pieces.append((np.asarray(self._t, np.int64), cols))
+        self._t, self._rows = [], []
+
+    def take(self) -> tuple[np.ndarray, dict[str, np.ndarray]] | None:
+        """Everything buffered as (t_ns, columns), or None when empty; the buffer is emptied."""
+        self._close_rows()
+        if not self._pieces:
+            return None
+        pieces, self._pieces, self.n = self._pieces, [], 0
+        if len(pieces) == 1:
+            return pieces[0]
+        names: list[str] = []
+        for _, c in pieces:
+            names += [k for k in c if k not in names]
+        t = np.concatenate([p[0] for p in pieces])
+        cols = {}
+        for k in names:
+            if all(k in c for _, c in pieces):
+                cols[k] = np.concatenate([c[k] for _, c in pieces])
+            else:
+                cols[k] = np.concatenate(
+                    [
+                        c[k].astype(_FLOAT) if k in c else np.full(len(tt), np.nan)
+                        for tt, c in pieces
+                    ]
+                )
+        return t, cols

@@ -1,0 +1,56 @@
+"""An independent reader of column-block messages (docs/recording.md, "Column blocks"), written from
+the documented layout with the standard library only (json, base64, struct), for tests that read run
+files with the ``mcap`` package's own reader instead of ``open_run``."""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+from typing import Any
+
+_FMT = {"<i8": "q", "<f8": "d"}
+
+
+def block_rows(body: bytes) -> list[dict[str, Any]]:
+    """The samples of one block message body as dicts (``t_ns`` and every column)."""
+    doc = json.loads(body)
+    n = doc["count"]
+    raw = base64.b64decode(doc["data"])
+    cols: dict[str, tuple[Any, ...]] = {}
+    pos = 0
+    for name, dt in zip(doc["columns"], doc["dtypes"], strict=True):
+        fmt = "<" + _FMT[dt] * n
+        cols[name] = struct.unpack_from(fmt, raw, pos)
+        pos += struct.calcsize(fmt)
+    assert pos == len(raw), "block data length"
+    return [{k: v[i] for k, v in cols.items()} for i in range(n)]
+
+
+def is_block_channel(channel: Any) -> bool:
+    return channel.metadata.get("storage") == "column_blocks"
+
+
+def samples(reader: Any, topic: str) -> list[dict[str, Any]]:
+    """Every sample of ``topic`` read with an ``mcap`` reader (``make_reader(fh)``): the rows of its
+    column blocks, or its per-sample JSON messages (``t_ns`` from the log time)."""
+    out: list[dict[str, Any]] = []
+    for _, channel, msg in reader.iter_messages([topic], log_time_order=True):
+        if is_block_channel(channel):
+            out += block_rows(msg.data)
+        else:
+            out.append({"t_ns": msg.log_time, **json.loads(msg.data)})
+    return out
+
+
+def messages(reader: Any) -> dict[str, list[tuple[int, dict[str, Any]]]]:
+    """topic -> [(t_ns, values)] of every message of every topic, a column block's rows one by
+    one."""
+    out: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    for _, channel, msg in reader.iter_messages(log_time_order=True):
+        rows = out.setdefault(channel.topic, [])
+        if is_block_channel(channel):
+            rows += [(r.pop("t_ns"), r) for r in block_rows(msg.data)]
+        else:
+            rows.append((msg.log_time, json.loads(msg.data)))
+    return out
