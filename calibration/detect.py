@@ -33,6 +33,7 @@ from .pose import (
     FLAG_FEW_POINTS,
     FLAG_HIGH_RESIDUAL,
     FLAG_NO_POSE,
+    FLAG_OCCLUDED_MARK,
     FLAG_TRACK_RESET,
     PoseEstimate,
     estimate_pose,
@@ -322,6 +323,9 @@ class BlobSettings:
     max_area_px: float = 5000.0
     coarse_factor: int = 4
     window_px: int = 0  # half-size of the search window around predictions (0: automatic)
+    shape_check: bool = True  # compare labelled blobs with the projected disks (check_blob_shapes)
+    flux_tolerance: float = 0.015  # |flux per projected area / frame median - 1| allowed
+    rim_tolerance_px: float = 0.2  # largest rim deviation from the projected outline allowed
 
 
 def _centroid(
@@ -437,6 +441,178 @@ def detect_blobs(
             dup = np.linalg.norm(b[i + 1 :, :2] - b[i, :2], axis=1) < 1.0
             keep[i + 1 :][dup] = False
     return b[keep]
+
+
+# ------------------------------------------------------------------------------------ blob shape
+def projected_disks_px(
+    layout: MarkerLayout, camera: CameraModel, rvec: F64, tvec: F64, n: int = 64
+) -> tuple[F64, F64, F64]:
+    """Image of each IR disk of ``layout`` at the pose (rvec, tvec) of {P} in {C}: its area (px^2,
+    the projected outline as a polygon), the projected centre, and the projected outline (``n``
+    points of the rim, lens distortion included); (M,), (M, 2), (M, n, 2)."""
+    ang = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    areas, outlines = [], []
+    centres = cv.project_points(layout.point_centers_m, rvec, tvec, camera.K, camera.dist)
+    for p in layout.points:
+        nrm = np.asarray(p.normal, np.float64)
+        nrm = nrm / np.linalg.norm(nrm)
+        a = np.cross(nrm, [1.0, 0.0, 0.0])
+        if np.linalg.norm(a) < 1e-6:
+            a = np.cross(nrm, [0.0, 1.0, 0.0])
+        a /= np.linalg.norm(a)
+        b = np.cross(nrm, a)
+        ring = p.center_m + p.radius_m * (np.cos(ang)[:, None] * a + np.sin(ang)[:, None] * b)
+        uv = cv.project_points(ring, rvec, tvec, camera.K, camera.dist)
+        x, y = uv[:, 0], uv[:, 1]
+        areas.append(0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))))
+        outlines.append(uv)
+    return np.asarray(areas), centres, np.asarray(outlines)
+
+
+def blob_edge_residual(gray: NDArray[np.uint8], centre_px: F64, outline_px: F64) -> float:
+    """Largest distance (px) between the blob's rim and the expected outline.
+
+    Along the ray from ``centre_px`` through each outline point, the outermost crossing of the half
+    level (between the local background and the blob's peak; bilinear samples every 0.1 px),
+    refined to the centroid of the falling gradient within 1.5 px, is compared with the outline's
+    distance; a shift of the blob and a uniform growth (the blur) are fitted out (least squares).
+    Returns the largest absolute residual (mean over 7 neighbouring rays).  A band across the rim
+    pulls a stretch of it inward (a grazing cable that hardly changes the flux); an intact disk
+    gives 0.03-0.15 px (bilinear samples of a 0.7-0.8 px blur, measured on both test renderers)."""
+    c = np.asarray(centre_px, np.float64)
+    d = outline_px - c
+    rho = np.linalg.norm(d, axis=1)
+    u = d / rho[:, None]
+    # from 3 px inside the rim (a ray dark there is cut: r = 0) to 4 px outside, every 0.1 px
+    t = np.arange(max(float(rho.min()) - 3.0, 0.0), float(rho.max()) + 4.0, 0.1)
+    xs = c[0] + u[:, :1] * t[None, :]
+    ys = c[1] + u[:, 1:] * t[None, :]
+    prof = bilinear(gray, xs, ys)  # (n, T)
+    bg = float(np.median(prof[:, -1]))
+    level = bg + 0.5 * (float(prof.max()) - bg)
+    above = prof >= level
+    grad = np.clip(-np.diff(prof, axis=1), 0.0, None)  # falling edge strength between samples
+    tm = 0.5 * (t[1:] + t[:-1])
+    T = len(t)
+    any_hit = above.any(axis=1)
+    j = T - 1 - np.argmax(above[:, ::-1], axis=1)  # outermost sample at or above the level
+    valid = any_hit & (j + 1 < T)  # else nothing bright (r = 0) or bright to the end (r = 0)
+    # gradient centroid within +-1.5 px of the outermost half-level crossing (less biased by the
+    # sample phase than the crossing itself)
+    near = np.abs(tm[None, :] - t[j][:, None]) <= 1.5
+    g = np.where(near, grad, 0.0)
+    gs = g.sum(axis=1)
+    r = np.where(gs > 0, (g * tm[None, :]).sum(axis=1) / np.where(gs > 0, gs, 1.0), t[j])
+    r = np.where(valid, r, 0.0)
+    A = np.column_stack([np.ones(len(rho)), u])
+    coef, *_ = np.linalg.lstsq(A, r - rho, rcond=None)
+    res = r - rho - A @ coef
+    # mean over 7 neighbouring rays: a cut spans several, pixel-phase errors of the samples do not
+    k = 3
+    smooth = np.mean([np.roll(res, j) for j in range(-k, k + 1)], axis=0)
+    return float(np.max(np.abs(smooth)))
+
+
+def blob_photometry(
+    gray: NDArray[np.uint8], xy_px: ArrayLike, radius_px: float, thr: float
+) -> tuple[float, int]:
+    """Flux and number of parts of the blob around ``xy_px`` in a window of half-size
+    ``radius_px + 4``: flux = sum of ``I - background`` over the pixels above ``thr`` dilated by 2 px
+    (background = mean of the window outside them dilated by 4 px; the optical blur keeps the flux
+    of the disk); parts =
+    connected components above ``thr`` (a cable across a disk splits it in two).  (nan, 0) if the
+    window leaves the image."""
+    h, w = gray.shape
+    x, y = np.asarray(xy_px, np.float64)
+    hw = int(np.ceil(radius_px)) + 4
+    xi, yi = int(round(x)), int(round(y))
+    x0, y0, x1, y1 = xi - hw, yi - hw, xi + hw + 1, yi + hw + 1
+    if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
+        return float("nan"), 0
+    win = gray[y0:y1, x0:x1].astype(np.float64)
+    binary = cv.threshold(np.ascontiguousarray(gray[y0:y1, x0:x1]), thr)
+    n, _, _ = cv.connected_components(binary)
+    grown = [binary > 0]
+    for _ in range(4):
+        m = grown[-1]
+        d = m.copy()
+        d[1:] |= m[:-1]
+        d[:-1] |= m[1:]
+        d[:, 1:] |= m[:, :-1]
+        d[:, :-1] |= m[:, 1:]
+        grown.append(d)
+    if grown[4].all():
+        return float("nan"), int(n - 1)
+    bg = float(np.mean(win[~grown[4]]))
+    flux = float(np.sum(win[grown[2]] - bg))
+    return flux, int(n - 1)
+
+
+@dataclass
+class BlobShapeCheck:
+    """Result of :func:`check_blob_shapes`, per layout mark: the relative flux deviation and the
+    rim residual (px; nan when not measured), the number of parts; and the marks whose blob is
+    damaged or lost."""
+
+    flux_deviation: F64
+    rim_residual_px: F64
+    parts: I64
+    damaged: I64
+    lost: I64
+
+
+def check_blob_shapes(
+    gray: NDArray[np.uint8],
+    layout: MarkerLayout,
+    camera: CameraModel,
+    rvec: F64,
+    tvec: F64,
+    labels: I64,
+    settings: BlobSettings | None = None,
+) -> BlobShapeCheck:
+    """Compare each labelled blob with the mark's expected image at the estimated pose.
+
+    The projected disk of the mark's known radius gives its outline and area A_m (px^2).  Three
+    tests, any failing makes the mark *damaged*: (1) the blob's flux F_m (:func:`blob_photometry`)
+    over A_m is the same for every intact mark (same spot brightness; the blur moves light, it does
+    not remove it), so F/A is compared with the frame's median (needs 3 marks) within
+    ``flux_tolerance`` (a dark band across the disk; a reflection merged into it); (2) the blob is
+    in one part (a cable across the middle splits it); (3) its rim follows the projected outline
+    (:func:`blob_edge_residual`) within ``rim_tolerance_px`` (a band grazing the rim).  A mark whose
+    disk faces the camera and lies inside the image (with a margin) but has no label is *lost*."""
+    s = settings or BlobSettings()
+    M = len(layout.points)
+    areas, centres, outlines = projected_disks_px(layout, camera, rvec, tvec)
+    radii = np.max(np.linalg.norm(outlines - centres[:, None, :], axis=2), axis=1)
+    dev = np.full(M, np.nan)
+    rim = np.full(M, np.nan)
+    parts = np.zeros(M, np.int64)
+    ratio = np.full(M, np.nan)
+    for m in range(M):
+        if labels[m] >= 0:
+            flux, parts[m] = blob_photometry(gray, centres[m], radii[m], s.threshold_dn)
+            ratio[m] = flux / areas[m]
+            if np.isfinite(flux):
+                rim[m] = blob_edge_residual(gray, centres[m], outlines[m])
+    ok = np.isfinite(ratio)
+    if ok.sum() >= 3:
+        med = float(np.median(ratio[ok]))
+        if med > 0:
+            dev[ok] = ratio[ok] / med - 1.0
+    bad = (np.abs(dev) > s.flux_tolerance) | (parts > 1) | (rim > s.rim_tolerance_px)
+    damaged = np.flatnonzero(bad & (labels >= 0))
+    R = cv.rodrigues(rvec)
+    pc = layout.point_centers_m @ R.T + tvec
+    facing = np.einsum("ij,ij->i", layout.point_normals @ R.T, pc) < 0
+    h, w = gray.shape
+    inside = (
+        (centres[:, 0] - radii - 4 >= 0)
+        & (centres[:, 1] - radii - 4 >= 0)
+        & (centres[:, 0] + radii + 4 < w)
+        & (centres[:, 1] + radii + 4 < h)
+    )
+    lost = np.flatnonzero((labels < 0) & facing & inside)
+    return BlobShapeCheck(dev, rim, parts, damaged.astype(np.int64), lost.astype(np.int64))
 
 
 # ------------------------------------------------------------------------------------ labelling
@@ -591,6 +767,19 @@ class PointMatcher:
         else:
             flags = 0
         return self._acquire(b, flags)
+
+    def drop_marks(self, res: MatchResult, blobs: ArrayLike, marks: ArrayLike) -> MatchResult:
+        """The pose of ``res`` again without the layout marks ``marks`` (their blobs judged damaged
+        by :func:`check_blob_shapes`), flagged ``FLAG_OCCLUDED_MARK`` (and ``few_points`` if
+        fewer than ``min_markers`` remain)."""
+        b = np.asarray(blobs, np.float64)
+        labels = res.labels.copy()
+        labels[np.asarray(marks, np.int64)] = -1
+        keep = res.flags & (FLAG_TRACK_RESET | FLAG_AMBIGUOUS)
+        out = self._finalize(labels, b, res.margin, keep | FLAG_OCCLUDED_MARK, res.hypotheses)
+        out.flags |= FLAG_OCCLUDED_MARK
+        out.pose.flags |= out.flags
+        return out
 
     def _track(self, b: F64) -> MatchResult | None:
         r, t = self._last  # type: ignore[misc]

@@ -44,6 +44,7 @@ FLAG_OUTLIERS = 1 << 4  # some correspondences rejected as outliers
 FLAG_TRACK_RESET = 1 << 5  # tracking lost, re-acquired from scratch (informational)
 FLAG_SINGLE_MARKER = 1 << 6  # pose from one square marker's corners (informational)
 FLAG_SATURATED = 1 << 7  # markers' whites clipped at 255: edges biased (overexposed; unusable)
+FLAG_OCCLUDED_MARK = 1 << 8  # an IR mark's blob damaged (e.g. a cable across it) or lost: dropped
 FLAG_NAMES = {
     FLAG_NO_POSE: "no_pose",
     FLAG_FEW_POINTS: "few_points",
@@ -53,10 +54,11 @@ FLAG_NAMES = {
     FLAG_TRACK_RESET: "track_reset",
     FLAG_SINGLE_MARKER: "single_marker",
     FLAG_SATURATED: "saturated",
+    FLAG_OCCLUDED_MARK: "occluded_mark",
 }
 BAD_FLAGS = FLAG_NO_POSE | FLAG_FEW_POINTS | FLAG_AMBIGUOUS | FLAG_HIGH_RESIDUAL | FLAG_SATURATED
-"""Flags that make a pose unusable for analysis (outliers, resets and a single marker are
-informational: a single-marker pose's covariance says how much less it is worth)."""
+"""Flags that make a pose unusable for analysis (outliers, resets, a single marker and an occluded
+mark are informational: the pose's covariance, from fewer points, says how much less it is worth)."""
 
 
 MIN_NOISE_DOF = 6.0

@@ -38,6 +38,7 @@ from cdpr.calibration.detect import (
     BlobSettings,
     FiducialDetector,
     PointMatcher,
+    check_blob_shapes,
     check_frame,
     detect_blobs,
     edge_fit_corner_covariance,
@@ -46,6 +47,8 @@ from cdpr.calibration.detect import (
 from cdpr.calibration.markers import MarkerLayout
 from cdpr.calibration.pose import (
     BAD_FLAGS,
+    FLAG_NO_POSE,
+    FLAG_OCCLUDED_MARK,
     FLAG_SATURATED,
     PoseEstimate,
     estimate_pose,
@@ -210,7 +213,29 @@ class FramePoseEstimator:
         blobs = detect_blobs(gray, self._blob, pred)
         if pred is not None and len(blobs) < len(self.layout.points):
             blobs = detect_blobs(gray, self._blob, None)
-        return self._pm.match(blobs).pose
+        res = self._pm.match(blobs)
+        if self._blob.shape_check and not res.flags & FLAG_NO_POSE:
+            # compare each blob with its mark's projected disk: a damaged blob (a cable across
+            # the mark) is dropped and the pose refitted; a damaged or lost mark is flagged
+            chk = check_blob_shapes(
+                gray,
+                self.layout,
+                self.camera,
+                res.pose.rvec_C,
+                res.pose.tvec_C_m,
+                res.labels,
+                self._blob,
+            )
+            if len(chk.damaged):
+                res = self._pm.drop_marks(res, blobs, chk.damaged)
+            if len(chk.damaged) or len(chk.lost):
+                res.pose.flags |= FLAG_OCCLUDED_MARK
+            dev = np.abs(chk.flux_deviation[np.isfinite(chk.flux_deviation)])
+            res.pose.extra["flux_deviation_max"] = float(dev.max()) if dev.size else float("nan")
+            rim = chk.rim_residual_px[np.isfinite(chk.rim_residual_px)]
+            res.pose.extra["rim_residual_max_px"] = float(rim.max()) if rim.size else float("nan")
+            res.pose.extra["occluded_marks"] = float(len(chk.damaged) + len(chk.lost))
+        return res.pose
 
 
 NOISE_DOF_MAX = 400.0
