@@ -299,12 +299,7 @@ class _PoseSourceBase(Source):
         super().__init__(name)
         self.camera = _camera(camera)
         self.layout = _layout(layout)
-        if image_format not in ("jpeg", "png"):
-            raise ConfigError(
-                "<config>",
-                f"sources.{name}.image_format",
-                f"expected 'jpeg' or 'png', got {image_format!r}",
-            )
+        # image_format jpeg | png and the ranges: cdpr.daq.source_schema.CameraSettings
         self.image_every = int(image_every)
         self.image_rate_hz = float(image_rate_hz)
         self._last_image_t: int | None = None
