@@ -352,6 +352,7 @@ class CameraSource(_PoseSourceBase):
     """
 
     kind = "camera"
+    accepts_origin = True
 
     def __init__(
         self,
@@ -363,15 +364,16 @@ class CameraSource(_PoseSourceBase):
         folder: str | None = None,
         fps: float = 0.0,
         realtime: bool = True,
+        origin: str = "<config>",
         **kwargs: Any,
     ) -> None:
-        super().__init__(name, camera, layout, **kwargs)
-        self.realtime = bool(realtime)
         given = [x is not None for x in (device, video, folder)]
         if sum(given) != 1:
             raise ConfigError(
-                "<config>", f"sources.{name}", "give exactly one of device, video, folder"
+                origin, f"sources.{name}", "give exactly one of device, video, folder"
             )
+        super().__init__(name, camera, layout, **kwargs)
+        self.realtime = bool(realtime)
         self.device, self.video, self.folder = device, video, folder
         self.fps = float(fps)
         self.finished = False

@@ -37,6 +37,8 @@ CAN_BITRATES = (
 )
 """Classic CAN bit rates (bit/s) the adapters we know set (CiA 301 and the slcan ``S0``..``S8``)."""
 MAX_RATE_HZ = 1e6
+MIN_RATE_HZ = 1e-6
+"""A rate below one sample in 11 days is a typo (and 1e-320 Hz would overflow the frame budget)."""
 MAX_TIMEOUT_S = 3600.0
 
 
@@ -49,7 +51,7 @@ def _positive_finite(value: Any) -> Any:
     return value
 
 
-Rate_hz = Annotated[float, BeforeValidator(_positive_finite), Field(le=MAX_RATE_HZ)]
+Rate_hz = Annotated[float, BeforeValidator(_positive_finite), Field(ge=MIN_RATE_HZ, le=MAX_RATE_HZ)]
 Timeout_s = Annotated[float, Field(gt=0.0, le=MAX_TIMEOUT_S)]
 Path = Annotated[str, Field(min_length=1, max_length=4096)]
 Port = Annotated[str, Field(min_length=1, max_length=4096)]

@@ -169,13 +169,15 @@ _Force_N = Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
 _Method = Literal[tuple(METHODS)]  # type: ignore[valid-type]
 
 
-def _some(item: Any) -> Any:
-    """A non-empty list of ``item`` (at most 10,000: each value is a sweep point)."""
-    return Annotated[list[item], Field(min_length=1, max_length=10_000)]
-
-
-def _exactly(item: Any, n: int) -> Any:
-    return Annotated[list[item], Field(min_length=n, max_length=n)]
+_SWEEP = Field(min_length=1, max_length=10_000)  # a non-empty list: each value a sweep point
+_Ks = Annotated[list[_K], _SWEEP]
+_Ratios = Annotated[list[_Ratio], _SWEEP]
+_Lens_m = Annotated[list[_Len_m], _SWEEP]
+_Positions_m = Annotated[list[Position_m], _SWEEP]
+_Forces_N = Annotated[list[_Force_N], _SWEEP]
+_Speeds_mps = Annotated[list[_Speed_mps], _SWEEP]
+_Methods = Annotated[list[_Method], _SWEEP]  # type: ignore[valid-type]
+_Coefficient = Annotated[float, Field(ge=-1e3, le=1e3)]
 
 
 def _tension_limits(m: Any) -> None:
@@ -194,14 +196,14 @@ class CubicSection(Schema):
     t_min_N: Tension_N
     t_max_N: Tension_N
     layout: Literal[sens.CUBIC_LAYOUTS]  # type: ignore[valid-type]
-    k1_values: _some(_K)
-    k2_values: _some(_K)
-    k3_values: _some(_K)
-    forces_N: _some(_Force_N)
-    baseline_k: _exactly(_K, 3)
-    Z_values_m: _some(_Len_m)
-    deflection_values_m: _some(Position_m)
-    methods: _some(_Method)
+    k1_values: _Ks
+    k2_values: _Ks
+    k3_values: _Ks
+    forces_N: _Forces_N
+    baseline_k: Annotated[list[_K], Field(min_length=3, max_length=3)]
+    Z_values_m: _Lens_m
+    deflection_values_m: _Positions_m
+    methods: _Methods
 
     @model_validator(mode="after")
     def _relations(self) -> CubicSection:
@@ -238,12 +240,14 @@ class FlatSection(Schema):
     mass_kg: Mass_kg
     t_min_N: Tension_N
     t_max_N: Tension_N
-    K21_values: _some(_Ratio)
-    K22_values: _some(_Ratio)
-    H_values_m: _some(_Len_m)
-    X_values_m: _some(_Len_m)
-    baseline: _exactly(Annotated[float, Field(ge=-1e6, le=1e6)], 4)
-    methods: _some(_Method)
+    K21_values: _Ratios
+    K22_values: _Ratios
+    H_values_m: _Lens_m
+    X_values_m: _Lens_m
+    baseline: Annotated[
+        list[Annotated[float, Field(ge=-1e6, le=1e6)]], Field(min_length=4, max_length=4)
+    ]
+    methods: _Methods
     full_grid: bool
 
     @model_validator(mode="after")
@@ -265,20 +269,20 @@ class FlatSection(Schema):
 class AeroSection(Schema):
     """``[aero]``: every key of :class:`AeroOptions`."""
 
-    speeds_mps: _some(_Speed_mps)
+    speeds_mps: _Speeds_mps
     max_speed_mps: _Speed_mps
     rho_kgpm3: Annotated[float, Field(gt=0.0, le=1e3)]
     S_ref_m2: Annotated[float, Field(gt=0.0, le=1e4)]
     span_m: _Len_m
     chord_m: _Len_m
-    coefficients: _exactly(Annotated[float, Field(ge=-1e3, le=1e3)], 6)
+    coefficients: Annotated[list[_Coefficient], Field(min_length=6, max_length=6)]
 
 
 class MetricSection(Schema):
     """``[study]``: every key of :class:`MetricOptions`."""
 
     sigma_T_N: Tension_N
-    margin_method: _Method
+    margin_method: _Method  # type: ignore[valid-type]
     near_singular_condition: Annotated[float, Field(gt=1.0, le=1e16)]
     EA_N: Stiffness_N
 

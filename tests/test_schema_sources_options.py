@@ -418,3 +418,19 @@ def test_bad_sensitivity_options_exit_2_one_line_nothing_written(
     assert code == 2 and len(err) == 1, err
     assert f"{p}: {key}: " in err[0] and problem in err[0], err[0]
     assert sorted(x.name for x in tmp_path.iterdir()) == ["s.toml"]
+
+
+def test_found_by_the_fuzzer(tmp_path):
+    """A rate of 1e-320 Hz overflowed the CAN frame budget (OverflowError); a camera with none of
+    device, video, folder was blamed on ``<config>`` instead of the file."""
+    from cdpr.analysis.errors import ConfigError
+    from cdpr.pipelines.daq_config import build_sources, load_daq_config
+
+    p = _folder(tmp_path, ALL_KINDS.replace("rate_hz = 100\n", "rate_hz = 1e-320\n", 1))
+    with pytest.raises(ConfigError) as e:
+        load_daq_config(p)
+    assert str(e.value) == f"{p}: sources.cells.rate_hz: must be >= 1e-06, got 1e-320"
+    p = _folder(tmp_path, ALL_KINDS.replace('folder = "frames"\n', "", 1))
+    with pytest.raises(ConfigError) as e:
+        build_sources(load_daq_config(p))
+    assert str(e.value) == f"{p}: sources.cam: give exactly one of device, video, folder"
