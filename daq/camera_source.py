@@ -324,12 +324,7 @@ class _PoseSourceBase(Source):
         super().__init__(name)
         self.camera = _camera(camera)
         self.layout = _layout(layout)
-        if image_format not in ("jpeg", "png"):
-            raise ConfigError(
-                "<config>",
-                f"sources.{name}.image_format",
-                f"expected 'jpeg' or 'png', got {image_format!r}",
-            )
+        # image_format jpeg | png and the ranges: cdpr.daq.source_schema.CameraSettings
         self.image_every = int(image_every)
         self.image_rate_hz = float(image_rate_hz)
         self._last_image_t: int | None = None
@@ -382,6 +377,7 @@ class CameraSource(_PoseSourceBase):
     """
 
     kind = "camera"
+    accepts_origin = True
 
     def __init__(
         self,
@@ -393,15 +389,16 @@ class CameraSource(_PoseSourceBase):
         folder: str | None = None,
         fps: float = 0.0,
         realtime: bool = True,
+        origin: str = "<config>",
         **kwargs: Any,
     ) -> None:
-        super().__init__(name, camera, layout, **kwargs)
-        self.realtime = bool(realtime)
         given = [x is not None for x in (device, video, folder)]
         if sum(given) != 1:
             raise ConfigError(
-                "<config>", f"sources.{name}", "give exactly one of device, video, folder"
+                origin, f"sources.{name}", "give exactly one of device, video, folder"
             )
+        super().__init__(name, camera, layout, **kwargs)
+        self.realtime = bool(realtime)
         self.device, self.video, self.folder = device, video, folder
         self.fps = float(fps)
         self.finished = False

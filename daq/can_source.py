@@ -675,20 +675,8 @@ class CanLoadCellSource(Source):
         super().__init__(name)
         prefix = f"sources.{name}"
         self.origin = origin
-        if not isinstance(interface, str) or not interface:
-            raise ConfigError(origin, f"{prefix}.interface", "expected a python-can interface name")
-        try:
-            bitrate = int(bitrate)
-        except (TypeError, ValueError, OverflowError):
-            raise ConfigError(
-                origin, f"{prefix}.bitrate", f"expected an integer (bit/s), got {bitrate!r}"
-            ) from None
-        try:
-            rate_hz = float(rate_hz)
-        except (TypeError, ValueError):
-            raise ConfigError(
-                origin, f"{prefix}.rate_hz", f"expected a number (Hz), got {rate_hz!r}"
-            ) from None
+        # types and ranges: checked by create_source (cdpr.daq.source_schema.CanLoadCellSettings)
+        bitrate, rate_hz = int(bitrate), float(rate_hz)
         self.interface = interface
         self.channel = str(channel)
         self.bitrate = bitrate

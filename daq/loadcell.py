@@ -88,18 +88,10 @@ def check_frame_budget(
 ) -> FrameBudget:
     """Raise :class:`ConfigError` (naming ``<key_prefix>.rate_hz``) if the frames cannot fit the bus.
 
-    Returns the :class:`FrameBudget` when they fit.
+    Returns the :class:`FrameBudget` when they fit.  ``bitrate``, ``rate_hz`` (> 0) and
+    ``max_load`` (in (0, 1]) come checked by a schema (:mod:`cdpr.daq.source_schema`, the
+    schedule's).
     """
-    if bitrate <= 0:
-        raise ConfigError(origin, f"{key_prefix}.bitrate", f"must be > 0 bit/s, got {bitrate}")
-    if not (0 < rate_hz < math.inf):
-        raise ConfigError(
-            origin, f"{key_prefix}.rate_hz", f"must be a finite number > 0 Hz, got {rate_hz}"
-        )
-    if not 0 < max_load <= 1:
-        raise ConfigError(
-            origin, f"{key_prefix}.max_bus_load", f"must be in (0, 1], got {max_load}"
-        )
     b = frame_budget(bitrate, rate_hz, frames_per_sample, data_bytes, extended, max_load)
     if not b.fits:
         cap = max_load * bitrate / (can_frame_bits(data_bytes, extended) * frames_per_sample)

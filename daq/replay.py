@@ -59,16 +59,7 @@ class CanReplaySource(Source):
         self.path = Path(path)
         if not self.path.is_file():
             raise ConfigError(origin, f"{prefix}.path", f"log file not found: {self.path}")
-        if speed not in ("recorded", "max"):
-            raise ConfigError(
-                origin, f"{prefix}.speed", f"expected 'recorded' or 'max', got {speed!r}"
-            )
-        if timestamps not in ("log", "host"):
-            raise ConfigError(
-                origin, f"{prefix}.timestamps", f"expected 'log' or 'host', got {timestamps!r}"
-            )
-        if not float(time_scale) > 0:
-            raise ConfigError(origin, f"{prefix}.time_scale", "must be > 0")
+        # speed, timestamps, time_scale > 0: checked by cdpr.daq.source_schema.CanReplaySettings
         self.speed = speed
         self.time_scale = float(time_scale)
         self.batch = int(batch)

@@ -21,6 +21,7 @@ from typing import Annotated, Any, TypeVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic_core import PydanticCustomError
 
 from cdpr.analysis.conventions import GRAVITY_O_MPS2
 from cdpr.analysis.errors import ConfigError
@@ -92,7 +93,34 @@ def _is_union_tag(part: int | str) -> bool:
     return isinstance(part, str) and ("[" in part or "-" in part or part in _BASIC_TAGS)
 
 
-def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigError:
+RULE = "rule"
+"""Error type of a rule relating keys (:func:`rule_error`)."""
+
+
+def rule_error(problem: str, *keys: int | str) -> PydanticCustomError:
+    """The error a model validator raises for a rule relating keys: the message names the key
+    ``keys`` (below the model's own location) and says ``problem``."""
+    return PydanticCustomError(RULE, problem, {"keys": keys})
+
+
+def plain(value: Any) -> Any:
+    """``value`` as a TOML reader would give it: tuples and arrays as lists, numpy scalars as
+    Python numbers (settings built by code, checked by the same schema as a file's)."""
+    if isinstance(value, Mapping):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if isinstance(value, np.ndarray | np.generic):
+        return plain(value.tolist())
+    return value
+
+
+def config_error(
+    exc: ValidationError,
+    source: str,
+    prefix: str = "",
+    errors: list[Any] | None = None,
+) -> ConfigError:
     """The one error formatter: the first problem of ``exc`` as a :class:`ConfigError`
     naming ``source``, the key and the problem (with the value found, shortened).
 
@@ -100,7 +128,8 @@ def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigE
     by its key alone: if one member matched the type but not the range, that problem is told;
     otherwise every member's expected type (``expected a valid string or a valid integer``).
     """
-    errors = exc.errors(include_url=False)
+    if errors is None:
+        errors = list(exc.errors(include_url=False))
     err = errors[0]
     loc = tuple(err["loc"])
     if any(_is_union_tag(p) for p in loc):
@@ -124,8 +153,10 @@ def config_error(exc: ValidationError, source: str, prefix: str = "") -> ConfigE
                 f"expected {' or '.join(wants)}, got {_shown(err.get('input'))}",
             )
         loc = tuple(p for p in err["loc"] if not _is_union_tag(p))
-    key = key_of(loc, prefix)
     kind, ctx, value = err["type"], err.get("ctx", {}), err.get("input")
+    if kind == RULE:  # a rule that relates keys names the key it blames
+        return ConfigError(source, key_of((*loc, *ctx.get("keys", ())), prefix), err["msg"])
+    key = key_of(loc, prefix)
     if kind == "extra_forbidden":
         problem = "unknown key"
     elif kind == "missing":

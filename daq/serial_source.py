@@ -52,11 +52,7 @@ def check_serial_budget(
     origin: str, prefix: str, baudrate: int, rate_hz: float, line_bytes: int
 ) -> None:
     """Refuse (ConfigError on ``rate_hz``) when ``line_bytes`` per sample at ``rate_hz`` exceed the
-    port's capacity ``baudrate / 10`` bytes/s (8N1)."""
-    if baudrate <= 0:
-        raise ConfigError(origin, f"{prefix}.baudrate", f"must be > 0, got {baudrate}")
-    if rate_hz <= 0:
-        raise ConfigError(origin, f"{prefix}.rate_hz", f"must be > 0 Hz, got {rate_hz}")
+    port's capacity ``baudrate / 10`` bytes/s (8N1); both come checked (> 0) by the schema."""
     need = rate_hz * line_bytes * BITS_PER_BYTE
     if need > baudrate:
         raise ConfigError(
@@ -88,12 +84,8 @@ class SerialLineSource(Source):
         super().__init__(name)
         self.origin = origin
         self.prefix = f"sources.{name}"
-        if not isinstance(port, str) or not port:
-            raise ConfigError(origin, f"{self.prefix}.port", "expected a serial port path")
-        try:
-            self.baudrate = int(baudrate)
-        except (TypeError, ValueError):
-            raise ConfigError(origin, f"{self.prefix}.baudrate", "expected an integer") from None
+        # types and ranges: checked by create_source (cdpr.daq.source_schema)
+        self.baudrate = int(baudrate)
         self.port = port
         self.backoff = (float(reopen_backoff_s[0]), float(reopen_backoff_s[1]))
         self.ser: serial.Serial | None = None

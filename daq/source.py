@@ -200,7 +200,8 @@ def create_source(
 ) -> Source:
     """Build the driver registered as ``kind`` with ``settings`` (keyword arguments).
 
-    An unknown kind or bad settings raise :class:`ConfigError` naming ``origin`` and the source.
+    ``settings`` are checked by the kind's schema (:mod:`cdpr.daq.source_schema`) first; an unknown
+    kind or bad settings raise :class:`ConfigError` naming ``origin`` and ``sources.<name>.<key>``.
     """
     try:
         target = _REGISTRY[kind]
@@ -208,9 +209,13 @@ def create_source(
         raise ConfigError(
             origin, f"sources.{name}.kind", f"unknown driver {kind!r} (known: {source_kinds()})"
         ) from None
+    from .source_schema import SOURCE_KINDS, check_source, driver_settings
+
+    kwargs = dict(settings)
+    if kind in SOURCE_KINDS:  # types, ranges and unknown keys: the driver's schema
+        kwargs = driver_settings(check_source({**kwargs, "kind": kind}, name, origin))
     module_name, _, cls_name = target.partition(":")
     cls = getattr(importlib.import_module(module_name), cls_name)
-    kwargs = dict(settings)
     if getattr(cls, "accepts_origin", False):
         # drivers that validate their settings name the config file and key in their errors
         kwargs.setdefault("origin", origin)

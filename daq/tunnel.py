@@ -12,14 +12,12 @@ Stream ``tunnel``: ``airspeed_mps``, ``static_pressure_Pa``, ``temperature_K``, 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
 from typing import Any
 
-from cdpr.analysis.errors import ConfigError
-
 from .aero_model import R_AIR_J_PER_KGK
+from .schema import plain
 from .serial_protocol import parse_tunnel_line
 from .serial_source import SERIAL_BAD_DESCRIPTION, SerialLineSource, check_serial_budget
 from .source import FieldDescription, Reading, Source, StreamDescription
@@ -84,22 +82,23 @@ class SerialTunnelSource(SerialLineSource):
 def _check_point(
     origin: str, prefix: str, airspeed_mps: Any, static_pressure_Pa: Any, temperature_K: Any
 ) -> tuple[float, float, float]:
-    out = []
-    for key, v, lo in (
-        ("airspeed_mps", airspeed_mps, 0.0),
-        ("static_pressure_Pa", static_pressure_Pa, 1e-9),
-        ("temperature_K", temperature_K, 1e-9),
-    ):
-        try:
-            x = float(v)
-        except (TypeError, ValueError):
-            raise ConfigError(origin, f"{prefix}.{key}", f"expected a number, got {v!r}") from None
-        if not math.isfinite(x) or x < lo:
-            raise ConfigError(
-                origin, f"{prefix}.{key}", f"expected a finite number >= {lo:g}, got {v!r}"
-            )
-        out.append(x)
-    return out[0], out[1], out[2]
+    """A test point checked by the schema (:class:`cdpr.daq.source_schema.TunnelPoint`)."""
+    from .schema import parse
+    from .source_schema import TunnelPoint
+
+    p = parse(
+        TunnelPoint,
+        plain(
+            {
+                "airspeed_mps": airspeed_mps,
+                "static_pressure_Pa": static_pressure_Pa,
+                "temperature_K": temperature_K,
+            }
+        ),
+        origin,
+        prefix,
+    )
+    return p.airspeed_mps, p.static_pressure_Pa, p.temperature_K
 
 
 class ManualTunnelSource(Source):
@@ -128,12 +127,7 @@ class ManualTunnelSource(Source):
         self.point = _check_point(
             origin, self.prefix, airspeed_mps, static_pressure_Pa, temperature_K
         )
-        try:
-            self.rate_hz = float(rate_hz)
-        except (TypeError, ValueError):
-            raise ConfigError(origin, f"{self.prefix}.rate_hz", "expected a number") from None
-        if not self.rate_hz > 0:
-            raise ConfigError(origin, f"{self.prefix}.rate_hz", f"must be > 0 Hz, got {rate_hz}")
+        self.rate_hz = float(rate_hz)  # > 0: cdpr.daq.source_schema.ManualTunnelSettings
         self.label = str(label)
         self._seq = 0
         self._next = 0.0

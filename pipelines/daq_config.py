@@ -38,6 +38,7 @@ from pydantic import Field
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.daq.schema import Schema, Text, parse
+from cdpr.daq.source_schema import check_source, driver_settings
 
 from .config import file_sha256, load_toml
 
@@ -87,7 +88,8 @@ class RecorderSection(Schema):
 
 class DaqFile(Schema):
     """A daq config: ``[run]`` and ``[recorder]`` checked here; each ``[sources.<name>]`` table
-    is checked by its driver when the sources are built (:func:`build_sources`)."""
+    by the schema of its ``kind`` (:func:`cdpr.daq.source_schema.check_source`), after ``[run]``
+    (whose files are resolved first)."""
 
     run: RunSection = Field(default_factory=RunSection)
     recorder: RecorderSection = Field(default_factory=RecorderSection)
@@ -129,9 +131,7 @@ class DaqConfig:
         return {p.name: f"{p.name}@{file_sha256(p)[:12]}" for p in self.calibrations}
 
 
-def _resolve(base: Path, value: Any, origin: str, key: str, must_exist: bool = True) -> Path:
-    if not isinstance(value, str) or not value:
-        raise ConfigError(origin, key, f"expected a file path (string), got {value!r}")
+def _resolve(base: Path, value: str, origin: str, key: str, must_exist: bool = True) -> Path:
     p = Path(value)
     if not p.is_absolute():
         p = base / p
@@ -143,8 +143,9 @@ def _resolve(base: Path, value: Any, origin: str, key: str, must_exist: bool = T
 def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
     """Load and validate ``tunnel.toml`` (layout in the module docstring).
 
-    Source settings are checked by the drivers when they are built
-    (:func:`build_sources`), so that the driver names the bad key.
+    Each source table is checked by the schema of its ``kind`` (unknown keys, types, ranges);
+    what relates settings to files (a DBC's channels, the frame budget) is checked by the driver
+    when the sources are built (:func:`build_sources`), before any device is opened.
     """
     p = Path(path)
     origin = str(p)
@@ -169,16 +170,12 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
     cfg.stall_timeout_s = rec.stall_timeout_s
     cfg.nice = rec.nice
 
-    sources = data.get("sources", {})
-    if not isinstance(sources, dict) or not sources:
+    if not f.sources:
         raise ConfigError(origin, "sources", "expected at least one [sources.<name>] table")
-    for name, table in sources.items():
+    for name, table in f.sources.items():
         prefix = f"sources.{name}"
-        if not isinstance(table, dict):
-            raise ConfigError(origin, prefix, "expected a table")
-        if "kind" not in table or not isinstance(table["kind"], str):
-            raise ConfigError(origin, f"{prefix}.kind", "missing driver name (string)")
-        settings = {k: v for k, v in table.items() if k != "kind"}
+        model = check_source(table, name, origin)  # keys, types, ranges: the kind's schema
+        settings = driver_settings(model)
         for k in PATH_KEYS:
             if k in settings and isinstance(settings[k], str):
                 settings[k] = str(_resolve(base, settings[k], origin, f"{prefix}.{k}"))
@@ -193,7 +190,7 @@ def load_daq_config(path: str | os.PathLike[str]) -> DaqConfig:
             cal_path = Path(settings.pop("calibration_file"))
             if cal_path not in cfg.calibrations:
                 cfg.calibrations.append(cal_path)  # attached to the run, its id recorded
-        cfg.sources.append(SourceConfig(name, table["kind"], settings))
+        cfg.sources.append(SourceConfig(name, model.kind, settings))
     return cfg
 
 

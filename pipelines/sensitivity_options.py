@@ -1,23 +1,38 @@
 """Options of the force-sensitivity study (:class:`StudyOptions`), their documented defaults
-(``OPTION_DOCS``), their TOML loader and their validation.
+(``OPTION_DOCS``), their TOML loader and their schema (:class:`OptionsFile`).
 
 Everything the paper leaves open is an option with a documented default; a TOML file with the
 sections ``[cubic]``, ``[flat]``, ``[aero]`` and ``[study]`` overrides any of them
-(:func:`options_from_toml`).
+(:func:`options_from_toml`); its keys are laid over the defaults and the whole checked by
+:class:`OptionsFile` (pydantic: unknown keys, types, ranges and the rules relating keys), whose
+errors name the file and the key through the one formatter of :mod:`cdpr.daq.schema`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, model_validator
 
 from cdpr.analysis import sensitivity as sens
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import DEFAULT_CABLE_EA_N
 from cdpr.analysis.tension import METHODS
+from cdpr.daq.schema import (
+    MAX_FORCE_N,
+    MAX_LENGTH_M,
+    Mass_kg,
+    Position_m,
+    Schema,
+    Stiffness_N,
+    Tension_N,
+    parse,
+    plain,
+    rule_error,
+)
 
 from .config import load_toml
 
@@ -146,49 +161,182 @@ OPTION_DOCS: dict[str, str] = {
 # ------------------------------------------------------------------------------------ options
 
 
-def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(source, key, f"expected true or false, got {value!r}")
-        return value
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(source, key, f"expected a string, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, list | tuple) or not value:
-            raise ConfigError(source, key, f"expected a non-empty list, got {value!r}")
-        if isinstance(default[0], str):
-            if not all(isinstance(v, str) for v in value):
-                raise ConfigError(source, key, f"expected a list of strings, got {value!r}")
-            return tuple(value)
-        out = []
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ConfigError(source, key, f"expected finite numbers, got {v!r}")
-            out.append(float(v))
-        return tuple(out)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(source, key, f"expected a finite number, got {value!r}")
-    return float(value)
+_Len_m = Annotated[float, Field(gt=0.0, le=MAX_LENGTH_M)]
+_K = Annotated[float, Field(ge=0.025, le=0.4)]  # paper eq. 13
+_Ratio = Annotated[float, Field(gt=1.0, le=1e6)]  # K21, K22: cable length ratios
+_Speed_mps = Annotated[float, Field(gt=0.0, le=1e3)]
+_Force_N = Annotated[float, Field(gt=0.0, le=MAX_FORCE_N)]
+_Method = Literal[tuple(METHODS)]  # type: ignore[valid-type]
+
+
+_SWEEP = Field(min_length=1, max_length=10_000)  # a non-empty list: each value a sweep point
+_Ks = Annotated[list[_K], _SWEEP]
+_Ratios = Annotated[list[_Ratio], _SWEEP]
+_Lens_m = Annotated[list[_Len_m], _SWEEP]
+_Positions_m = Annotated[list[Position_m], _SWEEP]
+_Forces_N = Annotated[list[_Force_N], _SWEEP]
+_Speeds_mps = Annotated[list[_Speed_mps], _SWEEP]
+_Methods = Annotated[list[_Method], _SWEEP]  # type: ignore[valid-type]
+_Coefficient = Annotated[float, Field(ge=-1e3, le=1e3)]
+
+
+def _tension_limits(m: Any) -> None:
+    if not m.t_min_N < m.t_max_N:
+        raise rule_error("expected 0 <= t_min_N < t_max_N", "t_min_N")
+
+
+class CubicSection(Schema):
+    """``[cubic]``: every key of :class:`CubicOptions`, typed and in range; the rules relating
+    them (t_min < t_max, a non-empty k grid, the baseline and sweeps inside the frame)."""
+
+    L_m: _Len_m
+    W_m: _Len_m
+    H_m: _Len_m
+    mass_kg: Mass_kg
+    t_min_N: Tension_N
+    t_max_N: Tension_N
+    layout: Literal[sens.CUBIC_LAYOUTS]  # type: ignore[valid-type]
+    k1_values: _Ks
+    k2_values: _Ks
+    k3_values: _Ks
+    forces_N: _Forces_N
+    baseline_k: Annotated[list[_K], Field(min_length=3, max_length=3)]
+    Z_values_m: _Lens_m
+    deflection_values_m: _Positions_m
+    methods: _Methods
+
+    @model_validator(mode="after")
+    def _relations(self) -> CubicSection:
+        _tension_limits(self)
+        if not any(True for _ in _cubic_grid(self)):
+            raise rule_error("no (k1, k2, k3) of the grids satisfies k3 <= k2 <= k1", "k1_values")
+        k1, k2, k3 = self.baseline_k
+        if not k3 <= k2 <= k1:
+            raise rule_error(
+                f"expected 0.025 <= k3 <= k2 <= k1 <= 0.4, got {tuple(self.baseline_k)}",
+                "baseline_k",
+            )
+        half = 0.5 * k3 * self.H_m
+        if not all(half < z < self.H_m - half for z in self.Z_values_m):
+            raise rule_error(
+                f"expected {half:g} < Z < {self.H_m - half:g} m (platform inside the frame)",
+                "Z_values_m",
+            )
+        d_max = 0.5 * min(self.L_m, self.W_m)
+        if not all(abs(d) <= d_max for d in self.deflection_values_m):
+            raise rule_error(
+                f"expected |d| <= {d_max:g} m (inside the frame)", "deflection_values_m"
+            )
+        return self
+
+
+class FlatSection(Schema):
+    """``[flat]``: every key of :class:`FlatOptions`; X values and the baseline inside the frame."""
+
+    L_m: _Len_m
+    l_m: _Len_m
+    w1_m: _Len_m
+    w2_m: _Len_m
+    mass_kg: Mass_kg
+    t_min_N: Tension_N
+    t_max_N: Tension_N
+    K21_values: _Ratios
+    K22_values: _Ratios
+    H_values_m: _Lens_m
+    X_values_m: _Lens_m
+    baseline: Annotated[
+        list[Annotated[float, Field(ge=-1e6, le=1e6)]], Field(min_length=4, max_length=4)
+    ]
+    methods: _Methods
+    full_grid: bool
+
+    @model_validator(mode="after")
+    def _relations(self) -> FlatSection:
+        _tension_limits(self)
+        lo, hi = self.l_m / 2, self.L_m - self.l_m / 2
+        if not all(lo < x < hi for x in self.X_values_m):
+            raise rule_error(f"expected {lo:g} < X < {hi:g} m (inside the frame)", "X_values_m")
+        b21, b22, bH, bX = self.baseline
+        if not (b21 > 1 and b22 > 1):
+            raise rule_error("expected K21, K22 > 1", "baseline")
+        if not bH > 0:
+            raise rule_error("expected H > 0", "baseline")
+        if not lo < bX < hi:
+            raise rule_error("expected X inside the frame", "baseline")
+        return self
+
+
+class AeroSection(Schema):
+    """``[aero]``: every key of :class:`AeroOptions`."""
+
+    speeds_mps: _Speeds_mps
+    max_speed_mps: _Speed_mps
+    rho_kgpm3: Annotated[float, Field(gt=0.0, le=1e3)]
+    S_ref_m2: Annotated[float, Field(gt=0.0, le=1e4)]
+    span_m: _Len_m
+    chord_m: _Len_m
+    coefficients: Annotated[list[_Coefficient], Field(min_length=6, max_length=6)]
+
+
+class MetricSection(Schema):
+    """``[study]``: every key of :class:`MetricOptions`."""
+
+    sigma_T_N: Tension_N
+    margin_method: _Method  # type: ignore[valid-type]
+    near_singular_condition: Annotated[float, Field(gt=1.0, le=1e16)]
+    EA_N: Stiffness_N
+
+
+class OptionsFile(Schema):
+    """Study options: ``[cubic]``, ``[flat]``, ``[aero]``, ``[study]``, every key present (a
+    file's keys are laid over the defaults of :class:`StudyOptions` first)."""
+
+    cubic: CubicSection
+    flat: FlatSection
+    aero: AeroSection
+    study: MetricSection
+
+
+def _merged(data: Mapping[str, Any]) -> dict[str, Any]:
+    """The defaults with a file's sections laid over them (what is not a table stays as it is,
+    for the schema to refuse)."""
+    out: dict[str, Any] = dataclasses.asdict(StudyOptions())
+    for sec, body in data.items():
+        if isinstance(body, Mapping) and isinstance(out.get(sec), dict):
+            out[sec] = {**out[sec], **body}
+        else:
+            out[sec] = body
+    return out
+
+
+def _options(f: OptionsFile) -> StudyOptions:
+    """The dataclasses of a checked file (numbers as floats, lists as tuples)."""
+
+    def value(v: Any) -> Any:
+        if isinstance(v, list):
+            return tuple(value(x) for x in v)
+        if isinstance(v, int) and not isinstance(v, bool):
+            return float(v)
+        return v
+
+    parts = {
+        sec: {k: value(v) for k, v in getattr(f, sec).model_dump().items()}
+        for sec in ("cubic", "flat", "aero", "study")
+    }
+    return StudyOptions(
+        cubic=CubicOptions(**parts["cubic"]),
+        flat=FlatOptions(**parts["flat"]),
+        aero=AeroOptions(**parts["aero"]),
+        study=MetricOptions(**parts["study"]),
+    )
 
 
 def options_from_mapping(data: Mapping[str, Any], source: str = "<options>") -> StudyOptions:
-    """Defaults overridden by a mapping ``{section: {key: value}}``; unknown keys are errors."""
-    opts = StudyOptions()
-    for sec, body in data.items():
-        if sec not in ("cubic", "flat", "aero", "study"):
-            raise ConfigError(source, sec, "unknown section (allowed: cubic, flat, aero, study)")
-        if not isinstance(body, Mapping):
-            raise ConfigError(source, sec, "expected a table")
-        target = getattr(opts, sec)
-        names = {f.name for f in dataclasses.fields(target)}
-        for key, value in body.items():
-            if key not in names:
-                raise ConfigError(source, f"{sec}.{key}", f"unknown key (allowed: {sorted(names)})")
-            setattr(target, key, _coerce(source, f"{sec}.{key}", value, getattr(target, key)))
-    validate_options(opts, source)
-    return opts
+    """Defaults overridden by a mapping ``{section: {key: value}}``, checked by
+    :class:`OptionsFile` (unknown keys, types, ranges, the rules relating them)."""
+    if not isinstance(data, Mapping):
+        raise ConfigError(source, "", "expected a table")
+    return _options(parse(OptionsFile, plain(_merged(data)), source))
 
 
 def options_from_toml(path: str) -> StudyOptions:
@@ -197,79 +345,12 @@ def options_from_toml(path: str) -> StudyOptions:
 
 
 def validate_options(o: StudyOptions, source: str = "<options>") -> None:
-    """Check every option's range; a :class:`ConfigError` names the option and the problem."""
-
-    def need(ok: bool, key: str, problem: str) -> None:
-        if not ok:
-            raise ConfigError(source, key, problem)
-
-    c, f, a, s = o.cubic, o.flat, o.aero, o.study
-    for key in ("L_m", "W_m", "H_m", "mass_kg"):
-        need(getattr(c, key) > 0, f"cubic.{key}", f"expected > 0, got {getattr(c, key)}")
-    need(0 <= c.t_min_N < c.t_max_N, "cubic.t_min_N", "expected 0 <= t_min_N < t_max_N")
-    need(c.layout in sens.CUBIC_LAYOUTS, "cubic.layout", f"expected one of {sens.CUBIC_LAYOUTS}")
-    for key in ("k1_values", "k2_values", "k3_values"):
-        v = getattr(c, key)
-        need(
-            all(0.025 <= k <= 0.4 for k in v),
-            f"cubic.{key}",
-            f"expected values in [0.025, 0.4] (paper eq. 13), got {list(v)}",
-        )
-    need(
-        len(tuple(_cubic_grid(c))) > 0,
-        "cubic.k1_values",
-        "no (k1, k2, k3) of the grids satisfies k3 <= k2 <= k1",
-    )
-    need(len(c.baseline_k) == 3, "cubic.baseline_k", "expected 3 values (k1, k2, k3)")
-    k1, k2, k3 = c.baseline_k
-    need(
-        0.025 <= k3 <= k2 <= k1 <= 0.4,
-        "cubic.baseline_k",
-        f"expected 0.025 <= k3 <= k2 <= k1 <= 0.4, got {tuple(c.baseline_k)}",
-    )
-    need(all(x > 0 for x in c.forces_N), "cubic.forces_N", "expected forces > 0 N")
-    half = 0.5 * k3 * c.H_m
-    need(
-        all(half < z < c.H_m - half for z in c.Z_values_m),
-        "cubic.Z_values_m",
-        f"expected {half:g} < Z < {c.H_m - half:g} m (platform inside the frame)",
-    )
-    need(
-        all(abs(d) <= 0.5 * min(c.L_m, c.W_m) for d in c.deflection_values_m),
-        "cubic.deflection_values_m",
-        f"expected |d| <= {0.5 * min(c.L_m, c.W_m):g} m (inside the frame)",
-    )
-    for key in ("L_m", "l_m", "w1_m", "w2_m", "mass_kg"):
-        need(getattr(f, key) > 0, f"flat.{key}", f"expected > 0, got {getattr(f, key)}")
-    need(0 <= f.t_min_N < f.t_max_N, "flat.t_min_N", "expected 0 <= t_min_N < t_max_N")
-    need(all(k > 1 for k in f.K21_values), "flat.K21_values", "expected K21 > 1")
-    need(all(k > 1 for k in f.K22_values), "flat.K22_values", "expected K22 > 1")
-    need(all(h > 0 for h in f.H_values_m), "flat.H_values_m", "expected H > 0 m")
-    need(
-        all(f.l_m / 2 < x < f.L_m - f.l_m / 2 for x in f.X_values_m),
-        "flat.X_values_m",
-        f"expected {f.l_m / 2:g} < X < {f.L_m - f.l_m / 2:g} m (inside the frame)",
-    )
-    need(len(f.baseline) == 4, "flat.baseline", "expected 4 values (K21, K22, H, X)")
-    b21, b22, bH, bX = f.baseline
-    need(b21 > 1 and b22 > 1, "flat.baseline", "expected K21, K22 > 1")
-    need(bH > 0, "flat.baseline", "expected H > 0")
-    need(f.l_m / 2 < bX < f.L_m - f.l_m / 2, "flat.baseline", "expected X inside the frame")
-    need(all(v > 0 for v in a.speeds_mps), "aero.speeds_mps", "expected speeds > 0 m/s")
-    need(a.max_speed_mps > 0, "aero.max_speed_mps", "expected > 0 m/s")
-    for key in ("rho_kgpm3", "S_ref_m2", "span_m", "chord_m"):
-        need(getattr(a, key) > 0, f"aero.{key}", f"expected > 0, got {getattr(a, key)}")
-    need(len(a.coefficients) == 6, "aero.coefficients", "expected 6 coefficients")
-    for key, methods in (("cubic.methods", c.methods), ("flat.methods", f.methods)):
-        bad = [m for m in methods if m not in METHODS]
-        need(not bad, key, f"unknown method {bad} (known: {sorted(METHODS)})")
-    need(s.margin_method in METHODS, "study.margin_method", f"expected one of {sorted(METHODS)}")
-    need(s.sigma_T_N >= 0, "study.sigma_T_N", "expected >= 0 N")
-    need(s.near_singular_condition > 1, "study.near_singular_condition", "expected > 1")
-    need(math.isfinite(s.EA_N) and s.EA_N > 0, "study.EA_N", "expected a finite E*A > 0 N")
+    """Check options built or changed by code (command-line overrides) with the same schema as a
+    file's (:class:`OptionsFile`); a :class:`ConfigError` names the option and the problem."""
+    parse(OptionsFile, plain(dataclasses.asdict(o)), source)
 
 
-def _cubic_grid(c: CubicOptions) -> Iterator[tuple[float, float, float]]:
+def _cubic_grid(c: CubicOptions | CubicSection) -> Iterator[tuple[float, float, float]]:
     for k1 in c.k1_values:
         for k2 in c.k2_values:
             for k3 in c.k3_values:

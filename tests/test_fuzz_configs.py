@@ -167,3 +167,94 @@ def test_fuzz_daq_config(data):
     from cdpr.pipelines.daq_config import load_daq_config
 
     check_loader(load_daq_config, data, "tunnel.toml", beside=True)
+
+
+# every driver kind a daq config can name, each setting on its schema (daq/source_schema.py);
+# only files of data_samples/ are named (the replay's log need only exist to be built)
+SOURCES = """[run]
+label = "fuzz"
+[sources.cells]
+kind = "can_loadcell"
+interface = "virtual"
+channel = "fuzz"
+bitrate = 500000
+rate_hz = 100.0
+dbc = "loadcell.dbc"
+offset_counts = [0, 1, 2, 3, 4, 5, 6, 7]
+gain_N_per_count = 2.5e-5
+max_bus_load = 0.8
+reopen_backoff_s = [0.2, 4.0]
+[sources.lc]
+kind = "serial_loadcell"
+port = "/dev/ttyUSB7"
+baudrate = 921600
+rate_hz = 250.0
+cables = ["p", "q"]
+[sources.tun]
+kind = "serial_tunnel"
+port = "/dev/ttyUSB8"
+rate_hz = 5.0
+[sources.hand]
+kind = "manual_tunnel"
+airspeed_mps = 25.51
+temperature_K = 290.0
+[sources.log]
+kind = "can_replay"
+path = "loadcell.dbc"
+speed = "max"
+decode = false
+[sources.cam]
+kind = "camera"
+camera = "camera_virtual.json"
+layout = "markers_flat_aruco.toml"
+device = 0
+image_format = "png"
+"""
+
+
+@FUZZ
+@given(data=mutated(SOURCES, "=,"))
+def test_fuzz_daq_sources(data):
+    """Every ``[sources.<name>]`` table through the config loader and the drivers' constructors
+    (``build_sources``: nothing is opened)."""
+    from cdpr.pipelines.daq_config import build_sources, load_daq_config
+
+    def load(path: Path) -> object:
+        return build_sources(load_daq_config(path))
+
+    assert check_loader(load, SOURCES.encode(), "sources.toml", beside=True) is not None
+    check_loader(load, data, "sources.toml", beside=True)
+
+
+SENS_ALL = """[cubic]
+L_m = 2.5
+layout = "cube"
+k1_values = [0.2, 0.3]
+k3_values = [0.05]
+baseline_k = [0.2, 0.1, 0.05]
+Z_values_m = [0.5, 0.7]
+methods = ["exact"]
+[flat]
+t_max_N = 250.0
+K21_values = [51, 56]
+baseline = [56, 28, 0.7, 0.6]
+full_grid = false
+[aero]
+speeds_mps = [10, 20.5]
+coefficients = [0.1, 0.0, 0.4, 0.0, -0.04, 0.0]
+[study]
+sigma_T_N = 0.5
+margin_method = "penalty"
+near_singular_condition = 500.0
+EA_N = 9.0e4
+"""
+
+
+@FUZZ
+@given(data=mutated(SENS_ALL, "=,"))
+def test_fuzz_sensitivity_every_section(capsys, data):
+    """Every section of the options (``study.EA_N`` included) through ``cdpr sensitivity``."""
+    d = _folder()
+    cfg = d / "s.toml"
+    cfg.write_bytes(data)
+    check_cli(capsys, ["sensitivity", "--config", str(cfg), "--print-config"], d, cfg, [])
