@@ -114,6 +114,9 @@ class RunData:
     camera: bool = False
     pressure_temperature: tuple[np.ndarray, np.ndarray] | None = None
     """Static pressure (Pa) and temperature (K) on ``t_ns`` when the tunnel stream has them."""
+    humidity: np.ndarray | None = None
+    """Relative humidity (0..1) on ``t_ns``, held from the last tunnel message (NaN where that
+    message has none); None when no tunnel message carries one."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -173,7 +176,9 @@ def _tension_columns(
     return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i]
 
 
-_TUNNEL_COLUMNS = ("airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K")
+_TUNNEL_COLUMNS = (
+    "airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K", "relative_humidity",
+)  # fmt: skip
 _POSE_COLUMNS = (
     "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "status",
     *(f"cov_{i}{j}" for i in range(6) for j in range(6)),
@@ -248,6 +253,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
 
     tunnel = None
     pressure_temperature: Any = None
+    humidity = None
     if tun is not None and len(tun):
         tt = tun["t_ns"].to_numpy(np.int64)
         v = _column(tun, "airspeed_mps")
@@ -272,6 +278,12 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             pressure_temperature = tuple(
                 interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in pT
             )
+        rh = _column(tun, "relative_humidity")
+        if np.isfinite(rh).any():
+            # held from the last message, never interpolated across a message without it: a
+            # point that meets a gap gets NaN (flag humidity_not_given), not a bridged value
+            j = np.clip(np.searchsorted(tt, t_ns, side="right") - 1, 0, len(tt) - 1)
+            humidity = rh[j]
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -309,7 +321,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature,
+                pressure_temperature, humidity,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -317,13 +329,13 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature,
+            events, truth, False, pressure_temperature, humidity,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature,
+        pressure_temperature, humidity,
     )  # fmt: skip
 
 
@@ -402,8 +414,9 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
 
 def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
     """Per-point inputs of the correction stages: ``temperature_K`` and ``static_pressure_Pa``
-    (means over each point, NaN without them in the tunnel stream) and ``repeat_group`` (the index
-    of the point a point repeats, else its own)."""
+    (means over each point, NaN without them in the tunnel stream), ``relative_humidity`` (the
+    mean over each point; NaN when any sample of the point has none) and ``repeat_group`` (the
+    index of the point a point repeats, else its own)."""
     from cdpr.analysis.balance import point_stats
 
     s = len(plan.ranges)
@@ -414,6 +427,13 @@ def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
         else:
             v = run.pressure_temperature[k]
             out[key] = point_stats(v, plan.ranges, run.mask_bits).mean[:, 0]
+    rh = np.full(s, np.nan)
+    if run.humidity is not None:
+        for i, (a, b) in enumerate(plan.ranges):
+            w = run.humidity[a:b]
+            if w.size and np.isfinite(w).all():
+                rh[i] = float(np.mean(w))
+    out["relative_humidity"] = rh
     first = {lab: i for i, lab in reversed(list(enumerate(plan.labels)))}
     rep = plan.targets.get("repeat_of", [""] * s)
     out["repeat_group"] = np.array(
@@ -599,7 +619,13 @@ def _warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]
         lines.append("no model geometry given: no coefficients (flag no_geometry)")
     if "check_fail" in words:
         lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    if "humidity_not_given" in words:
+        lines.append(
+            "wind-on points without a humidity reading in the tunnel stream: density of dry air "
+            "(up to about 1 % high; flag humidity_not_given)"
+        )
     said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"humidity_not_given"}
     said |= {"no_airspeed"} | set(MASK_NAMES.values())
     rest = [w for w in words if w not in said]
     if rest:
