@@ -738,17 +738,29 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax.legend(fontsize=7, ncol=5, loc="upper left")
 
 
-def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> None:
+def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> list[str]:
     """``spectrum.png``: the tension spectra of the fastest wind-on point with the rig's modes
-    at its pose marked (when the spectrum check ran)."""
-    from .report import spectrum_figure
+    at its pose marked, and ``spectra.png`` (``spectra_1.png``, ... beyond 24 points): every
+    point's spectra as small multiples (when the spectrum check ran).  Returns the file names of
+    the small-multiples figures."""
+    from .report import spectra_grid_figures, spectrum_figure
 
     if spectra is None:
-        return
+        return []
+    grid = spectra_grid_figures(
+        folder,
+        [str(x) for x in df["point"]],
+        [str(x) for x in df["flags"].fillna("")],
+        spectra.freqs_Hz,
+        spectra.psd,
+        spectra.modes_Hz,
+        run.rig.cable_names,
+    )
+    names = [f.name for f in grid.figures]
     on = np.flatnonzero((df["kind"] == "wind_on").to_numpy())
     on = [i for i in on if spectra.freqs_Hz[i].size]
     if not on:
-        return
+        return names
     i = max(on, key=lambda k: np.nan_to_num(df["airspeed_mps"].iloc[k]))
     spectrum_figure(
         folder / "spectrum.png",
@@ -759,6 +771,7 @@ def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -
         f"Tension spectra of point {df['point'].iloc[i]} "
         f"({df['airspeed_mps'].iloc[i]:.2f} m/s) with the rig's modes at its pose",
     )
+    return names
 
 
 def _fmt(v: float, sd: float) -> str:
@@ -836,6 +849,14 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
         *(["![spectrum](spectrum.png)", ""] if "lowest_mode_Hz" in df else []),
     ]
+    grids = summary.get("spectra_figures") or []
+    if grids:
+        lines += [
+            "Tension spectra of every point (one panel per point: label and spectrum flags in "
+            "its title, the rig's modes at its pose dashed):",
+            "",
+        ]
+        lines += [f"![spectra of every point]({g})\n" for g in grids]
     return "\n".join(lines)
 
 
@@ -943,7 +964,8 @@ def analyze_run(
         df.to_csv(tmp / "points.csv", index=False)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
-        _spectrum_plot(run, df, red.get("_spectra"), tmp)
+        summary["spectra_figures"] = _spectrum_plot(run, df, red.get("_spectra"), tmp)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
             shutil.rmtree(final)

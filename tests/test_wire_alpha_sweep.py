@@ -335,7 +335,15 @@ def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, ca
     assert "Barlow, Rae &amp; Pope" in page  # every correction listed with its source
     assert (out / "plots" / "windage_tare.png").is_file()
     # the run's page carries the tension spectra of its fastest point with the rig's modes
-    assert "Tension spectra with the rig" in (out / "run_sweep.html").read_text()
+    run_page = (out / "run_sweep.html").read_text()
+    assert "Tension spectra with the rig" in run_page
+    # ... and every point's spectra as small multiples: 35 points, 24 + 11 panels, both embedded
+    assert analysed["summary"]["spectra_figures"] == ["spectra_1.png", "spectra_2.png"]
+    for name in ("spectra_1.png", "spectra_2.png"):
+        assert (analysed["out"] / "with" / "sweep" / name).is_file()
+        assert f"![spectra of every point]({name})" in analysed["report"]
+    assert run_page.count("<figcaption>Tension spectra of every point") == 2
+    assert run_page.count("<img") >= run_page.count("<figcaption>") >= 3
     # the difference table: measured (wall-corrected) minus the reference, per wind-on point
     assert "Measured minus reference polars" in page and "reference polars" in page
     d = reference_differences(
