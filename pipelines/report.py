@@ -657,11 +657,12 @@ def spectra_grid_figures(
                         ha="center", va="bottom", fontsize=7,
                         color="tab:red" if words else "k")  # fmt: skip
                 drawn += 1
-                if dec[i] is None:
+                di = dec[i]
+                if di is None:
                     ax.text(x0 + w / 2, b0 + h / 2, "no spectrum", ha="center", va="center",
                             fontsize=7, color="0.4")  # fmt: skip
                     continue
-                f, P = dec[i]
+                f, P = di
                 X = x0 + w * f / fmax
                 with np.errstate(divide="ignore", invalid="ignore"):
                     Y = b0 + h * np.clip((np.log10(P) - y0) / (y1 - y0), 0.0, 1.0)

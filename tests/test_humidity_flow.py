@@ -227,3 +227,63 @@ def test_schedule_humidity_out_of_range_names_the_key() -> None:
     doc = {"segments": [{"label": "a", "duration_s": 0.2}], "aero": {"relative_humidity": 60}}
     with pytest.raises(ConfigError, match="aero.relative_humidity"):
         schedule_from_mapping(doc, "<test>", rig)
+
+
+SIM_MATRIX = """
+[campaign]
+name = "rh-sim"
+rig = "{rig}"
+[model]
+area_m2 = 0.0146
+span_m = 0.2441
+chord_m = 0.06
+mrp_P_m = [0.0, 0.0, 0.0]
+[virtual_rig]
+rate_hz = 200.0
+seed = 3
+[virtual_rig.aero]
+temperature_K = 303.15
+{rh}
+[[points]]
+label = "tare"
+kind = "tare"
+duration_s = 0.6
+transition_s = 0.0
+[[points]]
+label = "on"
+kind = "wind_on"
+airspeed_mps = 25.0
+duration_s = 0.8
+transition_s = 0.2
+"""
+
+
+@pytest.mark.parametrize("rh", [None, 0.7])
+def test_simulate_then_analyze_humidity_through_the_serial_link(tmp_path: Path, rh) -> None:
+    """The virtual rig's $TUN lines (a pty, read by the serial_tunnel driver) carry the humidity
+    when the matrix sets it, and the analysis uses it; by default they do not, and the wind-on
+    point is flagged humidity_not_given (dry air)."""
+    import subprocess
+    import sys
+
+    m = tmp_path / "m.toml"
+    line = "" if rh is None else f"relative_humidity = {rh}"
+    m.write_text(SIM_MATRIX.format(rig=RIG.as_posix(), rh=line))
+    runs = tmp_path / "runs"
+    cmd = [sys.executable, "-m", "cdpr.pipelines.cli", "simulate", "--campaign", str(m),
+           "--out", str(runs), "--quiet", "--transport", "virtual"]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert res.returncode == 0, res.stderr
+    (run,) = runs.glob("*.mcap")
+    main(["analyze", str(run), "--out", str(tmp_path / "a"), "--matrix", str(m)])
+    (pts,) = (tmp_path / "a").glob("*/points.csv")
+    on = pd.read_csv(pts).set_index("point").loc["on"]
+    flags = str(on["flags"]).split(";")
+    if rh is None:
+        assert "humidity_not_given" in flags and on.density_source == "p_T_dry"
+        assert on.density_kgpm3 == pytest.approx(101325.0 / (287.05287 * 303.15), rel=2e-4)
+    else:
+        assert "humidity_not_given" not in flags and on.density_source == "p_T_humidity"
+        assert on.relative_humidity == pytest.approx(rh, abs=1e-4)
+        # p and T carry the rig's sensor noise (2 Pa, 0.02 K): well inside 5e-4
+        assert on.density_kgpm3 == pytest.approx(cipm2007_density(101325.0, 303.15, rh), rel=5e-4)
