@@ -874,7 +874,9 @@ def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
     if on.empty or "corrections" not in on:
         return lines
     cols = [
-        ("point", "point", ""), ("V", "airspeed_mps", ".2f"), ("Re", "reynolds", ".3g"),
+        ("point", "point", ""), ("V", "airspeed_mps", ".2f"),
+        ("ρ (kg/m³)", "density_kgpm3", ".5f"), ("ρ from", "density_source", ""),
+        ("RH", "relative_humidity", ".3f"), ("Re", "reynolds", ".3g"),
         ("Mach", "mach", ".4f"), ("drift max (N)", "zero_drift_max_abs_N", ".4f"),
         ("windage", "windage_source", ""), ("windage Fx (N)", "windage_fx_N", ".4f"),
         ("CL", "CL", ".4f"), ("CL corr.", "CL_corrected", ".4f"), ("CD", "CD", ".5f"),

@@ -398,7 +398,8 @@ def tension_figure(
 # repeatability beside the propagated sigma
 # --------------------------------------------------------------------------------------------
 CORRECTION_COLUMNS = (
-    "run", "point", "target_airspeed_mps", "aoa_deg", "q_Pa", "reynolds", "mach",
+    "run", "point", "target_airspeed_mps", "aoa_deg", "density_kgpm3", "density_source",
+    "relative_humidity", "q_Pa", "reynolds", "mach",
     "CL", "CL_corrected", "sd_CL", "sd_repeat_CL", "CD", "CD_corrected", "sd_CD", "sd_repeat_CD",
     "Cm", "Cm_corrected", "sd_Cm", "sd_repeat_Cm", "zero_drift_max_abs_N", "windage_source",
     "windage_fx_N",

@@ -279,6 +279,8 @@ def test_simulate_then_analyze_humidity_through_the_serial_link(tmp_path: Path, 
     (pts,) = (tmp_path / "a").glob("*/points.csv")
     on = pd.read_csv(pts).set_index("point").loc["on"]
     flags = str(on["flags"]).split(";")
+    report = (pts.parent / "report.md").read_text()
+    assert ("p_T_dry" if rh is None else "p_T_humidity") in report  # the density's source shown
     if rh is None:
         assert "humidity_not_given" in flags and on.density_source == "p_T_dry"
         assert on.density_kgpm3 == pytest.approx(101325.0 / (287.05287 * 303.15), rel=2e-4)
