@@ -289,3 +289,19 @@ def test_simulate_then_analyze_humidity_through_the_serial_link(tmp_path: Path, 
         assert on.relative_humidity == pytest.approx(rh, abs=1e-4)
         # p and T carry the rig's sensor noise (2 Pa, 0.02 K): well inside 5e-4
         assert on.density_kgpm3 == pytest.approx(cipm2007_density(101325.0, 303.15, rh), rel=5e-4)
+
+
+def test_humidity_impossible_at_that_p_and_t_names_the_row(tmp_path: Path, capsys) -> None:
+    """Saturated air at 90 deg C holds about 70 kPa of vapour: not at a static pressure of 50 kPa."""
+    log = tmp_path / "run.log"
+    _can_log(log)
+    csv = tmp_path / "tunnel.csv"
+    csv.write_text(
+        "t_s,airspeed_mps,static_pressure_Pa,temperature_K,relative_humidity\n"
+        "0.0,0,101325,293.15,0.5\n0.1,10,50000,363.15,1.0\n"
+    )
+    argv = ["import", "--can-log", str(log), "--dbc", str(DBC), "--rig", str(RIG)]
+    assert main([*argv, "--tunnel", str(csv), "--out", str(tmp_path / "r.mcap")]) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    assert "row 3, column relative_humidity" in err and "static pressure" in err
+    assert not (tmp_path / "r.mcap").exists()
