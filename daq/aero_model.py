@@ -68,10 +68,20 @@ class AeroModel:
     mrp_P_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     static_pressure_Pa: float = 101325.0
     temperature_K: float = 293.15
+    relative_humidity: float | None = None
 
     @staticmethod
-    def air_density(static_pressure_Pa: ArrayLike, temperature_K: ArrayLike) -> FloatArray:
-        """Ideal-gas density ``p / (R T)``, kg/m^3."""
+    def air_density(
+        static_pressure_Pa: ArrayLike,
+        temperature_K: ArrayLike,
+        relative_humidity: float | None = None,
+    ) -> FloatArray:
+        """Ideal-gas density ``p / (R T)``, kg/m^3; moist air
+        (:func:`cdpr.analysis.flow.air_density`) when ``relative_humidity`` (0..1) is given."""
+        if relative_humidity is not None:
+            from cdpr.analysis.flow import air_density as moist
+
+            return moist(static_pressure_Pa, temperature_K, relative_humidity)
         return np.asarray(static_pressure_Pa, float) / (
             R_AIR_J_PER_KGK * np.asarray(temperature_K, float)
         )
@@ -116,7 +126,7 @@ class AeroModel:
         R = np.asarray(R_O_P, dtype=np.float64)
         p = self.static_pressure_Pa if static_pressure_Pa is None else static_pressure_Pa
         T = self.temperature_K if temperature_K is None else temperature_K
-        rho = self.air_density(p, T)
+        rho = self.air_density(p, T, self.relative_humidity)
         q = 0.5 * rho * V**2
         alpha, beta = self.angles(R)
         c = self.coefficients(alpha, beta)
@@ -178,6 +188,7 @@ class AeroSection(Schema):
     mrp_P_m: Vec3_m | None = None
     static_pressure_Pa: Annotated[float, Field(gt=0.0, le=1e7)] | None = None
     temperature_K: Annotated[float, Field(gt=0.0, le=1e4)] | None = None
+    relative_humidity: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
 
 
 def aero_from_mapping(data: Mapping[str, Any] | None, source: str, key: str = "aero") -> AeroModel:

@@ -4,14 +4,16 @@ Both are NMEA-like: one line per sample, fields separated by commas, an XOR chec
 between ``$`` and ``*`` written as two upper-case hex digits, and ``\\r\\n`` at the end::
 
     $LC,<seq>,<t_device_us>,<c1>,...,<cN>,<status>*<XX>\\r\\n
-    $TUN,<seq>,<airspeed_mps>,<static_pressure_Pa>,<temperature_K>*<XX>\\r\\n
+    $TUN,<seq>,<airspeed_mps>,<static_pressure_Pa>,<temperature_K>[,<relative_humidity>]*<XX>\\r\\n
 
 - ``seq``: sample counter, decimal, wraps at 2**32; a jump counts as lost samples.
 - ``t_device_us``: the amplifier's own clock, decimal microseconds (wraps at 2**32).
 - ``c1..cN``: raw ADC counts, signed decimal (N = 1..32; 8 for the rig's amplifier).
 - ``status``: hex bit field, 3 bits per channel, channel k (1-based) at bits ``3(k-1)``:
   +1 saturated, +2 slack/underrange, +4 sensor fault.
-- tunnel values: decimal floats in SI units.
+- tunnel values: decimal floats in SI units; the optional fifth value is the relative humidity as
+  a fraction 0..1 (a line without it is the original four-value line, still valid: a reader
+  accepts both, a tunnel without a hygrometer never sends it).
 
 Example (checksum computed over ``LC,17,...,0``)::
 
@@ -53,10 +55,17 @@ def format_loadcell_line(seq: int, t_device_us: int, counts: Sequence[int], stat
 
 
 def format_tunnel_line(
-    seq: int, airspeed_mps: float, static_pressure_Pa: float, temperature_K: float
+    seq: int,
+    airspeed_mps: float,
+    static_pressure_Pa: float,
+    temperature_K: float,
+    relative_humidity: float | None = None,
 ) -> bytes:
-    """One ``$TUN`` line (bytes, with ``\\r\\n``)."""
+    """One ``$TUN`` line (bytes, with ``\\r\\n``); ``relative_humidity`` (0..1) adds the
+    optional fifth value."""
     body = f"TUN,{seq % (1 << 32)},{airspeed_mps:.4f},{static_pressure_Pa:.2f},{temperature_K:.3f}"
+    if relative_humidity is not None:
+        body += f",{relative_humidity:.4f}"
     return frame_line(body)
 
 
@@ -99,6 +108,7 @@ class TunnelLine:
     airspeed_mps: float
     static_pressure_Pa: float
     temperature_K: float
+    relative_humidity: float | None = None
 
 
 def parse_loadcell_line(line: bytes, n_channels: int) -> LoadCellLine:
@@ -121,12 +131,16 @@ def parse_tunnel_line(line: bytes) -> TunnelLine:
     f = split_checked(line)
     if f[0] != "TUN":
         raise LineError(f"unexpected sentence {f[0]!r} (expected 'TUN')")
-    if len(f) != 5:
-        raise LineError(f"expected 4 fields after TUN, got {len(f) - 1}")
+    if len(f) not in (5, 6):
+        raise LineError(f"expected 4 or 5 fields after TUN, got {len(f) - 1}")
     try:
-        return TunnelLine(int(f[1]), float(f[2]), float(f[3]), float(f[4]))
+        rh = float(f[5]) if len(f) == 6 else None
+        out = TunnelLine(int(f[1]), float(f[2]), float(f[3]), float(f[4]), rh)
     except ValueError:
         raise LineError("a field is not a number") from None
+    if rh is not None and not 0.0 <= rh <= 1.0:  # NaN fails too
+        raise LineError(f"relative humidity {f[5]!r} outside 0..1")
+    return out
 
 
 class LineSplitter:

@@ -1,7 +1,9 @@
 """Tunnel conditions: airspeed, static pressure and temperature, from a serial link or by hand.
 
 Stream ``tunnel``: ``airspeed_mps``, ``static_pressure_Pa``, ``temperature_K``, ``density_kgpm3``
-(ideal gas, ``p / (287.05 T)``), ``seq``, and ``label`` (the test point, manual source only).
+(ideal gas, ``p / (287.05 T)``; moist air when the humidity is known), optional
+``relative_humidity`` (fraction 0..1: only in the messages of a link that sends it), ``seq``, and
+``label`` (the test point, manual source only).
 
 - :class:`SerialTunnelSource` (``serial_tunnel``): ``$TUN`` lines (:mod:`cdpr.daq.serial_protocol`)
   on a serial port, with the bad-line and reopen behaviour of every line driver.
@@ -16,6 +18,9 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from cdpr.analysis.errors import CdprError
+from cdpr.analysis.flow import air_density as moist_air_density
+
 from .aero_model import R_AIR_J_PER_KGK
 from .schema import plain
 from .serial_protocol import parse_tunnel_line
@@ -29,6 +34,7 @@ _TUNNEL_FIELDS = {
     "density_kgpm3": FieldDescription("kg/m^3"),
     "seq": FieldDescription("", "int64"),
 }
+_SERIAL_FIELDS = {**_TUNNEL_FIELDS, "relative_humidity": FieldDescription("1 (fraction 0..1)")}
 
 
 def air_density(static_pressure_Pa: float, temperature_K: float) -> float:
@@ -59,24 +65,29 @@ class SerialTunnelSource(SerialLineSource):
 
     def describe(self) -> dict[str, StreamDescription]:
         return {
-            "tunnel": StreamDescription(dict(_TUNNEL_FIELDS), self.rate_hz, "tunnel conditions"),
+            "tunnel": StreamDescription(dict(_SERIAL_FIELDS), self.rate_hz, "tunnel conditions"),
             "serial_bad": SERIAL_BAD_DESCRIPTION,
         }
 
     def _parse(self, line: bytes, t_ns: int) -> Reading:
         p = parse_tunnel_line(line)
         self._check_seq(p.seq)
-        return Reading(
-            "tunnel",
-            t_ns,
-            {
-                "airspeed_mps": p.airspeed_mps,
-                "static_pressure_Pa": p.static_pressure_Pa,
-                "temperature_K": p.temperature_K,
-                "density_kgpm3": air_density(p.static_pressure_Pa, p.temperature_K),
-                "seq": p.seq,
-            },
-        )
+        values: dict[str, Any] = {
+            "airspeed_mps": p.airspeed_mps,
+            "static_pressure_Pa": p.static_pressure_Pa,
+            "temperature_K": p.temperature_K,
+            "density_kgpm3": air_density(p.static_pressure_Pa, p.temperature_K),
+            "seq": p.seq,
+        }
+        if p.relative_humidity is not None:  # the optional fifth value of the line
+            values["relative_humidity"] = p.relative_humidity
+            try:
+                values["density_kgpm3"] = float(
+                    moist_air_density(p.static_pressure_Pa, p.temperature_K, p.relative_humidity)
+                )
+            except CdprError:  # p or T not physical: the dry value (NaN-free) as before
+                pass
+        return Reading("tunnel", t_ns, values)
 
 
 def _check_point(

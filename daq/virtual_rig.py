@@ -137,7 +137,7 @@ class VirtualRig:
             R,
             np.ones((pos.shape[0], rig.n_cables)),
             wind,
-            aero.air_density(aero.static_pressure_Pa, aero.temperature_K),
+            aero.air_density(aero.static_pressure_Pa, aero.temperature_K, aero.relative_humidity),
             sutherland_viscosity(aero.temperature_K),
         ).wrench_N
 
@@ -536,6 +536,7 @@ class VirtualRig:
             float(self.tunnel_airspeed_mps[j]),
             float(self.tunnel_static_pressure_Pa[j]),
             float(self.tunnel_temperature_K[j]),
+            self.aero.relative_humidity,  # None (the default): the four-value line, no humidity
         )
 
     # -- driver settings for the matching readers -------------------------------------------

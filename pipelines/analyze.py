@@ -114,6 +114,9 @@ class RunData:
     camera: bool = False
     pressure_temperature: tuple[np.ndarray, np.ndarray] | None = None
     """Static pressure (Pa) and temperature (K) on ``t_ns`` when the tunnel stream has them."""
+    humidity: np.ndarray | None = None
+    """Relative humidity (0..1) on ``t_ns``, held from the last tunnel message (NaN where that
+    message has none); None when no tunnel message carries one."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -173,7 +176,9 @@ def _tension_columns(
     return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i]
 
 
-_TUNNEL_COLUMNS = ("airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K")
+_TUNNEL_COLUMNS = (
+    "airspeed_mps", "density_kgpm3", "static_pressure_Pa", "temperature_K", "relative_humidity",
+)  # fmt: skip
 _POSE_COLUMNS = (
     "x_m", "y_m", "z_m", "qw", "qx", "qy", "qz", "status",
     *(f"cov_{i}{j}" for i in range(6) for j in range(6)),
@@ -248,6 +253,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
 
     tunnel = None
     pressure_temperature: Any = None
+    humidity = None
     if tun is not None and len(tun):
         tt = tun["t_ns"].to_numpy(np.int64)
         v = _column(tun, "airspeed_mps")
@@ -272,6 +278,12 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             pressure_temperature = tuple(
                 interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in pT
             )
+        rh = _column(tun, "relative_humidity")
+        if np.isfinite(rh).any():
+            # held from the last message, never interpolated across a message without it: a
+            # point that meets a gap gets NaN (flag humidity_not_given), not a bridged value
+            j = np.clip(np.searchsorted(tt, t_ns, side="right") - 1, 0, len(tt) - 1)
+            humidity = rh[j]
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -309,7 +321,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature,
+                pressure_temperature, humidity,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -317,13 +329,13 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature,
+            events, truth, False, pressure_temperature, humidity,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature,
+        pressure_temperature, humidity,
     )  # fmt: skip
 
 
@@ -402,8 +414,9 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
 
 def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
     """Per-point inputs of the correction stages: ``temperature_K`` and ``static_pressure_Pa``
-    (means over each point, NaN without them in the tunnel stream) and ``repeat_group`` (the index
-    of the point a point repeats, else its own)."""
+    (means over each point, NaN without them in the tunnel stream), ``relative_humidity`` (the
+    mean over each point; NaN when any sample of the point has none) and ``repeat_group`` (the
+    index of the point a point repeats, else its own)."""
     from cdpr.analysis.balance import point_stats
 
     s = len(plan.ranges)
@@ -414,6 +427,13 @@ def _correction_inputs(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
         else:
             v = run.pressure_temperature[k]
             out[key] = point_stats(v, plan.ranges, run.mask_bits).mean[:, 0]
+    rh = np.full(s, np.nan)
+    if run.humidity is not None:
+        for i, (a, b) in enumerate(plan.ranges):
+            w = run.humidity[a:b]
+            if w.size and np.isfinite(w).all():
+                rh[i] = float(np.mean(w))
+    out["relative_humidity"] = rh
     first = {lab: i for i, lab in reversed(list(enumerate(plan.labels)))}
     rep = plan.targets.get("repeat_of", [""] * s)
     out["repeat_group"] = np.array(
@@ -599,7 +619,13 @@ def _warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]
         lines.append("no model geometry given: no coefficients (flag no_geometry)")
     if "check_fail" in words:
         lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    if "humidity_not_given" in words:
+        lines.append(
+            "wind-on points without a humidity reading in the tunnel stream: density of dry air "
+            "(up to about 1 % high; flag humidity_not_given)"
+        )
     said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"humidity_not_given"}
     said |= {"no_airspeed"} | set(MASK_NAMES.values())
     rest = [w for w in words if w not in said]
     if rest:
@@ -712,17 +738,29 @@ def _plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
         ax.legend(fontsize=7, ncol=5, loc="upper left")
 
 
-def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> None:
+def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> list[str]:
     """``spectrum.png``: the tension spectra of the fastest wind-on point with the rig's modes
-    at its pose marked (when the spectrum check ran)."""
-    from .report import spectrum_figure
+    at its pose marked, and ``spectra.png`` (``spectra_1.png``, ... beyond 24 points): every
+    point's spectra as small multiples (when the spectrum check ran).  Returns the file names of
+    the small-multiples figures."""
+    from .report import spectra_grid_figures, spectrum_figure
 
     if spectra is None:
-        return
+        return []
+    grid = spectra_grid_figures(
+        folder,
+        [str(x) for x in df["point"]],
+        [str(x) for x in df["flags"].fillna("")],
+        spectra.freqs_Hz,
+        spectra.psd,
+        spectra.modes_Hz,
+        run.rig.cable_names,
+    )
+    names = [f.name for f in grid.figures]
     on = np.flatnonzero((df["kind"] == "wind_on").to_numpy())
     on = [i for i in on if spectra.freqs_Hz[i].size]
     if not on:
-        return
+        return names
     i = max(on, key=lambda k: np.nan_to_num(df["airspeed_mps"].iloc[k]))
     spectrum_figure(
         folder / "spectrum.png",
@@ -733,6 +771,7 @@ def _spectrum_plot(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -
         f"Tension spectra of point {df['point'].iloc[i]} "
         f"({df['airspeed_mps'].iloc[i]:.2f} m/s) with the rig's modes at its pose",
     )
+    return names
 
 
 def _fmt(v: float, sd: float) -> str:
@@ -810,6 +849,14 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
         *(["![spectrum](spectrum.png)", ""] if "lowest_mode_Hz" in df else []),
     ]
+    grids = summary.get("spectra_figures") or []
+    if grids:
+        lines += [
+            "Tension spectra of every point (one panel per point: label and spectrum flags in "
+            "its title, the rig's modes at its pose dashed):",
+            "",
+        ]
+        lines += [f"![spectra of every point]({g})\n" for g in grids]
     return "\n".join(lines)
 
 
@@ -827,7 +874,9 @@ def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
     if on.empty or "corrections" not in on:
         return lines
     cols = [
-        ("point", "point", ""), ("V", "airspeed_mps", ".2f"), ("Re", "reynolds", ".3g"),
+        ("point", "point", ""), ("V", "airspeed_mps", ".2f"),
+        ("ρ (kg/m³)", "density_kgpm3", ".5f"), ("ρ from", "density_source", ""),
+        ("RH", "relative_humidity", ".3f"), ("Re", "reynolds", ".3g"),
         ("Mach", "mach", ".4f"), ("drift max (N)", "zero_drift_max_abs_N", ".4f"),
         ("windage", "windage_source", ""), ("windage Fx (N)", "windage_fx_N", ".4f"),
         ("CL", "CL", ".4f"), ("CL corr.", "CL_corrected", ".4f"), ("CD", "CD", ".5f"),
@@ -917,7 +966,8 @@ def analyze_run(
         df.to_csv(tmp / "points.csv", index=False)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         _plots(run, df, tmp)
-        _spectrum_plot(run, df, red.get("_spectra"), tmp)
+        summary["spectra_figures"] = _spectrum_plot(run, df, red.get("_spectra"), tmp)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         (tmp / "report.md").write_text(_report(run, df, summary))
         if final.exists():
             shutil.rmtree(final)

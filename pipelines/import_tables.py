@@ -4,7 +4,10 @@ Both files have a time column, ``t_ns`` (integer ns since the Unix epoch) or ``t
 the first CAN frame of the imported log), non-decreasing; ``#`` lines are comments.
 
 - tunnel CSV: ``airspeed_mps`` and either ``density_kgpm3`` or ``static_pressure_Pa`` +
-  ``temperature_K`` (density then ``p / (R T)``); each row becomes a ``/tunnel`` message.
+  ``temperature_K`` (density then ``p / (R T)``, moist air with the humidity); optional
+  ``relative_humidity`` (fraction 0..1) or ``relative_humidity_pct`` (percent, divided by 100;
+  not both), an empty cell meaning not measured at that row (null in the stream, the analysis
+  flags the point ``humidity_not_given``); each row becomes a ``/tunnel`` message.
 - events CSV: ``point`` (label), ``phase`` (``start`` | ``end``), ``kind`` (``wind_on`` | ``tare`` |
   ``zero`` | ``windage``), optional ``target_aoa_deg``, ``target_sideslip_deg``,
   ``target_airspeed_mps`` (empty cell: unknown, written as null) and ``repeat_of``; each row
@@ -26,7 +29,9 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from cdpr.analysis.aero import air_density
-from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.errors import ConfigError, InputError
+from cdpr.analysis.flow import air_density as moist_air_density
+from cdpr.analysis.flow import saturation_vapour_pressure
 from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
 from .campaign import KINDS
@@ -137,7 +142,51 @@ def read_tunnel_csv(path: str | os.PathLike[str]) -> TimedTable:
         cols["static_pressure_Pa"] = df["static_pressure_Pa"].to_numpy(dtype=np.float64)
         cols["temperature_K"] = df["temperature_K"].to_numpy(dtype=np.float64)
         cols["density_kgpm3"] = air_density(cols["static_pressure_Pa"], cols["temperature_K"])
+    rh = _humidity(p, df)
+    if rh is not None:
+        cols["relative_humidity"] = rh
+        have = np.isfinite(rh)
+        if "static_pressure_Pa" in cols and have.any():
+            ps, tk = cols["static_pressure_Pa"][have], cols["temperature_K"][have]
+            try:
+                cols["density_kgpm3"][have] = moist_air_density(ps, tk, rh[have])
+            except InputError:  # vapour pressure above p: name the first such row
+                e = rh[have] * saturation_vapour_pressure(tk)
+                i = int(np.flatnonzero(have)[np.flatnonzero(e >= ps)[0]])
+                raise ConfigError(
+                    p,
+                    f"row {i + 2}, column {next(c for c in _RH_COLUMNS if c in df)}",
+                    "vapour pressure at this humidity is above the static pressure",
+                ) from None
     return TimedTable(p, tcol, tv, cols)
+
+
+_RH_COLUMNS = ("relative_humidity", "relative_humidity_pct")
+
+
+def _humidity(path: str, df: pd.DataFrame) -> NDArray[np.float64] | None:
+    """The optional humidity column as a fraction 0..1 (NaN: empty cell, not measured), or
+    None without one; a value outside 0..1 (0..100 %) or not a number names its row."""
+    have = [c for c in _RH_COLUMNS if c in df.columns]
+    if not have:
+        return None
+    if len(have) == 2:
+        raise ConfigError(path, "column relative_humidity_pct", "give relative_humidity or "
+                          "relative_humidity_pct, not both")  # fmt: skip
+    c = have[0]
+    scale, hi = (1.0, 1.0) if c == "relative_humidity" else (0.01, 100.0)
+    num = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=np.float64)
+    given = df[c].notna().to_numpy()
+    bad = np.flatnonzero(given & ~((num >= 0.0) & (num <= hi)))  # NaN and inf fail
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, column {c}",
+            f"expected a number in 0..{hi:g}{' %' if hi > 1 else ''} or an empty cell, "
+            f"got {_text(df[c].iloc[i])}",
+        )
+    return np.where(given, num * scale, np.nan)
 
 
 def read_events_csv(path: str | os.PathLike[str]) -> TimedTable:
@@ -206,6 +255,7 @@ TUNNEL_DESCRIPTION = {
     "static_pressure_Pa": FieldDescription("Pa"),
     "temperature_K": FieldDescription("K"),
     "density_kgpm3": FieldDescription("kg/m^3"),
+    "relative_humidity": FieldDescription("1 (fraction 0..1)"),
 }
 
 

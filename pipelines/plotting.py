@@ -18,6 +18,7 @@ def png_figure(
     ncols: int = 1,
     size: tuple[float, float] = (6.4, 4.4),
     dpi: int = 110,
+    tight: bool = True,
     **subplots_kw: Any,
 ) -> Iterator[tuple[Any, Any]]:
     """A figure and its (nrows, ncols) array of axes (never squeezed) to draw on in the block.
@@ -25,7 +26,8 @@ def png_figure(
     On leaving the block the figure is laid out (``tight_layout``), rendered as PNG at ``dpi`` and
     written with :func:`~cdpr.pipelines.config.atomic_output`; it is closed in every case, and an
     exception in the block writes nothing.  ``size`` is the figure size in inches; ``subplots_kw``
-    go to ``plt.subplots`` (``sharex``, ``height_ratios``, ...).
+    go to ``plt.subplots`` (``sharex``, ``height_ratios``, ...).  ``tight=False`` skips
+    ``tight_layout`` (the block lays the figure out itself: cheaper for a grid of many panels).
     """
     import matplotlib
 
@@ -35,7 +37,8 @@ def png_figure(
     fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False, **subplots_kw)
     try:
         yield fig, axes
-        fig.tight_layout()
+        if tight:
+            fig.tight_layout()
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=dpi)
     finally:

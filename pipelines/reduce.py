@@ -38,7 +38,12 @@ from cdpr.analysis.corrections import (
     zero_drift,
 )
 from cdpr.analysis.errors import InputError
-from cdpr.analysis.flow import reynolds_number, speed_of_sound, sutherland_viscosity
+from cdpr.analysis.flow import (
+    air_density,
+    reynolds_number,
+    speed_of_sound,
+    sutherland_viscosity,
+)
 from cdpr.analysis.records import CorrectionRecord
 from cdpr.analysis.reduction import (
     COEFFICIENTS,
@@ -220,16 +225,38 @@ def zero_drift_stage(p: Points) -> Points:
     )
 
 
+DENSITY_SOURCES = ("p_T_humidity", "p_T_dry", "stream")
+"""Per point, where ``density_kgpm3`` came from: the point's mean p, T and relative humidity
+(moist air), its mean p and T without a humidity (dry air, flag ``humidity_not_given``), or the
+tunnel stream's density as given (no p and T in the stream: a measured density)."""
+
+
 @stage("flow_conditions")
 def flow_conditions_stage(p: Points, *, chord_m: float, wind_off_mps: float = 1.0) -> Points:
-    """Reynolds number on the reference chord (density measured, viscosity by Sutherland's law),
-    Mach number and the viscosity per point (``reynolds``, ``mach``, ``viscosity_Pas``), from the
-    points' ``temperature_K``; wind-on points without a temperature get NaN and
-    ``no_temperature``."""
+    """Density, Reynolds number on the reference chord (viscosity by Sutherland's law), Mach
+    number and the viscosity per point (``density_kgpm3``, ``density_source``,
+    ``relative_humidity``, ``reynolds``, ``mach``, ``viscosity_Pas``).
+
+    Where the point has its mean ``static_pressure_Pa`` and ``temperature_K``, the density is
+    moist air (:func:`cdpr.analysis.flow.air_density`, the Buck vapour pressure) at the point's
+    mean ``relative_humidity``; a point without a humidity (none in the stream, or a sample of
+    the point without one) is computed as dry air and flagged ``humidity_not_given`` (wind-on
+    and windage points, where the density enters q); without p and T the stream's density is
+    kept (``density_source`` ``stream``).  Wind-on points without a temperature get NaN Re and
+    Mach and ``no_temperature``."""
     s = p.n
     V = p["airspeed_mps"]
-    rho = p["density_kgpm3"]
-    TK = np.asarray(p.arrays.get("temperature_K", np.full(s, np.nan)), dtype=np.float64)
+    nan = np.full(s, np.nan)
+    TK = np.asarray(p.arrays.get("temperature_K", nan), dtype=np.float64)
+    ps = np.asarray(p.arrays.get("static_pressure_Pa", nan), dtype=np.float64)
+    rh = np.asarray(p.arrays.get("relative_humidity", nan), dtype=np.float64)
+    rho = np.array(p["density_kgpm3"], dtype=np.float64)
+    pT = np.isfinite(ps) & (ps > 0) & np.isfinite(TK) & (TK > 0)
+    wet = pT & np.isfinite(rh)
+    source = np.full(s, DENSITY_SOURCES[2], dtype=object)
+    if pT.any():
+        rho[pT] = air_density(ps[pT], TK[pT], np.where(wet, rh, 0.0)[pT])
+        source[wet], source[pT & ~wet] = DENSITY_SOURCES[0], DENSITY_SOURCES[1]
     ok = np.isfinite(V) & (V >= 0) & np.isfinite(rho) & (rho > 0) & np.isfinite(TK) & (TK > 0)
     mu, re, mach = np.full(s, np.nan), np.full(s, np.nan), np.full(s, np.nan)
     if ok.any():
@@ -237,22 +264,39 @@ def flow_conditions_stage(p: Points, *, chord_m: float, wind_off_mps: float = 1.
         re[ok] = reynolds_number(rho[ok], V[ok], chord_m, mu[ok])
         mach[ok] = V[ok] / speed_of_sound(TK[ok])
     windy = np.isin(p["kind"], ("wind_on", "windage")) & np.isfinite(V) & (V > wind_off_mps)
+    dry = windy & pT & ~wet
     rec = CorrectionRecord(
         name="flow_conditions",
-        source="Re = rho V c / mu with the measured density and Sutherland's law (White); "
-        "M = V / sqrt(1.4 R T)",
+        source="density: ideal-gas moist air at the point's mean p, T and relative humidity "
+        "(Buck vapour pressure), dry air where no humidity is given; Re = rho V c / mu with "
+        "Sutherland's law (White); M = V / sqrt(1.4 R T)",
         values={
             "chord_m": float(chord_m),
+            "points_with_humidity": int((windy & wet).sum()),
+            "points_without_humidity": int(dry.sum()),
             "reynolds_max": float(np.nanmax(re)) if ok.any() else None,
             "mach_max": float(np.nanmax(mach)) if ok.any() else None,
         },
-        flags=("no_temperature",) if (windy & ~ok).any() else (),
+        flags=tuple(
+            f for f, m in (("humidity_not_given", dry), ("no_temperature", windy & ~ok)) if m.any()
+        ),
     )
     return with_updates(
         p,
-        arrays={"viscosity_Pas": mu, "reynolds": re, "mach": mach},
-        flag={"no_temperature": windy & ~ok},
-        meta=_records(p, rec),
+        arrays={
+            "density_kgpm3": rho,
+            "density_source": source.astype(str),
+            "relative_humidity": rh,
+            "viscosity_Pas": mu,
+            "reynolds": re,
+            "mach": mach,
+        },
+        flag={"no_temperature": windy & ~ok, "humidity_not_given": dry},
+        meta={
+            **_records(p, rec),
+            "_note": f"humidity at {int((windy & wet).sum())} wind-on point(s), "
+            f"dry air at {int(dry.sum())} (humidity_not_given)",
+        },
     )
 
 
@@ -739,7 +783,10 @@ def correction_columns(p: Points, rig: Rig) -> dict[str, Any]:
         for k, name in enumerate(rig.cable_names):
             cols[f"zero_drift_{name}_N"] = d[:, k]
             cols[f"sd_zero_drift_{name}_N"] = a["sd_zero_drift_N"][:, k]
-    for key in ("reynolds", "mach", "viscosity_Pas", "lowest_mode_Hz"):
+    for key in (
+        "relative_humidity", "density_source", "reynolds", "mach", "viscosity_Pas",
+        "lowest_mode_Hz",
+    ):  # fmt: skip
         if key in a:
             cols[key] = a[key]
     if "windage_N" in a:

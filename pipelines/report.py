@@ -398,7 +398,8 @@ def tension_figure(
 # repeatability beside the propagated sigma
 # --------------------------------------------------------------------------------------------
 CORRECTION_COLUMNS = (
-    "run", "point", "target_airspeed_mps", "aoa_deg", "q_Pa", "reynolds", "mach",
+    "run", "point", "target_airspeed_mps", "aoa_deg", "density_kgpm3", "density_source",
+    "relative_humidity", "q_Pa", "reynolds", "mach",
     "CL", "CL_corrected", "sd_CL", "sd_repeat_CL", "CD", "CD_corrected", "sd_CD", "sd_repeat_CD",
     "Cm", "Cm_corrected", "sd_Cm", "sd_repeat_Cm", "zero_drift_max_abs_N", "windage_source",
     "windage_fx_N",
@@ -551,6 +552,147 @@ def spectrum_figure(
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=6, ncol=4, loc="lower left")
     return _figure(p, title)
+
+
+SPECTRUM_FLAGS = ("too_few_periods", "spectrum_peak_near_mode", "no_modes")
+"""The spectrum check's flags (:func:`cdpr.pipelines.reduce.spectrum_stage`), shown per panel."""
+SPECTRA_PER_FIGURE = 24
+"""Panels per small-multiples figure of the spectra (6 columns x 4 rows)."""
+
+
+def decimate_spectrum(
+    freqs_Hz: NDArray[np.float64], psd: NDArray[np.float64], max_bins: int = 64
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A Welch spectrum (``psd`` (m, nf)) reduced to at most ``max_bins`` bins for a small panel:
+    the zero-frequency bin dropped, then the mean frequency and the mean PSD of blocks of
+    ``ceil((nf - 1) / max_bins)`` adjacent bins (the power in a block is kept; a peak stays at
+    its block).  Returns ``(f (k,), psd (m, k))``."""
+    f = np.asarray(freqs_Hz, dtype=np.float64)[1:]
+    P = np.asarray(psd, dtype=np.float64)[:, 1:]
+    n = f.size
+    if n <= max_bins:
+        return f, P
+    k = int(np.ceil(n / max_bins))
+    starts = np.arange(0, n, k)
+    counts = np.diff(np.append(starts, n))
+    return np.add.reduceat(f, starts) / counts, np.add.reduceat(P, starts, axis=1) / counts
+
+
+@dataclass(frozen=True)
+class SpectraGrid:
+    """The small-multiples figures of the tension spectra: ``figures`` (one PNG each) and
+    ``panels`` (how many point panels each figure holds, one per point, in point order)."""
+
+    figures: list[Figure]
+    panels: list[int]
+
+
+def spectra_grid_figures(
+    out_dir: str | os.PathLike[str],
+    labels: Sequence[str],
+    flags: Sequence[str],
+    freqs_Hz: Sequence[NDArray[np.float64]],
+    psd: Sequence[NDArray[np.float64]],
+    modes_Hz: NDArray[np.float64],
+    cable_names: Sequence[str] = (),
+    per_figure: int = SPECTRA_PER_FIGURE,
+    stem: str = "spectra",
+) -> SpectraGrid:
+    """The tension spectra of every point, one small panel per point: every cable's PSD
+    (decimated by :func:`decimate_spectrum`), the rig's modes at the point's pose as dashed
+    vertical lines, the point's label and its spectrum flags (``flags``: the point's flag text;
+    the words of :data:`SPECTRUM_FLAGS` are shown in red, else ``ok``) as the panel's title.
+
+    All panels share their scales (frequency linear from 0 to the highest, PSD logarithmic over
+    at most 8 decades, a faint line at every decade; the scales are written under each figure)
+    and are drawn into one axes per figure as a few line collections, so 180 points take about
+    a second.  At most ``per_figure`` panels a figure (6 columns): ``<stem>.png``, or
+    ``<stem>_1.png``, ``<stem>_2.png``, ... when there are more points.  A point without a
+    spectrum (too few samples, no mode) keeps its panel, which says so."""
+    from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
+
+    s = len(labels)
+    if not (len(flags) == len(freqs_Hz) == len(psd) == len(modes_Hz) == s):
+        raise ConfigError("spectra", "", f"expected {s} points in every input")
+    out = Path(out_dir)
+    dec = [
+        decimate_spectrum(freqs_Hz[i], psd[i]) if np.asarray(freqs_Hz[i]).size >= 3 else None
+        for i in range(s)
+    ]
+    pos = [d[1][d[1] > 0] for d in dec if d is not None]
+    allp = np.concatenate([p.ravel() for p in pos]) if pos else np.zeros(0)
+    allp = allp[np.isfinite(allp)]
+    y1 = float(np.ceil(np.log10(allp.max()))) if allp.size else 0.0
+    # the lowest 1 % of the bins (near-empty ones) may fall below the panel: clipped at its floor
+    y0 = max(float(np.floor(np.log10(np.percentile(allp, 1.0)))), y1 - 8.0) if allp.size else -1.0
+    y0 = min(y0, y1 - 1.0)
+    fmax = max((float(d[0][-1]) for d in dec if d is not None), default=1.0)
+    colors = [f"C{j % 10}" for j in range(max((d[1].shape[0] for d in dec if d), default=0))]
+    ncols = 6
+    n_fig = int(np.ceil(s / per_figure))
+    figs: list[Figure] = []
+    panels: list[int] = []
+    for c in range(n_fig):
+        idx = list(range(c * per_figure, min(s, (c + 1) * per_figure)))
+        nrows = int(np.ceil(len(idx) / ncols))
+        name = f"{stem}.png" if n_fig == 1 else f"{stem}_{c + 1}.png"
+        title = "Tension spectra per point (Welch PSD) with the rig's modes (dashed)"
+        if n_fig > 1:
+            title += f": points {idx[0] + 1}–{idx[-1] + 1} of {s}"
+        size = (13.0, 1.45 * nrows + 1.1)
+        with png_figure(out / name, size=size, dpi=72, tight=False) as (fig, axes):
+            ax = axes[0, 0]
+            ax.set_position((0.005, 0.27 / size[1], 0.99, 1 - 0.8 / size[1] - 0.27 / size[1]))
+            ax.set_axis_off()
+            ax.set_xlim(0.0, ncols)
+            ax.set_ylim(0.0, nrows)
+            w, h = 0.9, 0.72  # a panel in its (1 x 1) cell, room for the title above
+            lines, lcol, modes, frames, grid = [], [], [], [], []
+            drawn = 0
+            for k, i in enumerate(idx):
+                x0, b0 = (k % ncols) + 0.05, nrows - 1 - (k // ncols) + 0.06
+                frames.append([(x0, b0), (x0 + w, b0), (x0 + w, b0 + h), (x0, b0 + h), (x0, b0)])
+                words = [wd for wd in str(flags[i]).split(";") if wd in SPECTRUM_FLAGS]
+                ax.text(x0 + w / 2, b0 + h + 0.03, f"{labels[i]}: {', '.join(words) or 'ok'}",
+                        ha="center", va="bottom", fontsize=7,
+                        color="tab:red" if words else "k")  # fmt: skip
+                drawn += 1
+                di = dec[i]
+                if di is None:
+                    ax.text(x0 + w / 2, b0 + h / 2, "no spectrum", ha="center", va="center",
+                            fontsize=7, color="0.4")  # fmt: skip
+                    continue
+                f, P = di
+                X = x0 + w * f / fmax
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    Y = b0 + h * np.clip((np.log10(P) - y0) / (y1 - y0), 0.0, 1.0)
+                for j in range(P.shape[0]):
+                    ok = np.isfinite(Y[j])
+                    lines.append(np.column_stack([X[ok], Y[j, ok]]))
+                    lcol.append(colors[j])
+                grid += [[(x0, b0 + h * (d - y0) / (y1 - y0)), (x0 + w, b0 + h * (d - y0) / (y1 - y0))]
+                         for d in np.arange(y0 + 1, y1)]  # fmt: skip
+                m = np.asarray(modes_Hz[i], dtype=np.float64)
+                for fm in m[np.isfinite(m) & (m <= fmax)]:
+                    xm = x0 + w * fm / fmax
+                    modes.append([(xm, b0), (xm, b0 + h)])
+            ax.add_collection(LineCollection(grid, colors="0.9", linewidths=0.4))
+            ax.add_collection(LineCollection(lines, colors=lcol, linewidths=0.6))
+            ax.add_collection(LineCollection(modes, colors="k", linewidths=0.7, linestyles="--"))
+            ax.add_collection(LineCollection(frames, colors="0.5", linewidths=0.6))
+            fig.suptitle(title, fontsize=9, y=1 - 0.08 / size[1], va="top")
+            fig.text(0.5, 0.06 / size[1], f"every panel: frequency 0–{fmax:.4g} Hz (linear), "
+                     f"PSD 1e{y0:.0f}–1e{y1:.0f} N²/Hz (log, a faint line per decade)",
+                     ha="center", va="bottom", fontsize=7)  # fmt: skip
+            if cable_names and colors:
+                handles = [Line2D([], [], color=colors[j], lw=1.2) for j in range(len(colors))]
+                fig.legend(handles, list(cable_names)[: len(colors)], loc="upper center",
+                           bbox_to_anchor=(0.5, 1 - 0.32 / size[1]), ncol=len(colors),
+                           fontsize=7, frameon=False)  # fmt: skip
+        figs.append(_figure(out / name, title))
+        panels.append(drawn)
+    return SpectraGrid(figs, panels)
 
 
 # --------------------------------------------------------------------------------------------

@@ -6,7 +6,8 @@ OUTDIR gets what a lab without cdpr would have after a run: ``can.log`` (candump
 python-can's own logger, the first frame dropped so the log starts in the middle of a sample, as
 almost every real candump log does), ``poses.csv`` (the camera's poses: ``t_ns, x_m, y_m, z_m,
 roll_rad, pitch_rad, yaw_rad``), ``tunnel.csv`` (``t_ns, airspeed_mps, static_pressure_Pa,
-temperature_K`` or ``density_kgpm3``) and ``events.csv`` (the test points' start and end).
+temperature_K`` or ``density_kgpm3``, and ``relative_humidity`` when the run has it) and
+``events.csv`` (the test points' start and end).
 """
 
 from __future__ import annotations
@@ -59,7 +60,9 @@ def main(run_path: str, out_dir: str) -> int:
         }
     ).to_csv(out / "poses.csv", index=False)
     cols = ["t_ns", "airspeed_mps"] + [
-        c for c in ("static_pressure_Pa", "temperature_K", "density_kgpm3") if c in tunnel
+        c
+        for c in ("static_pressure_Pa", "temperature_K", "density_kgpm3", "relative_humidity")
+        if c in tunnel
     ]
     if "static_pressure_Pa" in cols and "density_kgpm3" in cols:
         cols.remove("density_kgpm3")

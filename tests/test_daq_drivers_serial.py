@@ -167,6 +167,46 @@ def test_serial_tunnel_and_density(tmp_path: Path) -> None:
     assert src.stats.bad == 1
 
 
+def test_tunnel_line_optional_humidity_by_hand() -> None:
+    """The fifth value is optional: the four-value line is unchanged (backwards compatible)."""
+    from cdpr.daq.serial_protocol import format_tunnel_line, parse_tunnel_line
+
+    old = format_tunnel_line(3, 25.51, 101325.0, 293.15)
+    assert old == b"$TUN,3,25.5100,101325.00,293.150*59\r\n"  # the docstring's example
+    assert parse_tunnel_line(old).relative_humidity is None
+    body = b"TUN,4,25.5100,101325.00,293.150,0.4500"
+    line = b"$" + body + b"*%02X\r\n" % checksum(body)
+    assert format_tunnel_line(4, 25.51, 101325.0, 293.15, 0.45) == line
+    assert parse_tunnel_line(line).relative_humidity == 0.45
+    for bad in (b"TUN,4,25.5,101325.0,293.15,1.2", b"TUN,4,25.5,101325.0,293.15,nan"):
+        with pytest.raises(LineError, match="outside 0..1"):
+            parse_tunnel_line(b"$" + bad + b"*%02X" % checksum(bad))
+    extra = b"TUN,4,25.5,101325.0,293.15,0.4,9"
+    with pytest.raises(LineError, match="expected 4 or 5 fields"):
+        parse_tunnel_line(b"$" + extra + b"*%02X" % checksum(extra))
+
+
+def test_serial_tunnel_humidity_and_moist_density(tmp_path: Path) -> None:
+    from cdpr.daq.serial_protocol import format_tunnel_line
+
+    port = PtyPort(tmp_path / "ttyTUN")
+    try:
+        src = create_source("serial_tunnel", "tun", {"port": str(port.link), "rate_hz": 10.0})
+        with src:
+            assert port.write(format_tunnel_line(0, 25.0, 101325.0, 303.15, 0.8))
+            assert port.write(format_tunnel_line(1, 25.0, 101325.0, 303.15))
+            rd = _drain(src, 2, "tunnel")
+    finally:
+        port.close()
+    wet, dry = (r.values for r in rd if r.stream == "tunnel")
+    assert wet["relative_humidity"] == 0.8 and "relative_humidity" not in dry
+    # by hand at 30 deg C: e_s = 4245 Pa (steam tables: 4.2455 kPa), e = 0.8 e_s = 3396 Pa,
+    # rho = (p - e)/(287.05 T) + e/(461.5 T) = 1.12537 + 0.02427 = 1.1496 kg/m^3
+    assert wet["density_kgpm3"] == pytest.approx(1.1496, abs=3e-4)
+    assert dry["density_kgpm3"] == pytest.approx(101325.0 / (287.05 * 303.15))
+    assert dry["density_kgpm3"] - wet["density_kgpm3"] > 0.01  # 1.3 % denser when dry
+
+
 def test_manual_tunnel_per_test_point() -> None:
     src = create_source(
         "manual_tunnel", "tun", {"airspeed_mps": 41.42, "rate_hz": 20.0, "label": "tp3"}, "cfg.toml"

@@ -26,7 +26,7 @@ from cdpr.pipelines.report import read_reference_polars, reference_differences
 
 AOA_DEG = (-4.0, 0.0, 3.0, 6.0)
 RHO, T_K, MU = 1.19, 293.15, 1.8134e-5  # MU: Sutherland at 293.15 K, by hand
-P_PA = RHO * 287.05 * T_K  # the same air as a static pressure (ideal gas, dry)
+P_PA = RHO * 287.05287 * T_K  # the same air as a static pressure (ideal gas, dry; R_d = 287.05287)
 SIDE = 0.376  # the paper's octagon (docs/corrections.md), centred on this rig's P
 APOTHEM = SIDE * (1 + 2**0.5) / 2
 YC, ZC, X0, LEN = 0.0, 0.36, -0.0375, 1.075
@@ -165,9 +165,10 @@ def write_run(path: Path, g: dict) -> None:
         vals.update({f"status_{c}": 0 for c in names})
         vals["seq"] = i
         readings.append(Reading("tensions", int(t), vals, 0))
-        if i % 10 == 0:
+        if i % 10 == 0:  # the truth is dry air: humidity 0
             tun = {"airspeed_mps": float(g["V"][i]), "density_kgpm3": RHO,
-                   "static_pressure_Pa": P_PA, "temperature_K": T_K}  # fmt: skip
+                   "static_pressure_Pa": P_PA, "temperature_K": T_K,
+                   "relative_humidity": 0.0}  # fmt: skip
             readings.append(Reading("tunnel", int(t), tun))
         if i % 3 == 0:
             q = g["Q"][i]
@@ -334,7 +335,15 @@ def test_campaign_report_shows_the_windage_tare_and_the_corrections(analysed, ca
     assert "Barlow, Rae &amp; Pope" in page  # every correction listed with its source
     assert (out / "plots" / "windage_tare.png").is_file()
     # the run's page carries the tension spectra of its fastest point with the rig's modes
-    assert "Tension spectra with the rig" in (out / "run_sweep.html").read_text()
+    run_page = (out / "run_sweep.html").read_text()
+    assert "Tension spectra with the rig" in run_page
+    # ... and every point's spectra as small multiples: 35 points, 24 + 11 panels, both embedded
+    assert analysed["summary"]["spectra_figures"] == ["spectra_1.png", "spectra_2.png"]
+    for name in ("spectra_1.png", "spectra_2.png"):
+        assert (analysed["out"] / "with" / "sweep" / name).is_file()
+        assert f"![spectra of every point]({name})" in analysed["report"]
+    assert run_page.count("<figcaption>Tension spectra of every point") == 2
+    assert run_page.count("<img") >= run_page.count("<figcaption>") >= 3
     # the difference table: measured (wall-corrected) minus the reference, per wind-on point
     assert "Measured minus reference polars" in page and "reference polars" in page
     d = reference_differences(

@@ -152,16 +152,25 @@ def run(args: argparse.Namespace) -> int:
                 rfigs.append(
                     tension_figure(out / "plots" / stem / "tensions.png", *tens, windows=windows)
                 )
-        # the tension spectra with the rig's modes (cdpr analyze --matrix drew them per run)
+        # the tension spectra with the rig's modes (cdpr analyze --matrix drew them per run):
+        # the fastest point's, then every point's (small multiples, one panel per point)
         for pf in sorted(set(d["points_file"])):
-            spec = Path(pf).parent / "spectrum.png"
-            if spec.is_file():
-                dst = out / "plots" / stem / "spectrum.png"
+            src = Path(pf).parent
+            grids = sorted(src.glob("spectra*.png"), key=lambda q: (len(q.stem), q.stem))
+            specs = [src / "spectrum.png", *grids]
+            for spec in specs:
+                if not spec.is_file():
+                    continue
+                dst = out / "plots" / stem / spec.name
                 dst.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(spec, dst)
-                rfigs.append(
-                    Figure(dst.name, "Tension spectra with the rig's modes", dst.read_bytes())
+                what = (
+                    "Tension spectra with the rig's modes"
+                    if spec.name == "spectrum.png"
+                    else "Tension spectra of every point (label and spectrum flags per panel, "
+                    "the rig's modes dashed)" + (f" — {spec.stem}" if "_" in spec.stem else "")
                 )
+                rfigs.append(Figure(dst.name, what, dst.read_bytes()))
         rprov = {**prov, "run": str(run_name)}
         written += write_report(
             report_content(f"Run {run_name}", sub, rfigs, rprov), out, f"run_{stem}"
