@@ -103,6 +103,11 @@ def _analyze(run: Path, out: Path, *extra: str) -> int:
     return main(["analyze", str(run), "--out", str(out), "--workers", "1", "--no-progress", *extra])
 
 
+def _provenance(out: Path, run: Path) -> dict:  # type: ignore[type-arg]
+    """The summary's ``loadcell_calibration`` record."""
+    return json.loads((out / run.stem / "summary.json").read_text())["loadcell_calibration"]  # type: ignore[no-any-return]
+
+
 def _point_means(run: Path, df: pd.DataFrame, off: np.ndarray, gain: np.ndarray) -> np.ndarray:
     """(points, 8) mean of (counts - off) * gain over each point's samples, by hand."""
     t, c = _raw(run)
@@ -202,7 +207,7 @@ def test_the_matrix_names_the_calibration_and_the_option_wins(
     run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     off0, g0 = _recorded_calibration(run)
-    m_cal = _write_cal(tmp_path / "matrix_lc.toml", off0, g0 * 1.05, "from-matrix")
+    _write_cal(tmp_path / "matrix_lc.toml", off0, g0 * 1.05, "from-matrix")
     o_cal = _write_cal(tmp_path / "option_lc.toml", off0, g0 * 0.97, "from-option")
     matrix = tmp_path / "m.toml"
     matrix.write_text(
@@ -214,13 +219,13 @@ def test_the_matrix_names_the_calibration_and_the_option_wins(
     assert _analyze(run, tmp_path / "m", "--matrix", str(matrix)) in (0, 1)
     said = capsys.readouterr().out
     assert f"matrix_lc.toml (given by the test matrix {matrix}" in said
-    lc = json.loads((tmp_path / "m" / run.stem / "summary.json").read_text())["loadcell_calibration"]
+    lc = _provenance(tmp_path / "m", run)
     assert lc["id"] == "from-matrix" and "test matrix" in lc["given_by"]
     args = ["--matrix", str(matrix), "--loadcell-calibration", str(o_cal)]
     assert _analyze(run, tmp_path / "o", *args) in (0, 1)
     said = capsys.readouterr().out
     assert "option_lc.toml (given by --loadcell-calibration (over the test matrix's" in said
-    lc = json.loads((tmp_path / "o" / run.stem / "summary.json").read_text())["loadcell_calibration"]
+    lc = _provenance(tmp_path / "o", run)
     assert lc["id"] == "from-option" and lc["given_by"].startswith("--loadcell-calibration")
     m = pd.read_csv(tmp_path / "m" / run.stem / "points.csv")
     o = pd.read_csv(tmp_path / "o" / run.stem / "points.csv")

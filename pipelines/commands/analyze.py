@@ -132,9 +132,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(args.balance, "", "no such balance calibration file")
     geometry = geometry_from_args(args, need=False)
     tunnel = None
-    lc_file, lc_from = args.loadcell_calibration, None
-    if lc_file is not None:
-        lc_from = "--loadcell-calibration"
+    lc_file: str | None = args.loadcell_calibration
+    lc_from = "--loadcell-calibration"
     if args.matrix is not None:
         from cdpr.analysis.aero import ModelGeometry
 
@@ -183,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
         tunnel=tunnel,
         matrix_file=args.matrix,
         loadcell_calibration_file=lc_file,
-        loadcell_calibration_from=lc_from,
+        loadcell_calibration_from=lc_from if lc_file is not None else None,
         reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
     )
     results = analyze_runs(
