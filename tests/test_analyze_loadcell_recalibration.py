@@ -11,6 +11,7 @@ import hashlib
 import json
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -103,9 +104,10 @@ def _analyze(run: Path, out: Path, *extra: str) -> int:
     return main(["analyze", str(run), "--out", str(out), "--workers", "1", "--no-progress", *extra])
 
 
-def _provenance(out: Path, run: Path) -> dict:  # type: ignore[type-arg]
+def _provenance(out: Path, run: Path) -> dict[str, Any]:
     """The summary's ``loadcell_calibration`` record."""
-    return json.loads((out / run.stem / "summary.json").read_text())["loadcell_calibration"]  # type: ignore[no-any-return]
+    rec: dict[str, Any] = json.loads((out / run.stem / "summary.json").read_text())
+    return rec["loadcell_calibration"]  # type: ignore[no-any-return]
 
 
 def _point_means(run: Path, df: pd.DataFrame, off: np.ndarray, gain: np.ndarray) -> np.ndarray:
