@@ -43,7 +43,12 @@ import cantools
 from cdpr.analysis.errors import ConfigError
 
 from . import can_raw
-from .loadcell import Calibration, calibration_from_settings, check_frame_budget
+from .loadcell import (
+    RAW_MISSING_COUNTS,
+    Calibration,
+    calibration_from_settings,
+    check_frame_budget,
+)
 from .mcap_writer import register_stream_codec
 from .source import (
     STATUS_GAP,
@@ -361,9 +366,7 @@ class LoadCellDecoder:
         self._last_counter = int(c[-1])
         self._last_t_ns = int(ts[-1])
         self._seq = int(seq[-1])
-        off = np.asarray(cal.offset_counts, np.float64)
-        gain = np.asarray(cal.gain_N_per_count, np.float64)
-        T = (counts.astype(np.float64) - off) * gain
+        T = cal.to_newtons(counts)
         any_status = np.bitwise_or.reduce(ch_status, axis=1)
         status = np.zeros(k, np.int64)
         for bit, sbit in _STATUS_TO_SOURCE:
@@ -431,7 +434,7 @@ class LoadCellDecoder:
             tensions = [float(t) for t in cal.to_newtons(counts)]
         values: dict[str, Any] = dict(zip(self._keys_T, tensions, strict=True))
         for key, c in zip(self._keys_raw, counts, strict=True):
-            values[key] = int(c) if c == c else -(1 << 31)
+            values[key] = int(c) if c == c else RAW_MISSING_COUNTS
         any_status = 0
         for key, st in zip(self._keys_status, ch_status, strict=True):
             values[key] = st

@@ -142,6 +142,19 @@ class Calibration:
         }
 
 
+RAW_MISSING_COUNTS = -(1 << 31)
+"""The ``raw_<cable>_counts`` value recorded for a channel whose frame is missing (T is NaN)."""
+
+
+def tensions_from_raw(calibration: Calibration, raw_counts: Any) -> FloatArray:
+    """Tensions (..., n) in N from recorded ``raw_<cable>_counts`` (..., n): the recorder's
+    :meth:`Calibration.to_newtons`, with NaN where a count is missing (NaN or
+    :data:`RAW_MISSING_COUNTS`), as the recorder writes T for a missing frame."""
+    c = np.array(raw_counts, dtype=np.float64)
+    c[c == RAW_MISSING_COUNTS] = np.nan
+    return calibration.to_newtons(c)
+
+
 DEFAULT_GAIN_N_PER_COUNT = 5.0e-5
 """Default gain: 5e-5 N/count, i.e. +-419 N over the signed 24-bit range (assumption)."""
 
@@ -220,10 +233,21 @@ class LoadCellCalibrationFile:
         off, gain = self.offset_counts, self.gain_N_per_count
         if self.cables is not None:
             if sorted(self.cables) != sorted(names):
+                missing = [n for n in names if n not in self.cables]
+                extra = [n for n in self.cables if n not in names]
+                said = "; ".join(
+                    filter(
+                        None,
+                        [
+                            f"no calibration for {', '.join(missing)}" if missing else "",
+                            f"calibrates unknown {', '.join(extra)}" if extra else "",
+                        ],
+                    )
+                )
                 raise ConfigError(
                     self.path,
                     "calibration.cables",
-                    f"calibrates {list(self.cables)}, the rig has {names}",
+                    f"{said} (calibrates {list(self.cables)}, the rig has {names})",
                 )
             order = [self.cables.index(n) for n in names]
             off = off if np.ndim(off) == 0 else [off[i] for i in order]

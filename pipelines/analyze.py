@@ -82,6 +82,10 @@ class AnalyzeOptions:
         (None: no windage model and no wall corrections, flagged); matrix_file: its path.
     pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
     balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
+    loadcell_calibration_file: a load-cell calibration file (``cdpr calibrate loadcells``): every
+        tension is re-derived from the run's recorded raw counts, ``T = (counts - offset) * gain``,
+        before the reduction (None: the recorded tensions); loadcell_calibration_from: who named
+        it (``--loadcell-calibration`` or the test matrix), said in the summary and report.
     """
 
     geometry: ModelGeometry | None = None
@@ -92,6 +96,8 @@ class AnalyzeOptions:
     corrections: bool = False
     tunnel: TunnelSection | None = None
     matrix_file: str | None = None
+    loadcell_calibration_file: str | None = None
+    loadcell_calibration_from: str | None = None
 
 
 @dataclass
@@ -117,6 +123,9 @@ class RunData:
     humidity: np.ndarray | None = None
     """Relative humidity (0..1) on ``t_ns``, held from the last tunnel message (NaN where that
     message has none); None when no tunnel message carries one."""
+    recalibration: dict[str, Any] | None = None
+    """When the tensions were re-derived from the raw counts: the calibration's file, id, date and
+    the largest change against the recorded tensions per cable (N); None: tensions as recorded."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -136,13 +145,29 @@ TENSION_WINDOW_NS = 300 * 10**9
 """Tensions are decoded 5 minutes at a time into preallocated arrays (bounded memory)."""
 
 
+def _raw_columns(rig: Rig) -> list[str]:
+    return [f"raw_{n}_counts" for n in rig.cable_names]
+
+
+def _no_raw_counts(p: Path, topic: str, missing: Sequence[str]) -> ConfigError:
+    return ConfigError(
+        str(p),
+        topic,
+        f"no raw counts column {', '.join(missing)}: the tensions cannot be re-derived with "
+        "a load-cell calibration (run recorded or imported without raw counts)",
+    )
+
+
 def _tension_columns(
-    run: Any, topic: str, rig: Rig, p: Path
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    run: Any, topic: str, rig: Rig, p: Path, raw: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Times (n,), tensions (n, m) (NaN where a field is missing), the status words OR-ed over the
-    cables and the message (n,), the counter ``seq`` (None unless every message has one), read
-    window by window into arrays sized from the stream's message count."""
+    cables and the message (n,), the counter ``seq`` (None unless every message has one), and with
+    ``raw`` the ``raw_<cable>_counts`` (n, m) (NaN where missing; else None), read window by
+    window into arrays sized from the stream's message count."""
     cols = [f"T_{n}_N" for n in rig.cable_names]
+    rcols = _raw_columns(rig) if raw else []
+    R = np.empty((run.streams[topic].count, len(rcols)))
     scols = [f"status_{n}" for n in rig.cable_names] + ["status"]
     n_max = run.streams[topic].count
     t_ns = np.empty(n_max, np.int64)
@@ -159,6 +184,8 @@ def _tension_columns(
         t_ns[i : i + k] = df["t_ns"].to_numpy(np.int64)
         for j, c in enumerate(cols):
             T[i : i + k, j] = _column(df, c)
+        for j, c in enumerate(rcols):
+            R[i : i + k, j] = _column(df, c)
         for c in scols:
             if c in df:
                 st[i : i + k] |= np.nan_to_num(_column(df, c)).astype(np.int64)
@@ -173,7 +200,10 @@ def _tension_columns(
     missing = [c for c in cols if c not in seen]
     if missing:
         raise ConfigError(str(p), topic, f"field {missing[0]} missing for rig {rig.name!r}")
-    return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i]
+    missing = [c for c in rcols if c not in seen]
+    if missing:
+        raise _no_raw_counts(p, topic, missing)
+    return t_ns[:i], T[:i], st[:i], None if seq is None else seq[:i], R[:i] if raw else None
 
 
 _TUNNEL_COLUMNS = (
@@ -212,29 +242,83 @@ def _slim_table(run: Any, topic: str, names: Sequence[str]) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def load_run(path: str | os.PathLike[str]) -> RunData:
-    """Read a run file through :func:`cdpr.daq.run_reader.open_run` (only the topics the analysis
-    needs): rig attachment, tensions with status, tunnel conditions, pose (camera with its
-    covariance, else the truth file beside the run, else the rig's reference pose), events."""
+def _run_rig(run: Any, p: Path) -> Rig:
+    """The rig file attached to an open run."""
+    rigs = [k for k in run.attachments if k.startswith("rig/")]
+    if not rigs:
+        raise ConfigError(str(p), "attachments", "no rig file attached to the run")
+    rig_text = run.attachments[rigs[0]][1].decode()
+    try:
+        return rig_from_mapping(tomllib.loads(rig_text), f"{p}:{rigs[0]}")
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}:{rigs[0]}", "", f"invalid TOML: {exc}") from None
+
+
+def _run_calibration(cal_file: Any, rig: Rig, p: Path) -> Any:
+    """``cal_file`` (a :class:`cdpr.daq.loadcell.LoadCellCalibrationFile`) for the run's cables;
+    a mismatch names the missing cables and the run."""
+    try:
+        return cal_file.for_cables(rig.cable_names)
+    except ConfigError as exc:
+        raise ConfigError(exc.source, exc.key, f"{exc.problem}, for run {p.name}") from None
+
+
+def check_recalibration(path: str | os.PathLike[str], cal_file: Any) -> None:
+    """Before any output: the run's cables match ``cal_file`` and its tension stream declares
+    the ``raw_<cable>_counts`` columns (a stream without declared fields is checked on reading)."""
     from cdpr.daq.run_reader import open_run
 
     p = Path(path)
     with open_run(p) as run:
-        rigs = [k for k in run.attachments if k.startswith("rig/")]
-        if not rigs:
-            raise ConfigError(str(p), "attachments", "no rig file attached to the run")
-        rig_text = run.attachments[rigs[0]][1].decode()
-        try:
-            rig = rig_from_mapping(tomllib.loads(rig_text), f"{p}:{rigs[0]}")
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{p}:{rigs[0]}", "", f"invalid TOML: {exc}") from None
+        rig = _run_rig(run, p)
+        topic = _topic(run, "tensions")
+        fields = run.streams[topic].fields if topic else {}
+    if topic is not None and fields:
+        missing = [c for c in _raw_columns(rig) if c not in fields]
+        if missing:
+            raise _no_raw_counts(p, topic, missing)
+    _run_calibration(cal_file, rig, p)
+
+
+def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> RunData:
+    """Read a run file through :func:`cdpr.daq.run_reader.open_run` (only the topics the analysis
+    needs): rig attachment, tensions with status, tunnel conditions, pose (camera with its
+    covariance, else the truth file beside the run, else the rig's reference pose), events.
+
+    loadcell_calibration: a :class:`cdpr.daq.loadcell.LoadCellCalibrationFile`; the tensions are
+    then re-derived from the recorded ``raw_<cable>_counts`` with it
+    (:func:`cdpr.daq.loadcell.tensions_from_raw`, the recorder's conversion)."""
+    from cdpr.daq.run_reader import open_run
+
+    p = Path(path)
+    recal = None
+    with open_run(p) as run:
+        rig = _run_rig(run, p)
+        cal = (
+            None if loadcell_calibration is None else _run_calibration(loadcell_calibration, rig, p)
+        )
         topic = _topic(run, "tensions")
         n_tens = run.streams[topic].count if topic else 0
         if topic is None or n_tens < 3:
             raise ConfigError(
                 str(p), "/tensions", f"expected a tension stream, got {n_tens} messages"
             )
-        t_ns, T, st, seq = _tension_columns(run, topic, rig, p)
+        t_ns, T, st, seq, raw = _tension_columns(run, topic, rig, p, raw=cal is not None)
+        if cal is not None:
+            from cdpr.daq.loadcell import tensions_from_raw
+
+            assert raw is not None
+            T_new = tensions_from_raw(cal, raw)
+            change = np.abs(T_new - T)
+            recal = {
+                "calibration_id": loadcell_calibration.id,
+                "created_utc": loadcell_calibration.extra.get("created_utc"),
+                "max_abs_change_N": {
+                    n: float(np.nanmax(change[:, j])) if np.isfinite(change[:, j]).any() else None
+                    for j, n in enumerate(rig.cable_names)
+                },
+            }
+            T = T_new
         tun_topic = _topic(run, "tunnel")
         tun = _slim_table(run, tun_topic, _TUNNEL_COLUMNS) if tun_topic else None
         pose_topic = _topic(run, "pose")
@@ -321,7 +405,7 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity,
+                pressure_temperature, humidity, recal,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -329,13 +413,13 @@ def load_run(path: str | os.PathLike[str]) -> RunData:
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity,
+            events, truth, False, pressure_temperature, humidity, recal,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity,
+        pressure_temperature, humidity, recal,
     )  # fmt: skip
 
 
@@ -790,6 +874,17 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         f"- measured vs simulated tensions: max |ΔT| = {summary['check_max_abs_dT_N']:.3f} N "
         f"(paper: about 1 N) → **{'pass' if summary['check_pass'] else 'FAIL'}**",
     ]
+    lc = summary["loadcell_calibration"]
+    if lc["applied"]:
+        worst = max((v for v in lc["max_abs_change_N"].values() if v is not None), default=0.0)
+        lines.append(
+            f"- tensions **re-derived from the recorded raw counts** with the load-cell "
+            f"calibration `{lc['name']}` (id `{lc['id']}`, created {lc['created_utc'] or 'not given'},"
+            f" sha256 `{lc['sha256']}`, given by {lc['given_by']}): T = (counts − offset) · gain; "
+            f"largest change against the recorded tensions {worst:.4g} N"
+        )
+    else:
+        lines.append("- tensions as recorded (no load-cell re-calibration)")
     wm = red["weight_model"]
     if wm:
         lines.append(
@@ -906,12 +1001,40 @@ def _options_json(opts: AnalyzeOptions) -> Any:
 
 def run_fingerprint(path: str, opts: AnalyzeOptions) -> dict[str, Any]:
     """The input fingerprint of one run's analysis (:mod:`cdpr.pipelines.freshness`): the run
-    file, the balance calibration, the test matrix, the virtual rig's truth file beside the run
-    (absent is recorded too), the options and the software version."""
+    file, the balance calibration, the test matrix, the load-cell calibration the tensions are
+    re-derived with, the virtual rig's truth file beside the run (absent is recorded too), the
+    options and the software version."""
     p = Path(path)
     truth = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
-    inputs = [opts.balance_file, opts.matrix_file, truth]
+    inputs = [opts.balance_file, opts.matrix_file, opts.loadcell_calibration_file, truth]
     return fingerprint(p, _options_json(opts), __version__, inputs)
+
+
+def loadcell_provenance(run: RunData, opts: AnalyzeOptions) -> dict[str, Any]:
+    """Where the run's tensions come from (summary ``loadcell_calibration``; ``tensions_from`` is
+    the points.csv column): the recorded tensions, or the ones re-derived from the raw counts with
+    a load-cell calibration (file, SHA-256, id, date, who named it, largest change per cable)."""
+    if opts.loadcell_calibration_file is None or run.recalibration is None:
+        return {
+            "applied": False,
+            "tensions_from": "recorded tensions (no load-cell re-calibration)",
+        }
+    f = opts.loadcell_calibration_file
+    sha = file_sha256(f)
+    rc = run.recalibration
+    return {
+        "applied": True,
+        "file": str(f),
+        "name": Path(f).name,
+        "sha256": sha,
+        "id": rc["calibration_id"],
+        "created_utc": rc["created_utc"],
+        "given_by": opts.loadcell_calibration_from,
+        "tensions_from": f"re-derived from raw counts with {Path(f).name} sha256={sha} "
+        f"id={rc['calibration_id']}",
+        "formula": "T_N = (raw_counts - offset_counts) * gain_N_per_count",
+        "max_abs_change_N": rc["max_abs_change_N"],
+    }
 
 
 def result_folder(path: str, out_dir: str) -> Path:
@@ -927,8 +1050,15 @@ def analyze_run(
     if fp is None:
         fp = run_fingerprint(path, opts)
     try:
-        run = load_run(path)
+        lc_file = None
+        if opts.loadcell_calibration_file is not None:
+            from cdpr.daq.loadcell import read_calibration_file
+
+            lc_file = read_calibration_file(opts.loadcell_calibration_file)
+        run = load_run(path, lc_file)
         df, red = analyze_arrays(run, opts)
+        lc = loadcell_provenance(run, opts)
+        df.insert(int(df.columns.get_loc("source")) + 1, "tensions_from", lc["tensions_from"])
     except ConfigError:
         raise
     except CdprError as exc:  # name the file in the one line
@@ -950,6 +1080,7 @@ def analyze_run(
             "balance_file": None
             if opts.balance_file is None
             else f"{opts.balance_file} sha256={file_sha256(opts.balance_file)}",
+            "loadcell_calibration": lc,
             "points": len(df),
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
@@ -1045,6 +1176,12 @@ def analyze_runs(
     more than one run is to be analysed)."""
     if not paths:
         raise ConfigError("runs", "", "no run files given")
+    if opts.loadcell_calibration_file is not None:  # every run can be re-calibrated: before output
+        from cdpr.daq.loadcell import read_calibration_file
+
+        lc_file = read_calibration_file(opts.loadcell_calibration_file)
+        for p in paths:
+            check_recalibration(p, lc_file)
     fps = [run_fingerprint(p, opts) for p in paths]
     results: list[dict[str, Any] | None] = [
         None if force else _current_summary(p, out_dir, fp)

@@ -5,9 +5,13 @@ Exit codes: 0 every run reduced without a warning; 1 reduced, but some point car
 reports); 2 a run could not be analysed (one line on stderr naming the file and the problem).
 
 A run whose results in OUT record the fingerprint of its inputs now (the SHA-256 of the run, the
-balance calibration and the truth file beside it, the options, the software version) is not
-recomputed: it is listed as "current, skipped" (its recorded warnings still count); --force
-recomputes it.
+balance calibration, the load-cell calibration, the truth file beside it, the options, the
+software version) is not recomputed: it is listed as "current, skipped" (its recorded warnings
+still count); --force recomputes it.
+
+--loadcell-calibration FILE (or the test matrix's campaign.loadcell_calibration; the option wins)
+re-derives every tension from the run's recorded raw counts with FILE before the reduction; a run
+without raw counts, or whose cables FILE does not calibrate, is refused before any output (exit 2).
 """
 
 from __future__ import annotations
@@ -40,6 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--check-limit-N", type=float, default=1.0, help="pass mark of the tension check"
     )
     p.add_argument("--balance", help="balance calibration (cdpr calibrate balance output, JSON)")
+    p.add_argument(
+        "--loadcell-calibration",
+        help="load-cell calibration file (cdpr calibrate loadcells): re-derive every tension from "
+        "the run's recorded raw counts, T = (counts - offset) * gain, before the reduction "
+        "(re-calibration after the run; wins over the test matrix's "
+        "campaign.loadcell_calibration)",
+    )
     p.add_argument(
         "--matrix",
         help="test matrix (TOML, docs/campaign.md): the model geometry from [model] and the "
@@ -121,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(args.balance, "", "no such balance calibration file")
     geometry = geometry_from_args(args, need=False)
     tunnel = None
+    lc_file: str | None = args.loadcell_calibration
+    lc_from = "--loadcell-calibration"
     if args.matrix is not None:
         from cdpr.analysis.aero import ModelGeometry
 
@@ -137,6 +150,18 @@ def run(args: argparse.Namespace) -> int:
             source="test matrix",
         )
         tunnel = m.tunnel
+        if m.loadcell_calibration is not None:
+            if lc_file is None:
+                lc_file = str(m.loadcell_calibration)
+                lc_from = f"the test matrix {args.matrix} (campaign.loadcell_calibration)"
+            else:
+                lc_from += f" (over the test matrix's {m.loadcell_calibration})"
+    if lc_file is not None:
+        from cdpr.daq.loadcell import read_calibration_file
+
+        if not Path(lc_file).is_file():
+            raise ConfigError(lc_file, "", "no such load-cell calibration file")
+        read_calibration_file(lc_file)  # its schema, before any output
     paths: list[str] = []
     for r in args.runs:
         p = Path(r)
@@ -156,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         corrections=args.matrix is not None,
         tunnel=tunnel,
         matrix_file=args.matrix,
+        loadcell_calibration_file=lc_file,
+        loadcell_calibration_from=lc_from if lc_file is not None else None,
         reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
     )
     results = analyze_runs(
@@ -168,6 +195,11 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
     )
     bad = [r for r in results if "error" in r]
+    if lc_file is not None:
+        print(
+            f"load-cell calibration {lc_file} (given by {lc_from}): tensions re-derived from the "
+            "recorded raw counts"
+        )
     warned = False
     for r in results:
         if "error" in r:
