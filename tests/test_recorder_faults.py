@@ -176,6 +176,14 @@ def test_can_error_frames_and_bus_off_are_faults(tmp_path: Path) -> None:
     sender = can.Bus(interface="virtual", channel=channel, bitrate=1000000)
     try:
         with Recorder([src], path, options=RecorderOptions(startup_timeout_s=20.0)) as rec:
+            # readiness: a virtual bus only delivers to the buses open when a frame is sent, so
+            # send a frame no load cell uses until the recorder has read one (the source's bus is
+            # open), then the error frames
+            end = time.monotonic() + 30.0
+            while rec.status().sources["lc"].read == 0:
+                assert time.monotonic() < end, "the source never read a frame"
+                sender.send(can.Message(arbitration_id=0x7F0, data=[1, 2, 3]))
+                time.sleep(0.05)
             # error frames as SocketCAN reports them (CAN_ERR_FLAG; the class in the id):
             # 0x004 controller problem (error warning in data[1])
             for _ in range(3):
