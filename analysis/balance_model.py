@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from ._checks import check_trailing
 from .errors import InputError
@@ -84,6 +83,8 @@ def fit_second_order(
     dof2 = k - p2
     with np.errstate(divide="ignore", invalid="ignore"):
         F = ((ss1 - ss2) / N_QUADRATIC) / (ss2 / dof2)
+    from scipy import stats  # here: importing scipy.stats costs ~2 s at every CLI start
+
     p = np.where(np.isfinite(F), stats.f.sf(F, N_QUADRATIC, dof2), 0.0)
     if float(p.min()) >= alpha:
         return None, f"the second-order terms are not significant (smallest p = {p.min():.3g})"

@@ -895,11 +895,84 @@ def _flatten(prefix: str, v: Any, out: dict[str, Any]) -> None:
         out[prefix] = v
 
 
+def _pose_frame(rows: list[dict[str, Any]]) -> Any:
+    """``foxglove.PoseInFrame`` rows that all have the same keys in the same order, the extra
+    values numbers (or null) or lists of numbers of one length, as columns at once (the same
+    columns and values as the row-by-row path); None for anything else."""
+    import pandas as pd
+
+    keys = tuple(rows[0])
+    if any(tuple(r) != keys for r in rows) or "pose" not in keys:
+        return None
+    try:
+        pose = [r["pose"] for r in rows]
+        pos = [p["position"] for p in pose]
+        ori = [p["orientation"] for p in pose]
+        cols: dict[str, Any] = {
+            "x_m": [p["x"] for p in pos], "y_m": [p["y"] for p in pos],
+            "z_m": [p["z"] for p in pos], "qw": [q["w"] for q in ori],
+            "qx": [q["x"] for q in ori], "qy": [q["y"] for q in ori], "qz": [q["z"] for q in ori],
+        }  # fmt: skip
+    except (KeyError, TypeError):
+        return None
+    for name in ("x_m", "y_m", "z_m", "qw", "qx", "qy", "qz"):
+        a = np.array(cols[name], dtype=object)
+        if not all(v is None or type(v) in (int, float) for v in cols[name]):
+            return None
+        cols[name] = np.array(np.where(a == None, np.nan, a), dtype=np.float64)  # noqa: E711
+    order = (["covariance"] if "covariance" in keys else []) + [
+        k for k in keys if k not in ("timestamp", "pose", "covariance")
+    ]  # as the row path: the covariance right after the pose
+    text: list[str] = []
+    for key in order:
+        vals = [r[key] for r in rows]
+        first = vals[0]
+        if key == "covariance" or isinstance(first, list):
+            n = len(first) if isinstance(first, list) else -1
+            if n < 0 or any(not isinstance(v, list) or len(v) != n for v in vals):
+                return None
+            try:
+                arr = np.array(vals, dtype=np.float64).reshape(len(rows), n)
+            except (TypeError, ValueError):
+                return None
+            names = (
+                [f"cov_{i // 6}{i % 6}" for i in range(36)]
+                if key == "covariance" and n == 36
+                else [f"{key}_{i}" for i in range(n)]
+            )
+            if any(type(x) is not float for v in vals[:1] for x in v):
+                return None  # integers or nulls in a list: the row path keeps their types
+            for j, c in enumerate(names):
+                cols[c] = arr[:, j]
+        elif key in _NULLABLE_TEXT:
+            col = np.empty(len(vals), object)
+            col[:] = vals
+            cols[key] = col
+            text.append(key)
+        elif all(type(v) is int for v in vals):
+            cols[key] = np.array(vals, dtype=np.int64)
+        elif all(v is None or type(v) in (int, float) for v in vals):
+            if all(v is None for v in vals):
+                cols[key] = np.full(len(vals), np.nan)
+            else:
+                cols[key] = np.array([np.nan if v is None else v for v in vals], np.float64)
+        else:
+            return None
+    df = pd.DataFrame(cols, copy=False)
+    for key in text:  # values as recorded (a name, a number or null), as the row path keeps them
+        df[key] = pd.Series(cols[key], dtype=object, index=df.index)
+    return df
+
+
 def _rows_frame(rows: list[dict[str, Any]], schema: str) -> Any:
     import base64
 
     import pandas as pd
 
+    if schema == "foxglove.PoseInFrame" and rows:
+        fast = _pose_frame(rows)
+        if fast is not None:
+            return fast
     flat_rows = []
     for body in rows:
         out: dict[str, Any] = {}

@@ -199,3 +199,37 @@ def test_irregular_flat_bodies_take_the_json_path_with_the_same_values(tmp_path:
     assert np.array_equal(df["airspeed_mps"].to_numpy(), [20.0, 21.5, 22.0, np.nan], equal_nan=True)
     assert df["temperature_K"].tolist() == [293, 294, 295, 296]
     assert df["note"].tolist()[2] == "gust" and df["valve_open"].tolist()[3] is True
+
+
+def test_pose_columns_at_once_equal_the_row_by_row_path(tmp_path: Path, monkeypatch) -> None:
+    """The pose decoder's fast path (every row with the same keys: columns at once) gives the same
+    frame as the row-by-row path, on rows with a covariance, a lost pose (null position), integer
+    flags, a float, a list and a frame id; rows that differ take the row path."""
+    from cdpr.daq import run_reader
+
+    p = tmp_path / "run.mcap"
+    w = McapRunWriter(p)
+    for i in range(50):
+        pos = [math.nan] * 3 if i == 7 else [0.5 + i, 0.1, 0.3]
+        vals = {"position_O_m": pos, "quaternion_xyzw": [0.0, 0.0, 0.0, 1.0], "flags": i % 3}
+        vals |= {"covariance": (np.arange(36) * (i + 1.0)).tolist(), "reprojection_px": 0.1 * i}
+        vals |= {"euler_rad": [0.0, 0.01 * i, 0.0]}
+        w.write(Reading("pose", T0 + i, vals, 4 if i == 7 else 0))
+    w.finish()
+    results: list[object] = []
+    real = run_reader._pose_frame
+
+    def spy(rows: list) -> object:
+        results.append(real(rows))
+        return results[-1]
+
+    monkeypatch.setattr(run_reader, "_pose_frame", spy)
+    with open_run(p) as run:
+        fast = run.table("/pose")
+    assert results and all(r is not None for r in results)  # the columns-at-once path
+    monkeypatch.setattr(run_reader, "_pose_frame", lambda rows: None)
+    with open_run(p) as run:
+        slow = run.table("/pose")
+    pd.testing.assert_frame_equal(fast, slow)
+    assert np.isnan(fast["x_m"][7]) and fast["flags"].dtype == np.int64
+    assert fast["cov_55"][1] == 70.0 and fast["euler_rad_1"][3] == pytest.approx(0.03)
