@@ -103,9 +103,7 @@ class SerialTunnelSource(SerialLineSource):
         return out
 
     def _warn(self, out: list[Reading], t_ns: int, point: str, phase: str, problem: str) -> None:
-        self.stats.extra["test_point_warnings"] = (
-            self.stats.extra.get("test_point_warnings", 0) + 1
-        )
+        self.stats.extra["test_point_warnings"] = self.stats.extra.get("test_point_warnings", 0) + 1
         log.warning("%s: test point %s %s: %s", self.name, point, phase, problem)
         out.append(
             Reading(

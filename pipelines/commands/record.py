@@ -77,7 +77,20 @@ def record_run(
     """
     from cdpr.daq.recorder import Recorder
 
-    rec = Recorder(sources, path, metadata=metadata, attachments=attachments, options=options)
+    extra = None
+    if test_points is not None:
+        # the live view's test_point events go on /events, the topic cdpr analyze reads
+        from cdpr.daq.live import test_point_streams
+
+        extra = test_point_streams()
+    rec = Recorder(
+        sources,
+        path,
+        metadata=metadata,
+        attachments=attachments,
+        options=options,
+        extra_streams=extra,
+    )
 
     def handler(signum: int, frame: Any) -> None:
         rec.request_stop(signal.Signals(signum).name)
