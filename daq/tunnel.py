@@ -11,7 +11,8 @@ Stream ``tunnel``: ``airspeed_mps``, ``static_pressure_Pa``, ``temperature_K``, 
   becomes a reading on the ``events`` stream with the fields every test-point event has
   (``name = "test_point"``, ``point``, ``phase``, ``kind``, ``target_aoa_deg``,
   ``target_sideslip_deg``, ``target_airspeed_mps``, ``repeat_of``, ``message``; a line without
-  targets leaves ``kind`` and the targets out), stamped with the line's arrival time.  An ``end``
+  targets leaves ``kind`` and the targets out), stamped with the line's arrival time (lines that
+  arrive in one read block: 1 ns apart, in their order).  An ``end``
   with no matching open point, a ``start`` while another point is open, and a gap in the ``$TPT``
   counter are kept as they came and each adds a ``test_point_warning`` event (level warning,
   ``point``, ``phase``, ``problem``) and a logged warning; ``stats.extra["test_point_warnings"]``
@@ -78,6 +79,7 @@ class SerialTunnelSource(SerialLineSource):
         check_serial_budget(origin, self.prefix, self.baudrate, self.rate_hz, 64)
         self._open_point: str | None = None
         self._last_tpt_seq: int | None = None
+        self._last_tpt_t_ns: int | None = None
 
     def settings(self) -> dict[str, Any]:
         return {
@@ -128,6 +130,11 @@ class SerialTunnelSource(SerialLineSource):
                 f"a $TPT test-point line, but {self.prefix}.test_points is false (not read)"
             )
         p = parse_test_point_line(line)
+        # lines of one read block share its arrival time: keep their order in time (1 ns apart),
+        # so a start that interrupts an open point never carries the open point's own time
+        if self._last_tpt_t_ns is not None and t_ns <= self._last_tpt_t_ns:
+            t_ns = self._last_tpt_t_ns + 1
+        self._last_tpt_t_ns = t_ns
         out: list[Reading] = []
         values: dict[str, Any] = {
             "message": f"test point {p.label} {p.phase}",

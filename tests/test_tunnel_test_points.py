@@ -190,6 +190,21 @@ def test_lone_end_overlapping_start_and_a_lost_line_are_kept_and_said(tmp_path: 
     ev = {(e.values["point"], e.values["phase"]): e.t_ns for e in _events(rd)}
     assert [w.t_ns for w in warn] == [ev["x", "end"], ev["b", "start"], ev["c", "start"]]
 
+    # what the analysis makes of them (its planner reads only the events and the sample times):
+    # a and b stay two points, a flagged as never ended; the lone end marks nothing
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from cdpr.pipelines.analyze import plan_points
+
+    t_ev = sorted(ev.values())
+    t_ns = np.arange(t_ev[0] - 10**9, t_ev[-1] + 10**9, 10**6, dtype=np.int64)
+    events = [(e.t_ns, dict(e.values)) for e in _events(rd)]
+    plan = plan_points(SimpleNamespace(events=events, t_ns=t_ns), None)  # type: ignore[arg-type]
+    assert plan.source == "events" and plan.labels == ["a", "b", "c"]
+    assert plan.flags == ["no_end_event", "", "no_end_event"]
+
 
 def test_record_refuses_two_sources_of_test_points(tmp_path: Path) -> None:
     cfg = tmp_path / "tunnel.toml"
