@@ -252,7 +252,11 @@ transition_s = 0.3
 """
 
 
-def test_simulate_with_points_on_the_link_then_analyze_finds_them(tmp_path: Path) -> None:
+@pytest.mark.parametrize("transport", ["serial", "virtual"])
+def test_simulate_with_points_on_the_link_then_analyze_finds_them(
+    tmp_path: Path, transport: str
+) -> None:
+    # serial: the rig (and its tunnel controller) in a second process; virtual: in this one
     import pandas as pd
 
     from cdpr.daq.run_reader import open_run
@@ -262,7 +266,7 @@ def test_simulate_with_points_on_the_link_then_analyze_finds_them(tmp_path: Path
     runs, out = tmp_path / "runs", tmp_path / "an"
     res = subprocess.run(
         [*CDPR, "simulate", "--campaign", str(matrix), "--out", str(runs), "--quiet",
-         "--transport", "serial"],
+         "--transport", transport],
         capture_output=True, text=True, timeout=180,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
