@@ -10,8 +10,9 @@ limits are given, from tensions (``T_<cable>_N`` fields) outside ``[t_min_N, t_m
   ``point``, ``kind``, ``target_aoa_deg``, ``target_sideslip_deg``, ``target_airspeed_mps``,
   ``repeat_of``), the operator presses SPACE (or Enter) to start the current point and again to end
   it (then the next one is current); ``n`` / ``p`` move to the next / previous point without
-  recording.  Each start and end is an ``/event`` with ``name = "test_point"``, ``phase``
-  ``"start"``/``"end"`` and the point's fields (:class:`TestPointStepper`).
+  recording.  Each start and end is an event on ``/events`` (the topic ``cdpr analyze`` reads;
+  ``/event`` when the recorder does not declare ``events``) with ``name = "test_point"``,
+  ``phase`` ``"start"``/``"end"`` and the point's fields (:class:`TestPointStepper`).
 - **Steady**: the largest standard deviation over cables of the last ``steady_window_s`` of
   tensions below ``steady_sd_N``.
 - **Wrench**: ``W = -A T - G`` (absolute method, N and N m at P in {O} axes) from the mean tensions
@@ -48,6 +49,35 @@ def _field(point: Any, key: str) -> Any:
     if isinstance(v, np.generic):
         v = v.item()
     return "" if v is None and key in ("kind", "repeat_of") else v
+
+
+TEST_POINT_STREAM = "events"
+"""The stream (topic ``/events``) of the test-point events: the one ``cdpr analyze`` reads."""
+
+
+def test_point_streams() -> dict[str, Any]:
+    """The ``extra_streams`` a :class:`~cdpr.daq.recorder.Recorder` declares so the live view's
+    test points go on ``/events`` (``cdpr record --test-matrix``)."""
+    from .source import StreamDescription
+    from .vrig_events import EVENT_FIELDS
+
+    return {
+        TEST_POINT_STREAM: StreamDescription(
+            dict(EVENT_FIELDS), 0.0, "test points marked in the live view"
+        )
+    }
+
+
+def test_point_writer(recorder: Recorder) -> Any:
+    """The ``event`` callback of a :class:`TestPointStepper` that records on ``/events`` when
+    the recorder declares that stream (``cdpr record --test-matrix`` does), else on ``/event``."""
+    if recorder.declares(TEST_POINT_STREAM):
+        return lambda message, **kw: recorder.stream_event(TEST_POINT_STREAM, message, **kw)
+    return recorder.event
+
+
+test_point_streams.__test__ = False  # type: ignore[attr-defined]
+test_point_writer.__test__ = False  # type: ignore[attr-defined]
 
 
 class TestPointStepper:
@@ -242,7 +272,9 @@ class LiveView:
         self.steady_window_s = float(steady_window_s)
         self.steady_sd_N = float(steady_sd_N)
         self.stepper = (
-            TestPointStepper(test_points, recorder.event) if test_points is not None else None
+            TestPointStepper(test_points, test_point_writer(recorder))
+            if test_points is not None
+            else None
         )
         self._keys = _Keys(self._on_key) if keys and self.stepper is not None else None
 

@@ -431,6 +431,20 @@ class Recorder:
             Reading("event", now_ns(), {"message": message, "level": level, **extra})
         )
 
+    def declares(self, stream: str) -> bool:
+        """Whether ``stream`` is one of the ``extra_streams`` (events may go on it)."""
+        return stream in self._extra_streams
+
+    def stream_event(self, stream: str, message: str, level: str = "info", **extra: Any) -> None:
+        """Record an event on ``stream`` (declared in ``extra_streams``; e.g. the live view's
+        ``test_point`` events on ``/events``, the topic ``cdpr analyze`` reads) with the current
+        time; never dropped."""
+        if stream != "event" and stream not in self._extra_streams:
+            raise InputError(f"stream_event: {stream!r} is not declared in extra_streams")
+        self._events.append(
+            Reading(stream, now_ns(), {"message": message, "level": level, **extra})
+        )
+
     def _refresh_counters(self) -> dict[str, SourceCounters]:
         for s in self.sources:
             c = self._counters[s.name]

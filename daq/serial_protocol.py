@@ -5,6 +5,7 @@ between ``$`` and ``*`` written as two upper-case hex digits, and ``\\r\\n`` at 
 
     $LC,<seq>,<t_device_us>,<c1>,...,<cN>,<status>*<XX>\\r\\n
     $TUN,<seq>,<airspeed_mps>,<static_pressure_Pa>,<temperature_K>[,<relative_humidity>]*<XX>\\r\\n
+    $TPT,<seq>,<phase>,<label>[,<kind>,<target_aoa_deg>,<target_sideslip_deg>,<target_airspeed_mps>]*<XX>\\r\\n
 
 - ``seq``: sample counter, decimal, wraps at 2**32; a jump counts as lost samples.
 - ``t_device_us``: the amplifier's own clock, decimal microseconds (wraps at 2**32).
@@ -14,19 +15,29 @@ between ``$`` and ``*`` written as two upper-case hex digits, and ``\\r\\n`` at 
 - tunnel values: decimal floats in SI units; the optional fifth value is the relative humidity as
   a fraction 0..1 (a line without it is the original four-value line, still valid: a reader
   accepts both, a tunnel without a hygrometer never sends it).
+- ``$TPT`` (the tunnel controller announcing a test point, on the same link as ``$TUN``): its own
+  ``seq`` counter; ``phase`` ``start`` or ``end``; ``label`` a non-empty token of printable ASCII
+  without blanks, ``,``, ``*`` or ``$``; optionally the four targets together: ``kind`` (one of
+  :data:`POINT_KINDS`), angle of attack and sideslip in degrees and airspeed in m/s (decimal,
+  finite, airspeed >= 0).
 
 Example (checksum computed over ``LC,17,...,0``)::
 
     $LC,17,340000,120345,-2,0,0,0,0,0,0,0*0C\\r\\n
     $TUN,3,25.5100,101325.00,293.150*59\\r\\n
+    $TPT,0,start,alpha-a2-b0-v25.51,wind_on,2,0,25.51*4A\\r\\n
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 MAX_LINE_BYTES = 512
+POINT_KINDS = ("wind_on", "tare", "zero", "windage")
+"""The kinds of test point a ``$TPT`` line may name (those of the test matrix)."""
+TPT_PHASES = ("start", "end")
 
 
 class LineError(ValueError):
@@ -66,6 +77,23 @@ def format_tunnel_line(
     body = f"TUN,{seq % (1 << 32)},{airspeed_mps:.4f},{static_pressure_Pa:.2f},{temperature_K:.3f}"
     if relative_humidity is not None:
         body += f",{relative_humidity:.4f}"
+    return frame_line(body)
+
+
+def format_test_point_line(
+    seq: int,
+    phase: str,
+    label: str,
+    kind: str | None = None,
+    target_aoa_deg: float | None = None,
+    target_sideslip_deg: float | None = None,
+    target_airspeed_mps: float | None = None,
+) -> bytes:
+    """One ``$TPT`` line (bytes, with ``\\r\\n``); the targets are written when ``kind`` is given
+    (all four together).  No checks: a test may write a bad line on purpose."""
+    body = f"TPT,{seq % (1 << 32)},{phase},{label}"
+    if kind is not None:
+        body += f",{kind},{target_aoa_deg:g},{target_sideslip_deg:g},{target_airspeed_mps:g}"
     return frame_line(body)
 
 
@@ -111,6 +139,19 @@ class TunnelLine:
     relative_humidity: float | None = None
 
 
+@dataclass(frozen=True)
+class TestPointLine:
+    __test__ = False  # not a pytest class
+
+    seq: int
+    phase: str
+    label: str
+    kind: str | None = None
+    target_aoa_deg: float | None = None
+    target_sideslip_deg: float | None = None
+    target_airspeed_mps: float | None = None
+
+
 def parse_loadcell_line(line: bytes, n_channels: int) -> LoadCellLine:
     """Parse a ``$LC`` line with ``n_channels`` counts; :class:`LineError` if it is not one."""
     f = split_checked(line)
@@ -141,6 +182,45 @@ def parse_tunnel_line(line: bytes) -> TunnelLine:
     if rh is not None and not 0.0 <= rh <= 1.0:  # NaN fails too
         raise LineError(f"relative humidity {f[5]!r} outside 0..1")
     return out
+
+
+def is_test_point_line(line: bytes) -> bool:
+    """Whether ``line`` claims to be a ``$TPT`` sentence (before any check)."""
+    return line.startswith(b"$TPT,") or line.startswith(b"$TPT*")
+
+
+def _label_ok(label: str) -> bool:
+    return bool(label) and all(33 <= ord(c) <= 126 and c not in ",*$" for c in label)
+
+
+def parse_test_point_line(line: bytes) -> TestPointLine:
+    """Parse a ``$TPT`` line; :class:`LineError` (with the reason) if it is not a valid one."""
+    f = split_checked(line)
+    if f[0] != "TPT":
+        raise LineError(f"unexpected sentence {f[0]!r} (expected 'TPT')")
+    if len(f) not in (4, 8):
+        raise LineError(f"expected 3 or 7 fields after TPT, got {len(f) - 1}")
+    try:
+        seq = int(f[1])
+    except ValueError:
+        raise LineError(f"test-point seq {f[1]!r} is not an integer") from None
+    if f[2] not in TPT_PHASES:
+        raise LineError(f"test-point phase {f[2]!r}: expected 'start' or 'end'")
+    if not _label_ok(f[3]):
+        raise LineError(
+            f"test-point label {f[3]!r}: expected a non-empty token without blanks, ',', '*', '$'"
+        )
+    if len(f) == 4:
+        return TestPointLine(seq, f[2], f[3])
+    if f[4] not in POINT_KINDS:
+        raise LineError(f"test-point kind {f[4]!r}: expected one of {list(POINT_KINDS)}")
+    try:
+        aoa, beta, v = (float(x) for x in f[5:8])
+    except ValueError:
+        raise LineError("a test-point target is not a number") from None
+    if not all(math.isfinite(x) for x in (aoa, beta, v)) or v < 0:
+        raise LineError(f"test-point targets {f[5:8]}: expected finite numbers, airspeed >= 0")
+    return TestPointLine(seq, f[2], f[3], f[4], aoa, beta, v)
 
 
 class LineSplitter:

@@ -170,7 +170,11 @@ class SerialLineSource(Source):
                         out.append(self._bad(j, "over-long line without a line end", t_ns))
                     for line in lines:
                         try:
-                            out.append(self._parse(line, t_ns))
+                            r = self._parse(line, t_ns)
+                            if isinstance(r, list):
+                                out.extend(r)
+                            else:
+                                out.append(r)
                         except LineError as exc:
                             out.append(self._bad(line, str(exc), t_ns))
                 if out or time.monotonic() >= deadline:
@@ -193,8 +197,9 @@ class SerialLineSource(Source):
         self._last_seq = seq
 
     @abstractmethod
-    def _parse(self, line: bytes, t_ns: int) -> Reading:
-        """One good line as a reading (a subclass's protocol); raise LineError for a bad one."""
+    def _parse(self, line: bytes, t_ns: int) -> Reading | list[Reading]:
+        """One good line as a reading, or several (a subclass's protocol); raise LineError for a
+        bad one."""
 
 
 class SerialLoadCellSource(SerialLineSource):

@@ -109,6 +109,7 @@ class SerialTunnelSettings(Schema):
     baudrate: Baudrate = 115200
     rate_hz: Rate_hz = 10.0
     reopen_backoff_s: Backoff_s = Field(default_factory=lambda: [0.05, 2.0])
+    test_points: bool = False
 
 
 class TunnelPoint(Schema):

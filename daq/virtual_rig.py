@@ -528,6 +528,24 @@ class VirtualRig:
         t_dev_us = int(self.t_rel_ns[k] // 1000)
         return format_loadcell_line(k, t_dev_us, self.counts[k].tolist(), st)
 
+    def test_point_link_events(self) -> tuple[np.ndarray, list[bytes]]:
+        """The ``$TPT`` lines the tunnel controller sends when the schedule says
+        ``test_points_on_link``: their schedule times (ns, int64) and the lines, one per
+        :meth:`test_point_events` event (its own counter from 0); empty otherwise."""
+        from .serial_protocol import format_test_point_line
+
+        if not self.schedule.test_points_on_link:
+            return np.zeros(0, np.int64), []
+        evs = self.test_point_events()
+        lines = [
+            format_test_point_line(
+                j, e["phase"], e["point"], e["kind"], e["target_aoa_deg"],
+                e["target_sideslip_deg"], e["target_airspeed_mps"],
+            )
+            for j, e in enumerate(evs)
+        ]  # fmt: skip
+        return np.array([e["t_rel_ns"] for e in evs], np.int64), lines
+
     def tunnel_line(self, j: int) -> bytes:
         from .serial_protocol import format_tunnel_line
 
@@ -593,6 +611,7 @@ class VirtualRig:
                     "port": str(tunnel_link),
                     "baudrate": 115200,
                     "rate_hz": self.schedule.tunnel_rate_hz,
+                    "test_points": self.schedule.test_points_on_link,
                 },
             )
         return out

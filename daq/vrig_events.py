@@ -6,6 +6,11 @@ a clock giving the rig's host start time and time scale; once the rig has starte
 event when its host time ``t0_ns + t_rel_ns / speed`` has passed, stamped with that time, as a
 ``Reading("events", ...)`` (foxglove.Log on topic ``/events``, ``name == "test_point"``).  It is
 exhausted once every event has gone out.
+
+When the schedule sends its test points on the tunnel link (``test_points_on_link``), those
+``$TPT`` lines are the run's ``test_point`` events, and ``cdpr simulate`` builds this source with
+``stream="events_schedule"`` and ``event_name=SCHEDULE_EVENT_NAME``: the schedule's own events are
+kept (topic ``/events_schedule``), never a second set of ``test_point`` events.
 """
 
 from __future__ import annotations
@@ -15,6 +20,9 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from .source import FieldDescription, Reading, Source, StreamDescription, now_ns
+
+SCHEDULE_EVENT_NAME = "test_point_schedule"
+"""``name`` of the schedule's test-point events when the tunnel link carries the points."""
 
 EVENT_FIELDS = {
     "message": FieldDescription("", "str"),
@@ -44,17 +52,25 @@ class TestPointEventSource(Source):
         name: str,
         events: Sequence[Mapping[str, Any]],
         clock: Callable[[], tuple[int | None, float]],
+        stream: str = "events",
+        event_name: str | None = None,
     ) -> None:
         super().__init__(name)
         self._events = sorted(events, key=lambda e: int(e["t_rel_ns"]))
+        self.stream = stream
+        self.event_name = event_name
         self._clock = clock
         self._next = 0
 
     def describe(self) -> dict[str, StreamDescription]:
-        return {"events": StreamDescription(dict(EVENT_FIELDS), 0.0, "test-point events")}
+        what = "test-point events" if self.event_name is None else "the schedule's test points"
+        return {self.stream: StreamDescription(dict(EVENT_FIELDS), 0.0, what)}
 
     def settings(self) -> dict[str, Any]:
-        return {"n_events": len(self._events)}
+        out: dict[str, Any] = {"n_events": len(self._events)}
+        if self.event_name is not None:
+            out.update(stream=self.stream, event_name=self.event_name)
+        return out
 
     @property
     def exhausted(self) -> bool:
@@ -85,6 +101,8 @@ class TestPointEventSource(Source):
                     break
                 time.sleep((t_ns - now) * 1e-9)
             values = {k: v for k, v in ev.items() if k != "t_rel_ns"}
-            out.append(Reading("events", t_ns, values))
+            if self.event_name is not None:
+                values["name"] = self.event_name
+            out.append(Reading(self.stream, t_ns, values))
             self._next += 1
         return out

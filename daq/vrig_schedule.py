@@ -128,6 +128,7 @@ class Schedule:
     sensor: SensorModel = field(default_factory=SensorModel)
     aero: AeroModel = field(default_factory=AeroModel)
     source: str = "<memory>"
+    test_points_on_link: bool = False
 
     @property
     def duration_s(self) -> float:
@@ -156,6 +157,7 @@ class ScheduleSection(Schema):
     method: Text = "exact"
     seed: int = 0
     bitrate: Annotated[int, Field(gt=0, le=MAX_BITRATE)] = 1_000_000
+    test_points_on_link: bool = False
 
 
 class SegmentSection(Schema):
@@ -335,6 +337,7 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
         sensor=SensorModel(**kw),
         aero=aero_from_mapping(f.aero, source),
         source=source,
+        test_points_on_link=sch.test_points_on_link,
     )
 
 

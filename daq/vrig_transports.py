@@ -49,6 +49,7 @@ class RigRun:
         self.samples_sent = 0
         self.frames_sent = 0
         self.tunnel_sent = 0
+        self.test_points_sent = 0
         self.error: BaseException | None = None
         self.done = threading.Event()
         self.started = threading.Event()
@@ -152,13 +153,22 @@ class RigRun:
             vr.speed = self.speed
             self.started.set()
             lat_ns = int(vr.schedule.sensor.latency_s * 1e9)
-            ev_t = np.concatenate([vr.t_rel_ns + lat_ns, vr.tunnel_t_rel_ns])
+            # the controller's $TPT lines (schedule test_points_on_link) go out on the tunnel link
+            tpt_t, tpt_lines = (
+                vr.test_point_link_events()
+                if self._tunnel_port is not None
+                else (np.zeros(0, np.int64), [])
+            )
+            nt, np_ = vr.tunnel_t_rel_ns.shape[0], tpt_t.shape[0]
+            ev_t = np.concatenate([vr.t_rel_ns + lat_ns, vr.tunnel_t_rel_ns, tpt_t])
             ev_kind = np.concatenate(
-                [np.zeros(vr.n_samples, np.int8), np.ones(vr.tunnel_t_rel_ns.shape[0], np.int8)]
+                [
+                    np.zeros(vr.n_samples, np.int8),
+                    np.ones(nt, np.int8),
+                    np.full(np_, 2, np.int8),
+                ]
             )
-            ev_idx = np.concatenate(
-                [np.arange(vr.n_samples), np.arange(vr.tunnel_t_rel_ns.shape[0])]
-            )
+            ev_idx = np.concatenate([np.arange(vr.n_samples), np.arange(nt), np.arange(np_)])
             order = np.argsort(ev_t, kind="stable")
             vanished = False
             mono0 = time.monotonic_ns()
@@ -175,6 +185,10 @@ class RigRun:
                 if ev_kind[e] == 1:
                     if self._tunnel_port is not None:
                         self.tunnel_sent += int(self._tunnel_port.write(vr.tunnel_line(k)))
+                    continue
+                if ev_kind[e] == 2:
+                    assert self._tunnel_port is not None
+                    self.test_points_sent += int(self._tunnel_port.write(tpt_lines[k]))
                     continue
                 up = bool(vr.port_up[k])
                 if not up and not vanished and self._vanishers:

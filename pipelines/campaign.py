@@ -89,7 +89,10 @@ _POINT = {
     "repeat_of",
     "position_O_m",
 }
-_VRIG = {"rate_hz", "tunnel_rate_hz", "method", "seed", "bitrate", "sensor", "aero", "faults"}
+_VRIG = {
+    "rate_hz", "tunnel_rate_hz", "method", "seed", "bitrate", "sensor", "aero", "faults",
+    "test_points_on_link",
+}  # fmt: skip
 _AERO_FROM_MODEL = ("c_ref_m", "b_ref_m", "s_ref_m2", "mrp_P_m")
 
 

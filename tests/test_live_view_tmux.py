@@ -113,7 +113,9 @@ def test_live_view_through_tmux(tmp_path: Path) -> None:
     finally:
         subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True)
         run.stop()
-    ev = [b for _, b in read_run(out).messages["/event"] if b.get("name") == "test_point"]
+    # on /events, the topic cdpr analyze reads (not the recorder's /event)
+    assert not [b for _, b in read_run(out).messages["/event"] if b.get("name") == "test_point"]
+    ev = [b for _, b in read_run(out).messages["/events"] if b.get("name") == "test_point"]
     assert [(b["point"], b["phase"]) for b in ev] == [("tp1", "start"), ("tp1", "end")]
     for b in ev:
         assert b["kind"] == "polar" and b["target_aoa_deg"] == 5.0

@@ -38,3 +38,34 @@ def test_the_matrix_points_become_test_point_events_in_run_order() -> None:
     ]  # fmt: skip
     assert all(kw["name"] == "test_point" for _, kw in said)
     assert said[2][1]["target_aoa_deg"] == -4.0 and said[2][1]["kind"] == "tare"
+
+
+def test_live_view_test_points_go_on_the_topic_analyze_reads(tmp_path: Path) -> None:
+    """``cdpr record --test-matrix`` declares ``/events`` (record_run: ``test_point_streams``):
+    the points the operator marks land there, not on the recorder's ``/event``, which the
+    analysis does not read for test points."""
+    import cdpr.daq.drivers  # noqa: F401
+    from cdpr.daq.live import LiveView, test_point_streams
+    from cdpr.daq.recorder import Recorder
+    from cdpr.daq.run_reader import open_run
+    from cdpr.daq.source import create_source
+    from cdpr.pipelines.analyze import _topic
+
+    src = create_source("manual_tunnel", "tun", {"airspeed_mps": 0.0, "rate_hz": 20.0})
+    path = tmp_path / "run.mcap"
+    points = _test_points(str(MATRIX))[:2]
+    with Recorder([src], path, extra_streams=test_point_streams()) as rec:
+        lv = LiveView(rec, test_points=points, keys=False)
+        assert lv.stepper is not None
+        for _ in range(3):  # zero start, end; tare start (ended by finish)
+            lv.stepper.toggle()
+        lv.stepper.finish()
+    with open_run(path) as run:
+        assert _topic(run, "events") == "/events"
+        ev = run.table("/events")
+        log = run.table("/event")
+    assert list(zip(ev["point"], ev["phase"], strict=True)) == [
+        ("zero-start", "start"), ("zero-start", "end"), ("tare-a-4-b0-v0", "start"),
+        ("tare-a-4-b0-v0", "end"),
+    ]  # fmt: skip
+    assert set(ev["name"]) == {"test_point"} and "test_point" not in set(log.get("name", []))

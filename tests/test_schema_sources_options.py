@@ -169,7 +169,12 @@ def test_every_kind_loads_and_builds_with_its_values(tmp_path):
         "offset_counts": [0.0, 0.0],
         "gain_N_per_count": [1e-4, 2e-4],
     }
-    assert s["tun"].settings() == {"port": "/dev/ttyUSB8", "baudrate": 57600, "rate_hz": 5.0}
+    assert s["tun"].settings() == {
+        "port": "/dev/ttyUSB8",
+        "baudrate": 57600,
+        "rate_hz": 5.0,
+        "test_points": False,
+    }
     assert s["hand"].settings() == {
         "airspeed_mps": 25.51,
         "static_pressure_Pa": 101325.0,

@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--test-matrix",
         help="test matrix (TOML, docs/campaign.md): the live view steps through its points, "
-        "SPACE starts and ends the current one (a 'test_point' event each)",
+        "SPACE starts and ends the current one (a 'test_point' event each); refused with a "
+        "serial_tunnel source that reads the controller's test points (test_points = true)",
     )
     p.add_argument(
         "--allow-degraded",
@@ -76,7 +77,20 @@ def record_run(
     """
     from cdpr.daq.recorder import Recorder
 
-    rec = Recorder(sources, path, metadata=metadata, attachments=attachments, options=options)
+    extra = None
+    if test_points is not None:
+        # the live view's test_point events go on /events, the topic cdpr analyze reads
+        from cdpr.daq.live import test_point_streams
+
+        extra = test_point_streams()
+    rec = Recorder(
+        sources,
+        path,
+        metadata=metadata,
+        attachments=attachments,
+        options=options,
+        extra_streams=extra,
+    )
 
     def handler(signum: int, frame: Any) -> None:
         rec.request_stop(signal.Signals(signum).name)
@@ -138,6 +152,23 @@ def _test_points(path: str) -> list[Any]:
     return points
 
 
+def _one_test_point_source(origin: str, sources: Sequence[Any], matrix: str) -> None:
+    """Refuse two sources of ``test_point`` events: the live view stepping through ``--test-matrix``
+    and a tunnel link that reads the controller's ``$TPT`` lines (``test_points = true``).  One run
+    holds one set of test points (docs/campaign.md, "Test points from the tunnel controller")."""
+    from cdpr.analysis.errors import ConfigError
+
+    for sc in sources:
+        if sc.kind == "serial_tunnel" and sc.settings.get("test_points") is True:
+            raise ConfigError(
+                origin,
+                f"sources.{sc.name}.test_points",
+                f"the tunnel link marks the test points and --test-matrix {matrix} would mark "
+                "them too: only one may; set test_points = false to step through the matrix in "
+                "the live view, or drop --test-matrix to take the controller's points",
+            )
+
+
 def _set_priority(nice: int) -> tuple[str, str]:
     """Set this thread's nice value (threads started later inherit it); (level, event message)."""
     import os
@@ -180,6 +211,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_daq_config(args.config)
     test_points = _test_points(args.test_matrix) if args.test_matrix else None
+    if test_points is not None:
+        _one_test_point_source(str(cfg.path), cfg.sources, args.test_matrix)
     if args.duration is not None and not args.duration > 0:
         from cdpr.analysis.errors import InputError
 

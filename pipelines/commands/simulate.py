@@ -287,12 +287,28 @@ def run(args: argparse.Namespace) -> int:
             settings["camera"] = ("virtual_camera", sources[-1].settings())
         events = vr.test_point_events()
         if events:
-            from cdpr.daq.vrig_events import TestPointEventSource
+            from cdpr.daq.vrig_events import SCHEDULE_EVENT_NAME, TestPointEventSource
 
-            sources.append(
-                TestPointEventSource("events", events, clock=lambda: (vr.t0_ns, vr.speed))
-            )
-            settings["events"] = ("test_point_events", sources[-1].settings())
+            if schedule.test_points_on_link:
+                # one source of test_point events: the tunnel link's $TPT lines; the schedule's
+                # own are kept apart (/events_schedule, name test_point_schedule) for comparison
+                sources.append(
+                    TestPointEventSource(
+                        "events_schedule", events, clock=lambda: (vr.t0_ns, vr.speed),
+                        stream="events_schedule", event_name=SCHEDULE_EVENT_NAME,
+                    )
+                )  # fmt: skip
+                print(
+                    "test points: from the tunnel link ($TPT lines, /events); the schedule's own "
+                    f"are kept on /events_schedule as '{SCHEDULE_EVENT_NAME}'",
+                    flush=True,
+                )
+                settings["events_schedule"] = ("test_point_events", sources[-1].settings())
+            else:
+                sources.append(
+                    TestPointEventSource("events", events, clock=lambda: (vr.t0_ns, vr.speed))
+                )
+                settings["events"] = ("test_point_events", sources[-1].settings())
         if args.transport == "virtual":
             # the transports exist once the RigRun is built; it sends only after start()
             rig_run = RigRun(vr, "virtual", channel, None, tunnel_link, 0.0, args.speed)
