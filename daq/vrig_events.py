@@ -4,8 +4,8 @@
 :meth:`cdpr.daq.virtual_rig.VirtualRig.test_point_events` (``t_rel_ns`` from the schedule start) and
 a clock giving the rig's host start time and time scale; once the rig has started, it emits each
 event when its host time ``t0_ns + t_rel_ns / speed`` has passed, stamped with that time, as a
-``Reading("events", ...)`` (foxglove.Log on topic ``/events``, ``name == "test_point"``).  It is
-exhausted once every event has gone out.
+``Reading("events", ...)`` (foxglove.Log on topic ``/events``, ``name == "test_point"``).  After
+the last event it idles until the run stops (never "ended early").
 
 When the schedule sends its test points on the tunnel link (``test_points_on_link``), those
 ``$TPT`` lines are the run's ``test_point`` events, and ``cdpr simulate`` builds this source with
@@ -73,7 +73,10 @@ class TestPointEventSource(Source):
         return out
 
     @property
-    def exhausted(self) -> bool:
+    def done(self) -> bool:
+        """Every event has gone out.  The source then idles until the run stops: it is not
+        ``exhausted`` (the recorder's word for a source whose data ended early, a fault), since an
+        event source has nothing to say between events and after the last one."""
         return self._next >= len(self._events)
 
     def _open(self) -> None:
@@ -84,12 +87,12 @@ class TestPointEventSource(Source):
 
     def _read(self, timeout_s: float) -> list[Reading]:
         t0, speed = self._clock()
-        if t0 is None or self.exhausted:
+        if t0 is None or self.done:
             time.sleep(timeout_s)
             return []
         out: list[Reading] = []
         deadline = now_ns() + int(timeout_s * 1e9)
-        while not self.exhausted:
+        while not self.done:
             ev = self._events[self._next]
             t_ns = t0 + int(round(int(ev["t_rel_ns"]) / speed))
             now = now_ns()

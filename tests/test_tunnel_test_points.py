@@ -270,6 +270,7 @@ def test_simulate_with_points_on_the_link_then_analyze_finds_them(
         capture_output=True, text=True, timeout=180,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
+    assert "DEGRADED" not in res.stderr, res.stderr  # the events source idles after its last
     assert "test points: from the tunnel link" in res.stdout
     (run,) = runs.glob("*.mcap")
     # the schedule by hand: the sweeps expand to these labels, in this order
