@@ -698,6 +698,22 @@ class _ChunkedWriter:
 # writer
 
 
+_FLOAT_DTYPES = ("float64", "float32", "float")
+
+
+@dataclass
+class _BlockStream:
+    """The writer's state of one column-block stream: the samples not yet written, the view's
+    channel, its last 20 ms bin and message count, and the integer fields (a missing value, NaN in
+    the block, is left out of a view message rather than written as null)."""
+
+    buf: column_blocks.BlockBuffer
+    view_cid: int
+    ints: set[str]
+    last_bin: int = -1
+    view_count: int = 0
+
+
 class McapRunWriter:
     """An MCAP run file being written: channels per stream, bounded chunks, fsync, never overwrite.
 
@@ -741,10 +757,7 @@ class McapRunWriter:
         self._channels: dict[str, int] = {}
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
-        # block streams (cdpr.daq.column_blocks): buffered samples, view channel, block count
-        self._blocks: dict[str, column_blocks.BlockBuffer] = {}
-        self._block_view: dict[str, list[int]] = {}
-        self._block_ints: dict[str, set[str]] = {}
+        self._blocks: dict[str, _BlockStream] = {}  # column-block streams (column_blocks)
         #: samples written per stream (a block stream's samples, not its block messages)
         self.counts: dict[str, int] = {}
         self.flushes = 0
@@ -828,16 +841,13 @@ class McapRunWriter:
         self._codecs[stream] = codec.encode
         # a block holds at most about one chunk of samples (so chunk_size bounds a block too)
         ncols = len(description.fields) + 2
-        self._blocks[stream] = column_blocks.BlockBuffer(
-            max(1, min(column_blocks.MAX_BLOCK_SAMPLES, self._chunk_size // (8 * ncols)))
+        self._blocks[stream] = _BlockStream(
+            column_blocks.BlockBuffer(
+                max(1, min(column_blocks.MAX_BLOCK_SAMPLES, self._chunk_size // (8 * ncols)))
+            ),
+            vcid,
+            {k for k, f in description.fields.items() if f.dtype not in _FLOAT_DTYPES},
         )
-        self._block_view[stream] = [vcid, -1, 0]  # channel, last view bin, view messages
-        # integer fields: a missing value (NaN in the block) is left out of the view, not null
-        self._block_ints[stream] = {
-            k
-            for k, f in description.fields.items()
-            if f.dtype not in ("float64", "float32", "float")
-        }
         self.counts[stream] = 0
         return cid
 
@@ -850,42 +860,41 @@ class McapRunWriter:
         :data:`~cdpr.daq.column_blocks.MAX_BLOCK_SAMPLES`) and their per-sample view messages."""
         import numpy as np
 
-        got = self._blocks[stream].take()
+        bs = self._blocks[stream]
+        buf = bs.buf
+        got = buf.take()
         if got is None:
             return
         t_all, cols_all = got
         cid = self._channels[stream]
-        view = self._block_view[stream]
         add = self._writer.add_message
-        step = self._blocks[stream].max_samples
+        step = buf.max_samples
         for a in range(0, len(t_all), step):
             t = t_all[a : a + step]
             cols = {k: v[a : a + step] for k, v in cols_all.items()}
-            buf = self._blocks[stream]
             body = column_blocks.encode_block(t, cols, buf.written)
             add(cid, int(t[-1]), body, int(t[0]), buf.messages)
             buf.messages += 1
             buf.written += len(t)
             # the view: the first sample in each VIEW_PERIOD_NS bin of time
             bins = t // column_blocks.VIEW_PERIOD_NS
-            pick = np.flatnonzero(np.diff(bins, prepend=view[1]) != 0)
-            view[1] = int(bins[-1])
+            pick = np.flatnonzero(np.diff(bins, prepend=bs.last_bin) != 0)
+            bs.last_bin = int(bins[-1])
             if len(pick):
                 names = list(cols)
                 rows = [cols[n][pick].tolist() for n in names]
-                ints = self._block_ints[stream]
                 for j, i in enumerate(pick.tolist()):
                     body_i = {
                         n: r[j]
                         for n, r in zip(names, rows, strict=True)
-                        if not (n in ints and r[j] != r[j])  # NaN: missing
+                        if not (n in bs.ints and r[j] != r[j])  # NaN: missing, not null
                     }
-                    add(view[0], int(t[i]), encode_json(body_i), int(t[i]), view[2])
-                    view[2] += 1
+                    add(bs.view_cid, int(t[i]), encode_json(body_i), int(t[i]), bs.view_count)
+                    bs.view_count += 1
 
     def _emit_blocks(self) -> None:
-        for stream, buf in self._blocks.items():
-            if len(buf):
+        for stream, bs in self._blocks.items():
+            if len(bs.buf):
                 self._emit_block(stream)
 
     def write_columns(
@@ -900,8 +909,9 @@ class McapRunWriter:
         t_ns = np.asarray(t_ns, np.int64)
         if stream not in self._channels:
             self.add_stream(stream, None)
-        buf = self._blocks.get(stream)
-        if buf is not None:
+        bs = self._blocks.get(stream)
+        if bs is not None:
+            buf = bs.buf
             buf.add_columns(t_ns, columns, status)
             self.counts[stream] += len(t_ns)
             if len(buf) >= buf.max_samples:
@@ -941,8 +951,9 @@ class McapRunWriter:
             cid = channels.get(stream)
             if cid is None:
                 cid = self.add_stream(stream, None)
-            buf = blocks.get(stream)
-            if buf is not None:
+            bs = blocks.get(stream)
+            if bs is not None:
+                buf = bs.buf
                 buf.add_reading(r.t_ns, r.values, r.status)
                 counts[stream] += 1
                 if buf.n >= buf.max_samples:

@@ -1199,12 +1199,21 @@ def analyze_runs(
 
             cluster = None
             if scheduler is None:
-                cluster = LocalCluster(
-                    n_workers=max(1, min(workers, len(todo))),
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                )
+                import dask
+
+                # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set, which also fixes
+                # glibc's mmap threshold: every array over 128 KiB is then mapped and unmapped
+                # anew (page faults: a worker spent 4x the system time of one process on the
+                # same runs); the workers get glibc's own adaptive thresholds instead
+                environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+                environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+                with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+                    cluster = LocalCluster(
+                        n_workers=max(1, min(workers, len(todo))),
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                    )
             client = Client(scheduler or cluster)
             try:
                 futures = {
