@@ -100,7 +100,7 @@ def bench_run_1h(tmp: Path) -> dict:
     }
 
 
-def bench_scaling(tmp: Path, n_runs: int = 4, duration_s: float = 1800.0) -> dict:
+def bench_scaling(tmp: Path, n_runs: int = 4, duration_s: float = 3600.0) -> dict:
     runs = tmp / "batch"
     runs.mkdir()
     for k in range(n_runs):

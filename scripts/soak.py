@@ -164,8 +164,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"soak {args.minutes:g} min at {args.rate_hz:g} Hz ({4 * args.rate_hz:g} frames/s)")
     print(f"  record exit code        {rc}")
     print(f"  frames sent / recorded  {sent} / {frames} (file complete: {node['complete']})")
-    print(f"  tensions, tunnel        {node['topics'].get('/tensions')}, "
-          f"{node['topics'].get('/tunnel')}")  # fmt: skip
+    counts = {**node["topics"], **node["samples"]}  # column-block streams: samples
+    print(f"  tensions, tunnel        {counts.get('/tensions')}, "
+          f"{counts.get('/tunnel')}")  # fmt: skip
     print(f"  dropped by the adapter  {adapter_dropped} frames (pty full: the reader fell behind)")
     print(f"  dropped                 {end_md['dropped_total']}")
     print(f"  faults                  {end_md.get('faults', '[]')}")
