@@ -105,6 +105,16 @@ def _fields_of(schema: dict[str, Any] | None, units: dict[str, str]) -> dict[str
     return out
 
 
+def _in_window(t: np.ndarray, start_ns: int | None, stop_ns: int | None) -> np.ndarray:
+    """(n,) bool: ``start_ns <= t < stop_ns`` (None: no bound on that side)."""
+    keep = np.ones(len(t), bool)
+    if start_ns is not None:
+        keep &= t >= start_ns
+    if stop_ns is not None:
+        keep &= t < stop_ns
+    return keep
+
+
 def _block_fields(text: str) -> dict[str, FieldInfo]:
     """Per-sample fields of a block channel from its ``fields`` metadata (name -> [dtype, unit])."""
     try:
@@ -399,11 +409,7 @@ class Run:
             if not len(idx):
                 continue
             t = idx[:, 0].astype(np.int64)
-            keep = np.ones(len(t), bool)
-            if start_ns is not None:
-                keep &= t >= start_ns
-            if stop_ns is not None:
-                keep &= t < stop_ns
+            keep = _in_window(t, start_ns, stop_ns)
             if not keep.all():
                 idx, t = idx[keep], t[keep]
                 if not len(t):
@@ -471,12 +477,7 @@ class Run:
         for ci, idx in self._block_index(cid, start_ns, stop_ns):
             bodies += self._extract(ci, idx)
         cols = column_blocks.decode_blocks(bodies, str(self.path))
-        t = cols["t_ns"]
-        keep = np.ones(len(t), bool)
-        if start_ns is not None:
-            keep &= t >= start_ns
-        if stop_ns is not None:
-            keep &= t < stop_ns
+        keep = _in_window(cols["t_ns"], start_ns, stop_ns)
         if not keep.all():
             cols = {k: v[keep] for k, v in cols.items()}
         if len(cols["t_ns"]) > 1 and np.any(np.diff(cols["t_ns"]) < 0):
