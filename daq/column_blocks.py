@@ -65,7 +65,13 @@ MAX_BLOCK_SAMPLES = 2048
 _INT, _FLOAT = "<i8", "<f8"
 _DATA_KEY = b',"data":"'
 _DTYPES = {_INT: np.dtype(_INT), _FLOAT: np.dtype(_FLOAT)}
-_NUMERIC = {"float64", "float32", "float", "int64", "int32", "int", "uint8", "bool"}
+_INT_DTYPES = frozenset({"int64", "int32", "int", "uint8", "bool"})
+_NUMERIC = _INT_DTYPES | {"float64", "float32", "float"}
+
+
+def int_fields(description: Any) -> set[str]:
+    """The integer fields of a block stream's description (stored as ``<i8``)."""
+    return {name for name, f in description.fields.items() if f.dtype in _INT_DTYPES}
 
 
 def uses_blocks(description: Any, any_rate: bool = False) -> bool:
@@ -111,9 +117,9 @@ def block_schema(stream: str, description: Any) -> dict[str, Any]:
 def channel_metadata(description: Any) -> dict[str, str]:
     """The block channel's metadata: storage kind and the per-sample fields (name -> [dtype,
     unit])."""
+    ints = int_fields(description)
     fields = {
-        name: [_INT if f.dtype in ("int64", "int32", "int", "uint8", "bool") else _FLOAT, f.unit]
-        for name, f in description.fields.items()
+        name: [_INT if name in ints else _FLOAT, f.unit] for name, f in description.fields.items()
     }
     fields["status"] = [_INT, ""]
     return {"storage": STORAGE, "fields": json.dumps(fields, separators=(",", ":"))}
@@ -253,12 +259,7 @@ class BlockBuffer:
     def _close_rows(self) -> None:
         if not self._rows:
             return
-        names: list[str] = []
-        for r in self._rows[:1] + self._rows[-1:]:
-            names += [k for k in r if k not in names]
-        if any(r.keys() != self._rows[0].keys() for r in self._rows):
-            for r in self._rows:
-                names += [k for k in r if k not in names]
+        names = list(dict.fromkeys(k for r in self._rows for k in r))  # every key, first seen
         cols = {k: _column([r.get(k) for r in self._rows]) for k in names}
         self._pieces.append((np.asarray(self._t, np.int64), cols))
         self._t, self._rows = [], []

@@ -698,9 +698,6 @@ class _ChunkedWriter:
 # writer
 
 
-_FLOAT_DTYPES = ("float64", "float32", "float")
-
-
 @dataclass
 class _BlockStream:
     """The writer's state of one column-block stream: the samples not yet written, the view's
@@ -846,7 +843,7 @@ class McapRunWriter:
                 max(1, min(column_blocks.MAX_BLOCK_SAMPLES, self._chunk_size // (8 * ncols)))
             ),
             vcid,
-            {k for k, f in description.fields.items() if f.dtype not in _FLOAT_DTYPES},
+            column_blocks.int_fields(description),
         )
         self.counts[stream] = 0
         return cid
