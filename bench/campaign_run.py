@@ -118,7 +118,7 @@ def write_campaign_run(
     sd_pose = np.array([0.05e-3] * 3 + [np.deg2rad(0.01)] * 3)
     cov = np.diag(sd_pose**2).reshape(-1).tolist()
     path = Path(path)
-    w = McapRunWriter(path, chunk_size=1024 * 1024)
+    w = McapRunWriter(path, chunk_size=1024 * 1024, background_compression=True)
     w.add_attachment(f"rig/{RIG_FILE.name}", text.encode())
     fields = {f"T_{c}_N": FieldDescription("N") for c in CABLES}
     fields.update({f"status_{c}": FieldDescription("", "int64") for c in CABLES})

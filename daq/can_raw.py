@@ -263,9 +263,101 @@ def encode_can_frames(messages: Sequence[Any]) -> FrameRecords:
     return encode_columns(ids, flags, data, lens, t64, ch0, rx)
 
 
+# -------------------------------------------------------------------------------------------------
+# frame blocks: the bulk layout (``cdpr import``): frames as column blocks
+# (:mod:`cdpr.daq.column_blocks`, channel metadata ``layout = "can_frames"``)
+
+#: the ``layout`` of a channel of frame blocks
+BLOCK_LAYOUT = "can_frames"
+#: the 0/1 fields of a frame, each a uint8 column of a frame block
+FLAG_FIELDS = (
+    "is_extended",
+    "is_remote",
+    "is_error_frame",
+    "is_fd",
+    "bitrate_switch",
+    "error_state_indicator",
+)
+
+
+def block_columns(
+    arbitration_id: Any,
+    flags: dict[str, Any],
+    dlc: Any,
+    data: Any,
+    length: Any,
+    channel_index: Any,
+    is_rx: Any,
+    t_bus: Any,
+) -> dict[str, np.ndarray]:
+    """The columns of frames in a frame block (the writer adds ``status``): ``arbitration_id``
+    int64; each of :data:`FLAG_FIELDS` (``flags[name]``, n bools) uint8; ``dlc``, ``length`` (bytes
+    of data) uint8; ``data_0`` ... ``data_<w-1>`` uint8 for the widest frame (w bytes; bytes past a
+    frame's length 0); ``channel`` uint8 indexes into the block's ``values`` table; ``is_rx``
+    uint8; ``t_bus_ns`` int64 (the interface's timestamp)."""
+    length = np.asarray(length, np.int64)
+    n = len(length)
+    data = np.asarray(data, np.uint8).reshape(n, -1)
+    w = int(length.max()) if n else 0
+    cols: dict[str, np.ndarray] = {"arbitration_id": np.asarray(arbitration_id, np.int64)}
+    for name in FLAG_FIELDS:
+        cols[name] = np.asarray(flags[name], bool).view(np.uint8)
+    cols["dlc"] = np.asarray(dlc, np.int64).astype(np.uint8)
+    cols["length"] = length.astype(np.uint8)
+    for j in range(w):
+        cols[f"data_{j}"] = np.ascontiguousarray(data[:, j])
+    cols["channel"] = np.asarray(channel_index, np.uint8)
+    cols["is_rx"] = np.asarray(is_rx, bool).view(np.uint8)
+    cols["t_bus_ns"] = np.asarray(t_bus, np.int64)
+    return cols
+
+
+def frames_from_blocks(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The per-frame columns (the fields of :data:`FIELDS` and ``status``, as the per-frame JSON
+    layout reads back: 0/1 and counts int64, ``data`` bytes, ``channel`` as recorded) of decoded
+    frame blocks (:func:`cdpr.daq.column_blocks.decode_blocks`)."""
+    n = len(cols["t_ns"])
+    length = cols["length"].astype(np.int64)
+    w = 0
+    while f"data_{w}" in cols:
+        w += 1
+    if np.any(length > w):
+        raise ValueError(f"a frame's length {int(length.max())} is past its {w} data columns")
+    rows = np.zeros((n, w), np.uint8)
+    for j in range(w):
+        rows[:, j] = cols[f"data_{j}"]
+    flat = rows.tobytes()
+    data = np.empty(n, object)
+    data[:] = [flat[i * w : i * w + k] for i, k in enumerate(length.tolist())]
+    out: dict[str, np.ndarray] = {"t_ns": cols["t_ns"]}
+    out["arbitration_id"] = cols["arbitration_id"].astype(np.int64)
+    for name in FLAG_FIELDS:
+        out[name] = cols[name].astype(np.int64)
+    out["dlc"] = cols["dlc"].astype(np.int64)
+    out["data"] = data
+    out["channel"] = cols["channel"]
+    out["is_rx"] = cols["is_rx"].astype(np.int64)
+    out["t_bus_ns"] = cols["t_bus_ns"].astype(np.int64)
+    out["status"] = cols["status"].astype(np.int64)
+    return out
+
+
+def frame_rows(cols: dict[str, np.ndarray]) -> list[tuple[int, dict[str, Any]]]:
+    """(t_ns, values) per frame of decoded frame blocks, the values as the per-frame JSON body
+    has them (``data`` a list of byte values; :func:`encode`)."""
+    f = frames_from_blocks(cols)
+    t = f.pop("t_ns").tolist()
+    lists = {k: (v.tolist() if k != "data" else [list(d) for d in v]) for k, v in f.items()}
+    names = [*FIELDS, "status"]
+    return [(t[i], {k: lists[k][i] for k in names}) for i in range(len(t))]
+
+
 def codec(stream: str, description: StreamDescription | None) -> Any:
-    """The ``can_raw`` stream codec (registered by the CAN driver)."""
-    return StreamCodec(f"cdpr.{stream}", schema(stream), encode, encode_can_frames)
+    """The ``can_raw`` stream codec (registered by the CAN driver): per-frame JSON messages, or
+    frame blocks (``layout`` :data:`BLOCK_LAYOUT`) for a stream added with ``blocks=True``."""
+    return StreamCodec(
+        f"cdpr.{stream}", schema(stream), encode, encode_can_frames, block_layout=BLOCK_LAYOUT
+    )
 
 
 def register(batch_type: type, register_codec: Callable[..., None]) -> None:

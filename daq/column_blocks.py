@@ -9,7 +9,9 @@ schema, so Foxglove and any MCAP reader open it) is::
      "first_sample": 12000,         # index of the block's first sample in the stream (0-based)
      "count": 250,                  # samples in the block
      "columns": ["t_ns", "T_front_left_top_N", ..., "status"],
-     "dtypes": ["<i8", "<f8", ..., "<i8"],   # little-endian int64 or float64 (NaN: missing)
+     "dtypes": ["<i8", "<f8", ..., "<i8"],   # little-endian int64 or float64 (NaN: missing),
+                                             # or "|u1" (uint8)
+     "values": {"channel": ["can0", 1, null]},  # optional: a column of indexes into a table
      "data": "<base64 of the columns' bytes, one column after the other>"}
 
 ``t_ns`` (the sample times, int64 ns since the Unix epoch) is always the first column.  The message's
@@ -26,6 +28,11 @@ panel graphs the tensions; analysis never reads the view.
 Which streams: a stream whose description is flat and numeric (scalar int/float fields) and whose
 nominal rate is at least :data:`MIN_RATE_HZ` (``docs/recording.md`` has the measured bytes per
 sample and read speeds of both layouts).
+
+A ``values`` table names the values of a column that holds few distinct JSON values (a CAN channel
+such as ``"can0"``, ``0`` or ``null``): the column holds indexes into the table.  A stream's table
+only grows, so a later block's table starts with an earlier block's.  Raw CAN frames imported from a
+log use ``|u1`` columns and a table (layout ``can_frames``, :mod:`cdpr.daq.can_raw`).
 """
 
 from __future__ import annotations
@@ -62,9 +69,9 @@ VIEW_PERIOD_NS = 20_000_000
 #: a block is closed at this many samples (and at every chunk close of the writer)
 MAX_BLOCK_SAMPLES = 2048
 
-_INT, _FLOAT = "<i8", "<f8"
+_INT, _FLOAT, _U8 = "<i8", "<f8", "|u1"
 _DATA_KEY = b',"data":"'
-_DTYPES = {_INT: np.dtype(_INT), _FLOAT: np.dtype(_FLOAT)}
+_DTYPES = {_INT: np.dtype(_INT), _FLOAT: np.dtype(_FLOAT), _U8: np.dtype(_U8)}
 _INT_DTYPES = frozenset({"int64", "int32", "int", "uint8", "bool"})
 _NUMERIC = _INT_DTYPES | {"float64", "float32", "float"}
 
@@ -107,7 +114,12 @@ def block_schema(stream: str, description: Any) -> dict[str, Any]:
             "first_sample": {"type": "integer", "minimum": 0},
             "count": {"type": "integer", "minimum": 1},
             "columns": {"type": "array", "items": {"type": "string"}},
-            "dtypes": {"type": "array", "items": {"type": "string", "enum": [_INT, _FLOAT]}},
+            "dtypes": {"type": "array", "items": {"type": "string", "enum": [_INT, _FLOAT, _U8]}},
+            "values": {
+                "type": "object",
+                "additionalProperties": {"type": "array"},
+                "description": "per column: the table its values index (few distinct values)",
+            },
             "data": {"type": "string", "contentEncoding": "base64"},
         },
         "required": ["first_sample", "count", "columns", "dtypes", "data"],
@@ -130,6 +142,8 @@ def _column(values: Any) -> np.ndarray:
     a = np.asarray(values)
     if a.dtype.kind in "USV":
         raise InputError(f"column block: expected numbers, got {a.dtype.kind!r} values")
+    if a.dtype == np.uint8:  # bytes and flags: one byte a sample
+        return a
     if a.dtype.kind in "iub":
         return a.astype(_INT)
     if a.dtype.kind == "f":
@@ -142,15 +156,23 @@ def _column(values: Any) -> np.ndarray:
         ) from None
 
 
-def encode_block(t_ns: np.ndarray, columns: Mapping[str, np.ndarray], first_sample: int) -> bytes:
-    """One block message body: ``t_ns`` (n,) int64 and the columns (n,) int64 or float64."""
+def encode_block(
+    t_ns: np.ndarray,
+    columns: Mapping[str, np.ndarray],
+    first_sample: int,
+    values: Mapping[str, Sequence[Any]] | None = None,
+) -> bytes:
+    """One block message body: ``t_ns`` (n,) int64 and the columns (n,) int64, float64 or uint8;
+    ``values``: the tables of the columns that hold indexes into one."""
     t_ns = np.ascontiguousarray(t_ns, dtype=_INT)
     n = len(t_ns)
     names = ["t_ns", *columns]
     arrays = [t_ns, *(np.ascontiguousarray(c) for c in columns.values())]
     for name, a in zip(names, arrays, strict=True):
         if a.shape != (n,) or a.dtype.str not in _DTYPES:
-            raise InputError(f"column block: {name}: expected ({n},) int64/float64, got {a.shape}")
+            raise InputError(
+                f"column block: {name}: expected ({n},) int64/float64/uint8, got {a.shape} {a.dtype}"
+            )
     sec, nsec = divmod(int(t_ns[-1]), 1_000_000_000)
     head = {
         "timestamp": {"sec": sec, "nsec": nsec},
@@ -159,6 +181,8 @@ def encode_block(t_ns: np.ndarray, columns: Mapping[str, np.ndarray], first_samp
         "columns": names,
         "dtypes": [a.dtype.str for a in arrays],
     }
+    if values:
+        head["values"] = {k: list(v) for k, v in values.items()}
     data = base64.b64encode(b"".join([memoryview(a).cast("B") for a in arrays]))
     return b"".join(
         [json.dumps(head, separators=(",", ":"))[:-1].encode(), b',"data":"', data, b'"}']
@@ -166,8 +190,9 @@ def encode_block(t_ns: np.ndarray, columns: Mapping[str, np.ndarray], first_samp
 
 
 def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndarray]:
-    """Columns (``t_ns`` first) of block message bodies, concatenated in the given order; a column
-    some blocks lack is NaN there (and float64).  Bad blocks raise InputError naming ``where``."""
+    """Columns (``t_ns`` first) of block message bodies, concatenated in the given order (an
+    indexed column as its values, an object array); a column some blocks lack is NaN there (and
+    float64), or 0 for a uint8 column.  Bad blocks raise InputError naming ``where``."""
     if not bodies:
         return {"t_ns": np.empty(0, np.int64)}
     # the writer puts "data" last: the header is parsed as JSON, the base64 decoded straight from
@@ -188,6 +213,7 @@ def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndar
         except ValueError as exc:
             raise InputError(f"{where}: a column block is not valid JSON ({exc})") from None
     parts: list[dict[str, np.ndarray]] = []
+    tables: dict[str, dict[Any, Any]] = {}
     for h, data in zip(heads, datas, strict=True):
         try:
             n = int(h["count"])
@@ -200,9 +226,19 @@ def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndar
                 pos += n * d.itemsize
             if pos != len(raw) or "t_ns" not in cols:
                 raise ValueError("data length does not match count x columns")
-        except (KeyError, TypeError, ValueError) as exc:
+            for name, table in (h.get("values") or {}).items():
+                cols[name] = _looked_up(cols[name], table, tables.setdefault(name, {}))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"{where}: a column block is malformed ({exc})") from None
         parts.append(cols)
+    return _concat(parts)
+
+
+def _concat(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The columns of consecutive parts (each with ``t_ns``) one after the other; a column a part
+    lacks is 0 there when it is uint8 where present (bytes past a frame's length), else NaN."""
+    if len(parts) == 1:
+        return dict(parts[0])
     names: list[str] = []
     for p in parts:
         names += [c for c in p if c not in names]
@@ -210,14 +246,31 @@ def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndar
     for name in names:
         if all(name in p for p in parts):
             out[name] = np.concatenate([p[name] for p in parts])
-        else:
-            out[name] = np.concatenate(
-                [
-                    p[name].astype(_FLOAT) if name in p else np.full(len(p["t_ns"]), np.nan)
-                    for p in parts
-                ]
-            )
+            continue
+        u8 = all(p[name].dtype == np.uint8 for p in parts if name in p)
+        fill = (lambda n: np.zeros(n, np.uint8)) if u8 else (lambda n: np.full(n, np.nan))
+        out[name] = np.concatenate(
+            [
+                (p[name] if u8 else p[name].astype(_FLOAT)) if name in p else fill(len(p["t_ns"]))
+                for p in parts
+            ]
+        )
     return out
+
+
+def _key(v: Any) -> tuple[str, Any]:
+    return (type(v).__name__, v)  # 1 and "1" (and True) are different values
+
+
+def _looked_up(idx: np.ndarray, table: Sequence[Any], seen: dict[Any, Any]) -> np.ndarray:
+    """The values (object array) at indexes ``idx`` of a block's ``table``."""
+    if not isinstance(table, list) or any(isinstance(v, dict | list) for v in table):
+        raise ValueError("a values table is a list of scalars")
+    if len(idx) and int(idx.max()) >= len(table):
+        raise ValueError("an index past its values table")
+    objs = np.empty(len(table), object)
+    objs[:] = [seen.setdefault(_key(v), v) for v in table]
+    return objs[idx.astype(np.intp)]
 
 
 class BlockBuffer:
@@ -234,6 +287,9 @@ class BlockBuffer:
         self._t: list[int] = []
         self._rows: list[dict[str, Any]] = []
         self.n = 0
+        #: the values tables of the stream's indexed columns (they only grow)
+        self.values: dict[str, list[Any]] = {}
+        self._where: dict[str, dict[tuple[str, Any], int]] = {}
 
     def __len__(self) -> int:
         return self.n
@@ -245,9 +301,19 @@ class BlockBuffer:
         self._rows.append(row)
         self.n += 1
 
-    def add_columns(self, t_ns: np.ndarray, columns: Mapping[str, Any], status: Any) -> None:
+    def add_columns(
+        self,
+        t_ns: np.ndarray,
+        columns: Mapping[str, Any],
+        status: Any,
+        values: Mapping[str, Sequence[Any]] | None = None,
+    ) -> None:
+        """Samples as columns; ``values``: for an indexed column, the table its indexes point
+        into (mapped here onto the stream's table)."""
         t_ns = np.asarray(t_ns, np.int64)
         cols = {k: _column(v) for k, v in columns.items()}
+        for k, table in (values or {}).items():
+            cols[k] = self._indexes(k, table, cols[k])
         cols["status"] = np.broadcast_to(np.asarray(status, np.int64), t_ns.shape).astype(_INT)
         for k, v in cols.items():
             if v.shape != t_ns.shape:
@@ -255,6 +321,22 @@ class BlockBuffer:
         self._close_rows()
         self._pieces.append((t_ns, cols))
         self.n += len(t_ns)
+
+    def _indexes(self, name: str, table: Sequence[Any], idx: np.ndarray) -> np.ndarray:
+        """Indexes ``idx`` into ``table`` as indexes into the stream's table of ``name``."""
+        where = self._where.setdefault(name, {})
+        glob = self.values.setdefault(name, [])
+        m = np.empty(len(table), np.int64)
+        for i, v in enumerate(table):
+            if isinstance(v, dict | list):
+                raise InputError(f"column block: {name}: a table value must be a scalar, got {v!r}")
+            m[i] = where.setdefault(_key(v), len(glob))
+            if m[i] == len(glob):
+                glob.append(v)
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(table)):
+            raise InputError(f"column block: {name}: an index past its table of {len(table)}")
+        out = m[idx.astype(np.intp)]
+        return out.astype(np.uint8) if len(glob) <= 256 else out
 
     def _close_rows(self) -> None:
         if not self._rows:
@@ -272,19 +354,7 @@ class BlockBuffer:
         pieces, self._pieces, self.n = self._pieces, [], 0
         if len(pieces) == 1:
             return pieces[0]
-        names: list[str] = []
-        for _, c in pieces:
-            names += [k for k in c if k not in names]
         t = np.concatenate([p[0] for p in pieces])
-        cols = {}
-        for k in names:
-            if all(k in c for _, c in pieces):
-                cols[k] = np.concatenate([c[k] for _, c in pieces])
-            else:
-                cols[k] = np.concatenate(
-                    [
-                        c[k].astype(_FLOAT) if k in c else np.full(len(tt), np.nan)
-                        for tt, c in pieces
-                    ]
-                )
+        cols = _concat([{"t_ns": tt, **c} for tt, c in pieces])
+        del cols["t_ns"]
         return t, cols

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.errors import ConfigError, InputError
 
 from .column_blocks import STORAGE, decode_blocks
 from .mcap_writer import (  # noqa: F401  (re-exported: the writer's public names)
@@ -109,11 +109,15 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
     by_id: dict[int, str] = {}
     errors: list[str] = []
     blocked: set[int] = set()  # column-block channels
+    frame_blocks: set[int] = set()  # those of raw CAN frames (layout can_frames)
     loads = json.loads
     for rec in _iter_records(p, errors):
         if isinstance(rec, Message):
             topic = by_id.get(rec.channel_id)
             if topic is None:
+                continue
+            if decode and rec.channel_id in frame_blocks:  # one (t_ns, values) per frame
+                out.messages[topic] += _frame_rows(decode_blocks([rec.data], str(p)), p)
                 continue
             if decode and rec.channel_id in blocked:  # one (t_ns, values) per sample
                 cols = decode_blocks([rec.data], str(p))
@@ -148,6 +152,8 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
             by_id[rec.id] = rec.topic
             if rec.metadata.get("storage") == STORAGE:
                 blocked.add(rec.id)
+                if rec.metadata.get("layout") == "can_frames":
+                    frame_blocks.add(rec.id)
             out.messages.setdefault(rec.topic, [])
         elif isinstance(rec, Metadata):
             out.metadata[rec.name] = dict(rec.metadata)
@@ -157,6 +163,15 @@ def read_run(path: str | os.PathLike[str], *, decode: bool = True) -> RunContent
             out.complete = True
     out.error = errors[0] if errors else None
     return out
+
+
+def _frame_rows(cols: dict[str, Any], path: Path) -> list[tuple[int, dict[str, Any]]]:
+    from .can_raw import frame_rows
+
+    try:
+        return frame_rows(cols)
+    except (KeyError, ValueError) as exc:
+        raise InputError(f"{path}: a block of CAN frames is malformed ({exc})") from None
 
 
 def recover_run(

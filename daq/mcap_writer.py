@@ -30,7 +30,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -120,12 +120,16 @@ class StreamCodec:
     encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes).
     encode_frames: optional batch encoder of raw CAN frames (``can.Message`` objects, see
         :class:`cdpr.daq.can_source.CanFrameBatch`) -> :class:`FrameRecords`.
+    block_layout: the ``layout`` of the stream stored as column blocks when it is added with
+        ``blocks=True`` (its columns written with :meth:`McapRunWriter.write_columns`; no view),
+        e.g. ``can_frames`` (:mod:`cdpr.daq.can_raw`); None: no block layout.
     """
 
     schema_name: str
     schema: dict[str, Any]
     encode: Callable[[Reading], Any]
     encode_frames: Callable[[Any], FrameRecords] | None = None
+    block_layout: str | None = None
 
 
 #: a float that may be missing: NaN is written as JSON ``null`` (strict JSON has no NaN)
@@ -392,10 +396,20 @@ class _ChunkedWriter:
     summary section (schemas, channels, statistics, chunk/attachment/metadata indexes, summary
     offsets) written by :meth:`finish`, like the ``mcap`` package's writer."""
 
-    def __init__(self, fh: Any, chunk_size: int, compression: str) -> None:
+    def __init__(
+        self, fh: Any, chunk_size: int, compression: str, background: bool = False
+    ) -> None:
         from mcap.data_stream import RecordBuilder
 
         self._fh = fh
+        # background: chunks are compressed and written by one thread, in order, while the caller
+        # goes on (zstd releases the GIL); every other write waits for them first (drain)
+        self._pool: Any = None
+        self._pending: list[Any] = []
+        if background:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
         self._rb = RecordBuilder()
         self._chunk_size = chunk_size
         self._compression = compression
@@ -417,8 +431,6 @@ class _ChunkedWriter:
         self._chunk_len = 0
         # channel id -> segments of (log_time, offset) pairs: flat int lists or (k, 2) arrays
         self._chunk_index: dict[int, list[Any]] = {}
-        self._chunk_t0 = 0
-        self._chunk_t1 = 0
         self._chunk_indexes: list[Any] = []
         self._attachment_indexes: list[Any] = []
         self._metadata_indexes: list[Any] = []
@@ -427,6 +439,24 @@ class _ChunkedWriter:
         self.t_start = 0
         self.t_end = 0
         self.chunk_count = 0
+
+    #: chunks waiting for the background thread at most (bounded memory)
+    MAX_PENDING = 4
+
+    def drain(self, keep: int = 0) -> None:
+        """Wait until at most ``keep`` chunks are still being written by the background thread (an
+        error there is raised here)."""
+        while len(self._pending) > keep:
+            self._pending.pop(0).result()
+
+    def shutdown(self) -> None:
+        """Stop the background thread (after the chunks it has)."""
+        if self._pool is not None:
+            try:
+                self.drain()
+            finally:
+                self._pool.shutdown()
+                self._pool = None
 
     def _emit(self) -> int:
         """Write the record builder's bytes to the file; returns their length."""
@@ -444,6 +474,7 @@ class _ChunkedWriter:
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         from mcap.records import Schema
 
+        self.drain()
         sid = len(self._schemas) + 1
         s = Schema(id=sid, data=data, encoding=encoding, name=name)
         self._schemas[sid] = s
@@ -456,6 +487,7 @@ class _ChunkedWriter:
     ) -> int:
         from mcap.records import Channel
 
+        self.drain()
         cid = len(self._channels) + 1
         c = Channel(
             id=cid,
@@ -525,13 +557,11 @@ class _ChunkedWriter:
                 self.close_chunk()
 
     def close_chunk(self) -> None:
-        """Compress and write the open chunk and its message indexes (no-op when empty)."""
+        """Compress and write the open chunk and its message indexes (no-op when empty; with the
+        background thread: hand it over, waiting while :data:`MAX_PENDING` are queued)."""
         if not self._parts:
             return
-        import zlib
-
         import numpy as np
-        from mcap.records import Chunk, ChunkIndex
 
         raw = b"".join(self._parts)
         n = 0
@@ -554,19 +584,46 @@ class _ChunkedWriter:
             lo, hi = int(pairs[:, 0].min()), int(pairs[:, 0].max())
             t0 = lo if t0 is None or lo < t0 else t0
             t1 = hi if t1 is None or hi > t1 else t1
-        self._chunk_t0, self._chunk_t1 = int(t0 or 0), int(t1 or 0)
+        t0, t1 = int(t0 or 0), int(t1 or 0)
+        if self.message_count == 0:
+            self.t_start, self.t_end = t0, t1
+        else:
+            self.t_start = min(self.t_start, t0)
+            self.t_end = max(self.t_end, t1)
+        self.message_count += n
+        self.chunk_count += 1
+        self._parts = []
+        self._chunk_len = 0
+        self._chunk_index = {}
+        if self._pool is None:
+            self._write_chunk(raw, pairs_of, t0, t1)
+        else:
+            self.drain(self.MAX_PENDING - 1)
+            self._pending.append(self._pool.submit(self._write_chunk, raw, pairs_of, t0, t1))
+
+    def _write_chunk(self, raw: bytes, pairs_of: dict[int, Any], t0: int, t1: int) -> None:
+        """Compress and write one chunk (records ``raw``, message start and end times ``t0``,
+        ``t1``) and its message indexes (``pairs_of``: channel -> (k, 2) log times and offsets)."""
+        import zlib
+
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import Chunk, ChunkIndex
+
         comp = self._compress(raw) if self._compress is not None else raw
         chunk = Chunk(
             compression=self._compression if self._compress is not None else "",
             data=comp,
-            message_start_time=self._chunk_t0,
-            message_end_time=self._chunk_t1,
+            message_start_time=t0,
+            message_end_time=t1,
             uncompressed_crc=zlib.crc32(raw),
             uncompressed_size=len(raw),
         )
         start = self._fh.tell()
-        chunk.write(self._rb)
-        length = self._emit()
+        rb = RecordBuilder()  # its own builder: this may run in the background thread
+        chunk.write(rb)
+        data = rb.end()
+        self._fh.write(data)
+        length = len(data)
         offsets: dict[int, int] = {}
         pos = start + length
         index_parts = []
@@ -583,8 +640,8 @@ class _ChunkedWriter:
         index_len = len(index)
         self._chunk_indexes.append(
             ChunkIndex(
-                message_start_time=self._chunk_t0,
-                message_end_time=self._chunk_t1,
+                message_start_time=t0,
+                message_end_time=t1,
                 chunk_start_offset=start,
                 chunk_length=length,
                 message_index_offsets=offsets,
@@ -594,20 +651,11 @@ class _ChunkedWriter:
                 uncompressed_size=len(raw),
             )
         )
-        if self.message_count == 0:
-            self.t_start, self.t_end = self._chunk_t0, self._chunk_t1
-        else:
-            self.t_start = min(self.t_start, self._chunk_t0)
-            self.t_end = max(self.t_end, self._chunk_t1)
-        self.message_count += n
-        self.chunk_count += 1
-        self._parts = []
-        self._chunk_len = 0
-        self._chunk_index = {}
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         from mcap.records import Metadata, MetadataIndex
 
+        self.drain()
         offset = self._fh.tell()
         Metadata(name=name, metadata=data).write(self._rb)
         length = self._emit()
@@ -619,6 +667,7 @@ class _ChunkedWriter:
         from mcap.records import Attachment as McapAttachment
         from mcap.records import AttachmentIndex
 
+        self.drain()
         offset = self._fh.tell()
         McapAttachment(
             create_time=create_time, log_time=log_time, name=name, media_type=media_type, data=data
@@ -645,6 +694,7 @@ class _ChunkedWriter:
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
 
         self.close_chunk()
+        self.shutdown()
         DataEnd(data_section_crc=0).write(self._rb)
         self._emit()
         summary_start = self._fh.tell()
@@ -705,10 +755,12 @@ class _BlockStream:
     the block, is left out of a view message rather than written as null)."""
 
     buf: column_blocks.BlockBuffer
-    view_cid: int
+    view_cid: int | None
     ints: set[str]
     last_bin: int = -1
     view_count: int = 0
+    #: %-formats of the view's rows, by (column, is float) names
+    formats: dict[tuple[tuple[str, bool], ...], str] = field(default_factory=dict)
 
 
 class McapRunWriter:
@@ -724,6 +776,10 @@ class McapRunWriter:
         ... or when it is older than this (checked by :meth:`maybe_flush`); each flush is fsynced.
     compression:
         ``"zstd"``, ``"lz4"`` or ``"none"``.
+    background_compression:
+        Compress and write the chunks in a thread while the caller goes on (bulk writers such as
+        ``cdpr import``, whose parsing then runs beside the compression on another core); a flush
+        still returns only once its chunk is with the OS.
     """
 
     def __init__(
@@ -733,6 +789,7 @@ class McapRunWriter:
         chunk_size: int = 256 * 1024,
         flush_interval_s: float = 0.25,
         compression: str = "zstd",
+        background_compression: bool = False,
     ) -> None:
         if compression not in ("zstd", "lz4", "none"):
             raise InputError(f"compression must be zstd, lz4 or none, got {compression!r}")
@@ -746,7 +803,7 @@ class McapRunWriter:
             self._fh = open(self.path, "xb")  # noqa: SIM115 - closed in finish()
         except FileExistsError:
             raise InputError(f"{self.path}: exists already; a run is never overwritten") from None
-        self._writer = _ChunkedWriter(self._fh, chunk_size, compression)
+        self._writer = _ChunkedWriter(self._fh, chunk_size, compression, background_compression)
         self._chunk_size = chunk_size
         self._writer.start(PROFILE, LIBRARY)
         self.flush_interval_ns = int(flush_interval_s * 1e9)
@@ -781,6 +838,8 @@ class McapRunWriter:
         if stream in self._channels:
             return self._channels[stream]
         codec = codec_for(stream, description)
+        if blocks and description is not None and codec.block_layout is not None:
+            return self._add_block_stream(stream, description, codec, codec.block_layout)
         if (
             blocks is not False
             and description is not None
@@ -808,10 +867,16 @@ class McapRunWriter:
         return cid
 
     def _add_block_stream(
-        self, stream: str, description: StreamDescription, codec: StreamCodec
+        self,
+        stream: str,
+        description: StreamDescription,
+        codec: StreamCodec,
+        layout: str | None = None,
     ) -> int:
         """A high-rate flat numeric stream: column blocks on ``/<stream>`` and the per-sample view
-        on ``/<stream>/view`` (:mod:`cdpr.daq.column_blocks`)."""
+        on ``/<stream>/view`` (:mod:`cdpr.daq.column_blocks`); with a ``layout`` (the codec's
+        ``block_layout``: columns its module defines, written with :meth:`write_columns`), the
+        blocks alone."""
         w = self._writer
         meta = {"stream": stream, "rate_hz": repr(float(description.rate_hz))}
         units = {k: f.unit for k, f in description.fields.items() if f.unit}
@@ -822,9 +887,19 @@ class McapRunWriter:
             "jsonschema",
             json.dumps(column_blocks.block_schema(stream, description)).encode(),
         )
-        cid = w.register_channel(
-            topic_of(stream), "json", sid, {**meta, **column_blocks.channel_metadata(description)}
-        )
+        block_meta = column_blocks.channel_metadata(description)
+        if layout is not None:  # the per-sample fields as the layout's module reads them back
+            fields = {k: [f.dtype, f.unit] for k, f in description.fields.items()}
+            block_meta = {**block_meta, "layout": layout, "fields": json.dumps(fields)}
+        cid = w.register_channel(topic_of(stream), "json", sid, {**meta, **block_meta})
+        self._channels[stream] = cid
+        self._codecs[stream] = codec.encode
+        self.counts[stream] = 0
+        if layout is not None:
+            self._blocks[stream] = _BlockStream(
+                column_blocks.BlockBuffer(column_blocks.MAX_BLOCK_SAMPLES), None, set()
+            )
+            return cid
         period = column_blocks.VIEW_PERIOD_NS
         vsid = w.register_schema(
             codec.schema_name,
@@ -834,8 +909,6 @@ class McapRunWriter:
         vmeta = {**meta, "view_of": topic_of(stream), "view_period_ns": str(period)}
         vmeta["rate_hz"] = repr(min(float(description.rate_hz), 1e9 / period))
         vcid = w.register_channel(topic_of(stream) + "/view", "json", vsid, vmeta)
-        self._channels[stream] = cid
-        self._codecs[stream] = codec.encode
         # a block holds at most about one chunk of samples (so chunk_size bounds a block too)
         ncols = len(description.fields) + 2
         self._blocks[stream] = _BlockStream(
@@ -845,7 +918,6 @@ class McapRunWriter:
             vcid,
             column_blocks.int_fields(description),
         )
-        self.counts[stream] = 0
         return cid
 
     @property
@@ -869,25 +941,60 @@ class McapRunWriter:
         for a in range(0, len(t_all), step):
             t = t_all[a : a + step]
             cols = {k: v[a : a + step] for k, v in cols_all.items()}
-            body = column_blocks.encode_block(t, cols, buf.written)
+            body = column_blocks.encode_block(t, cols, buf.written, buf.values)
             add(cid, int(t[-1]), body, int(t[0]), buf.messages)
             buf.messages += 1
             buf.written += len(t)
+            if bs.view_cid is None:
+                continue
             # the view: the first sample in each VIEW_PERIOD_NS bin of time
             bins = t // column_blocks.VIEW_PERIOD_NS
             pick = np.flatnonzero(np.diff(bins, prepend=bs.last_bin) != 0)
             bs.last_bin = int(bins[-1])
             if len(pick):
-                names = list(cols)
-                rows = [cols[n][pick].tolist() for n in names]
-                for j, i in enumerate(pick.tolist()):
-                    body_i = {
-                        n: r[j]
-                        for n, r in zip(names, rows, strict=True)
-                        if not (n in bs.ints and r[j] != r[j])  # NaN: missing, not null
+                self._emit_view(bs, t[pick], {k: v[pick] for k, v in cols.items()})
+
+    def _emit_view(self, bs: _BlockStream, t: Any, cols: dict[str, Any]) -> None:
+        """The view messages of samples at times ``t`` (``cols``: their values): rows of finite
+        numbers through a %-format of the columns (``%r`` of a float is what JSON writes), the
+        others as dicts (a NaN in an integer field left out: missing, not null)."""
+        import numpy as np
+
+        add = self._writer.add_message
+        names = list(cols)
+        floats = [n for n in names if cols[n].dtype.kind == "f"]
+        finite = np.ones(len(t), bool)
+        for n in floats:
+            finite &= np.isfinite(cols[n])
+        key = tuple((n, n in floats) for n in names)
+        fmt = bs.formats.get(key)
+        if fmt is None:
+            quoted = [json.dumps(n).replace("%", "%%") for n, _ in key]
+            fmt = bs.formats[key] = (
+                "{"
+                + ",".join(
+                    f"{q}:%r" if f else f"{q}:%d" for q, (_, f) in zip(quoted, key, strict=True)
+                )
+                + "}"
+            )
+        rows = [cols[n].tolist() for n in names]
+        ts = t.tolist()
+        k = bs.view_count
+        for j, (ti, ok, row) in enumerate(
+            zip(ts, finite.tolist(), zip(*rows, strict=True), strict=True)
+        ):
+            if ok:
+                body = (fmt % row).encode()
+            else:
+                body = encode_json(
+                    {
+                        n: v
+                        for n, v in zip(names, row, strict=True)
+                        if not (n in bs.ints and v != v)  # NaN: missing, not null
                     }
-                    add(bs.view_cid, int(t[i]), encode_json(body_i), int(t[i]), bs.view_count)
-                    bs.view_count += 1
+                )
+            add(bs.view_cid, ti, body, ti, k + j)
+        bs.view_count = k + len(ts)
 
     def _emit_blocks(self) -> None:
         for stream, bs in self._blocks.items():
@@ -895,12 +1002,18 @@ class McapRunWriter:
                 self._emit_block(stream)
 
     def write_columns(
-        self, stream: str, t_ns: Any, columns: Mapping[str, Any], status: Any = 0
+        self,
+        stream: str,
+        t_ns: Any,
+        columns: Mapping[str, Any],
+        status: Any = 0,
+        values: Mapping[str, Any] | None = None,
     ) -> int:
         """Write samples of ``stream`` given as columns (``t_ns`` (n,) int ns; each column (n,)
         numbers, NaN for missing; ``status`` (n,) or one int): the bulk path of ``cdpr import`` and
-        the benchmarks.  A block stream takes the arrays as they are; any other stream gets one
-        message per sample.  Returns how many samples."""
+        the benchmarks.  A block stream takes the arrays as they are (``values``: the tables of
+        indexed columns, :mod:`cdpr.daq.column_blocks`); any other stream gets one message per
+        sample.  Returns how many samples."""
         import numpy as np
 
         t_ns = np.asarray(t_ns, np.int64)
@@ -909,11 +1022,13 @@ class McapRunWriter:
         bs = self._blocks.get(stream)
         if bs is not None:
             buf = bs.buf
-            buf.add_columns(t_ns, columns, status)
+            buf.add_columns(t_ns, columns, status, values)
             self.counts[stream] += len(t_ns)
             if len(buf) >= buf.max_samples:
                 self._emit_block(stream)
             return len(t_ns)
+        if values:
+            raise InputError(f"{stream}: indexed columns need a column-block stream")
         st = np.broadcast_to(np.asarray(status, np.int64), t_ns.shape)
         names = list(columns)
         arrays = [np.asarray(columns[k]) for k in names]
@@ -1037,6 +1152,7 @@ class McapRunWriter:
         writer does not wait for the disk."""
         self._emit_blocks()
         self._writer.close_chunk()
+        self._writer.drain()
         self._fh.flush()
         self._fsync_wanted.set()
         self._last_flush_ns = time.monotonic_ns()
@@ -1077,7 +1193,10 @@ class McapRunWriter:
             self._fh.flush()
             os.fsync(self._fh.fileno())
         finally:
-            self._fsync_stop = True
-            self._fsync_wanted.set()
-            self._fsync_thread.join(timeout=30.0)
-            self._fh.close()
+            try:
+                self._writer.shutdown()  # after an error: the chunks already handed over
+            finally:
+                self._fsync_stop = True
+                self._fsync_wanted.set()
+                self._fsync_thread.join(timeout=30.0)
+                self._fh.close()

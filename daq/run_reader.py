@@ -173,6 +173,7 @@ class Run:
         counts = dict(summary.statistics.channel_message_counts) if summary.statistics else {}
         self._topic_cid: dict[str, int] = {}
         self._blocked: set[int] = set()  # channels stored as column blocks
+        self._frame_blocks: set[int] = set()  # those of raw CAN frames (layout can_frames)
         self._block_indexes: dict[tuple[int, int], np.ndarray] = {}  # their message indexes
         self.streams: dict[str, StreamInfo] = {}
         for cid, ch in sorted(summary.channels.items()):
@@ -193,7 +194,14 @@ class Run:
             except ValueError:
                 rate = 0.0
             self._topic_cid[ch.topic] = cid
-            if meta.get("storage") == column_blocks.STORAGE:
+            if meta.get("storage") == column_blocks.STORAGE and meta.get("layout") == "can_frames":
+                from .can_raw import schema as frame_schema
+
+                self._blocked.add(cid)
+                self._frame_blocks.add(cid)
+                stream = meta.get("stream", ch.topic.lstrip("/"))
+                fields = _fields_of(frame_schema(stream), units if isinstance(units, dict) else {})
+            elif meta.get("storage") == column_blocks.STORAGE:
                 self._blocked.add(cid)
                 fields = _block_fields(meta.get("fields", "{}"))
             else:
@@ -477,6 +485,15 @@ class Run:
         for ci, idx in self._block_index(cid, start_ns, stop_ns):
             bodies += self._extract(ci, idx)
         cols = column_blocks.decode_blocks(bodies, str(self.path))
+        if cid in self._frame_blocks and len(cols["t_ns"]):
+            from .can_raw import frames_from_blocks
+
+            try:
+                cols = frames_from_blocks(cols)
+            except (KeyError, ValueError) as exc:
+                raise InputError(
+                    f"{self.path}: a block of CAN frames is malformed ({exc})"
+                ) from None
         keep = _in_window(cols["t_ns"], start_ns, stop_ns)
         if not keep.all():
             cols = {k: v[keep] for k, v in cols.items()}
@@ -553,7 +570,10 @@ class Run:
                         f"{self.path}: topic {topic!r} has no column {missing[0]!r} "
                         f"(columns: {', '.join(self.streams[topic].fields)})"
                     )
-            return self._finish_frame(topic, pd.DataFrame(cols, copy=False), columns)
+            df = pd.DataFrame(cols, copy=False)
+            for c in _NULLABLE_TEXT & set(df.columns) if cid in self._frame_blocks else ():
+                df[c] = pd.Series(cols[c], dtype=object, index=df.index)  # as recorded
+            return self._finish_frame(topic, df, columns)
         parts = [self._decode(topic, t, b) for t, b in self._bodies(cid, start_ns, stop_ns)]
         if parts:
             df = pd.concat(parts, ignore_index=True, sort=False) if len(parts) > 1 else parts[0]

@@ -1158,6 +1158,56 @@ class _RunsProgress:
             self._bar.stop()
 
 
+#: settings of the local cluster: no sampling profiler (a stack sample of the task every 10 ms)
+#: and no GIL monitor (every 1 ms) in the workers, resource polls once a second: on a machine
+#: with as many cores as workers they take CPU from the runs
+_LOCAL_DASK = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.gil.enabled": False,
+    "distributed.admin.system-monitor.interval": "1s",
+    "distributed.admin.system-monitor.disk": False,
+    "distributed.worker.memory.monitor-interval": "1s",
+}
+
+
+class _ClusterStart:
+    """A local Dask cluster of ``n`` single-threaded worker processes, started in a thread (so
+    that this process can go on meanwhile); :meth:`cluster` waits for it, :meth:`close` stops it
+    (started or not)."""
+
+    def __init__(self, n: int) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="cdpr-cluster")
+        self._future = self._pool.submit(self._start, n)
+
+    @staticmethod
+    def _start(n: int) -> Any:
+        import dask
+        from dask.distributed import LocalCluster
+
+        # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set, which also fixes glibc's mmap
+        # threshold: every array over 128 KiB is then mapped and unmapped anew (page faults: a
+        # worker spent 4x the system time of one process on the same runs); the workers get
+        # glibc's own adaptive thresholds instead
+        environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+        environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ, **_LOCAL_DASK}):
+            return LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+            )
+
+    def cluster(self) -> Any:
+        return self._future.result()
+
+    def close(self) -> None:
+        try:
+            if self._future.exception() is None:
+                self._future.result().close()
+        finally:
+            self._pool.shutdown()
+
+
 def analyze_runs(
     paths: Sequence[str],
     out_dir: str,
@@ -1176,59 +1226,53 @@ def analyze_runs(
     more than one run is to be analysed)."""
     if not paths:
         raise ConfigError("runs", "", "no run files given")
-    if opts.loadcell_calibration_file is not None:  # every run can be re-calibrated: before output
-        from cdpr.daq.loadcell import read_calibration_file
-
-        lc_file = read_calibration_file(opts.loadcell_calibration_file)
-        for p in paths:
-            check_recalibration(p, lc_file)
-    fps = [run_fingerprint(p, opts) for p in paths]
-    results: list[dict[str, Any] | None] = [
-        None if force else _current_summary(p, out_dir, fp)
-        for p, fp in zip(paths, fps, strict=True)
-    ]
-    todo = [i for i, r in enumerate(results) if r is None]
-    bar = _RunsProgress(len(todo), progress and len(todo) > 1)
+    # the local cluster starts (processes, imports) while the inputs are checked and hashed here
+    local = (
+        _ClusterStart(min(workers, len(paths)))
+        if scheduler is None and workers > 1 and len(paths) > 1
+        else None
+    )
     try:
-        if scheduler is None and (len(todo) == 1 or workers == 1):
-            for i in todo:  # one worker: in this process, no cluster to start
-                results[i] = _safe(paths[i], out_dir, opts, fps[i])
-                bar.advance()
-        elif todo:
-            from dask.distributed import Client, LocalCluster, as_completed
+        if opts.loadcell_calibration_file is not None:  # every run can be re-calibrated: first
+            from cdpr.daq.loadcell import read_calibration_file
 
-            cluster = None
-            if scheduler is None:
-                import dask
-
-                # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set, which also fixes
-                # glibc's mmap threshold: every array over 128 KiB is then mapped and unmapped
-                # anew (page faults: a worker spent 4x the system time of one process on the
-                # same runs); the workers get glibc's own adaptive thresholds instead
-                environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
-                environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-                with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
-                    cluster = LocalCluster(
-                        n_workers=max(1, min(workers, len(todo))),
-                        threads_per_worker=1,
-                        processes=True,
-                        dashboard_address=None,
-                    )
-            client = Client(scheduler or cluster)
-            try:
-                futures = {
-                    client.submit(_safe, paths[i], out_dir, opts, fps[i], pure=False): i
-                    for i in todo
-                }
-                for fut in as_completed(futures):
-                    results[futures[fut]] = fut.result()
+            lc_file = read_calibration_file(opts.loadcell_calibration_file)
+            for p in paths:
+                check_recalibration(p, lc_file)
+        fps = [run_fingerprint(p, opts) for p in paths]
+        results: list[dict[str, Any] | None] = [
+            None if force else _current_summary(p, out_dir, fp)
+            for p, fp in zip(paths, fps, strict=True)
+        ]
+        todo = [i for i, r in enumerate(results) if r is None]
+        bar = _RunsProgress(len(todo), progress and len(todo) > 1)
+        try:
+            if scheduler is None and (len(todo) <= 1 or workers == 1):
+                if local is not None:  # at most one run to analyse: no use for the cluster
+                    local.close()
+                    local = None
+                for i in todo:  # one worker: in this process, no cluster to start
+                    results[i] = _safe(paths[i], out_dir, opts, fps[i])
                     bar.advance()
-            finally:
-                client.close()
-                if cluster is not None:
-                    cluster.close()
+            elif todo:
+                from dask.distributed import Client, as_completed
+
+                client = Client(scheduler or (local.cluster() if local else None))
+                try:
+                    futures = {
+                        client.submit(_safe, paths[i], out_dir, opts, fps[i], pure=False): i
+                        for i in todo
+                    }
+                    for fut in as_completed(futures):
+                        results[futures[fut]] = fut.result()
+                        bar.advance()
+                finally:
+                    client.close()
+        finally:
+            bar.close()
     finally:
-        bar.close()
+        if local is not None:
+            local.close()
     done = [r for r in results if r is not None]
     lines = [
         "# Analysed runs",

@@ -22,7 +22,7 @@ echo "== cdpr inspect $RUN"
 if [ -d tools/mcap-check/node_modules ]; then
     echo
     echo "== independent reader (@mcap/core, TypeScript) message counts"
-    node tools/mcap-check/mcap_check.js "$RUN" | "$VENV/bin/python" -c \
+    node --single-threaded tools/mcap-check/mcap_check.js "$RUN" | "$VENV/bin/python" -c \
         'import json,sys; d=json.load(sys.stdin); print("complete:", d["complete"], " counts:", d["topics"])'
 fi
 echo

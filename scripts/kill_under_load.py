@@ -53,7 +53,10 @@ def _last_rx_ns(path: Path) -> int:
 def _frames_in(path: Path) -> int:
     """``/can_raw`` messages in a finished file, counted by the independent reader (@mcap/core)."""
     res = subprocess.run(
-        ["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True, timeout=120
+        ["node", "--single-threaded", str(MCAP_CHECK), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     if res.returncode != 0:
         raise RuntimeError(res.stderr.strip())

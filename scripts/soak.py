@@ -135,7 +135,11 @@ def main(argv: list[str] | None = None) -> int:
     (path,) = sorted(out.glob("*_soak.mcap"))
     (out / "live_view.txt").write_text(screen)
     node = json.loads(
-        subprocess.run(["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True).stdout
+        subprocess.run(
+            ["node", "--single-threaded", str(MCAP_CHECK), str(path)],
+            capture_output=True,
+            text=True,
+        ).stdout
     )
     from mcap.reader import make_reader
 

@@ -9,7 +9,9 @@ import json
 import struct
 from typing import Any
 
-_FMT = {"<i8": "q", "<f8": "d"}
+_FMT = {"<i8": "q", "<f8": "d", "|u1": "B"}
+_FLAGS = ("is_extended", "is_remote", "is_error_frame", "is_fd", "bitrate_switch",
+          "error_state_indicator")  # fmt: skip
 
 
 def block_rows(body: bytes) -> list[dict[str, Any]]:
@@ -24,7 +26,27 @@ def block_rows(body: bytes) -> list[dict[str, Any]]:
         cols[name] = struct.unpack_from(fmt, raw, pos)
         pos += struct.calcsize(fmt)
     assert pos == len(raw), "block data length"
+    for name, table in doc.get("values", {}).items():  # indexes into a table of values
+        cols[name] = tuple(table[i] for i in cols[name])
     return [{k: v[i] for k, v in cols.items()} for i in range(n)]
+
+
+def frame_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A row of a ``can_frames`` block as the per-frame JSON body has it (``data`` the first
+    ``length`` of ``data_0`` ... as a list)."""
+    out = {"arbitration_id": row["arbitration_id"], **{k: row[k] for k in _FLAGS}}
+    out["dlc"] = row["dlc"]
+    out["data"] = [row[f"data_{j}"] for j in range(row["length"])]
+    out |= {"channel": row["channel"], "is_rx": row["is_rx"], "t_bus_ns": row["t_bus_ns"]}
+    out["status"] = row["status"]
+    return out
+
+
+def _rows(channel: Any, body: bytes) -> list[dict[str, Any]]:
+    rows = block_rows(body)
+    if channel.metadata.get("layout") == "can_frames":
+        return [{"t_ns": r["t_ns"], **frame_row(r)} for r in rows]
+    return rows
 
 
 def is_block_channel(channel: Any) -> bool:
@@ -37,7 +59,7 @@ def samples(reader: Any, topic: str) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     for _, channel, msg in reader.iter_messages([topic], log_time_order=True):
         if is_block_channel(channel):
-            out += block_rows(msg.data)
+            out += _rows(channel, msg.data)
         else:
             out.append({"t_ns": msg.log_time, **json.loads(msg.data)})
     return out
@@ -50,7 +72,7 @@ def messages(reader: Any) -> dict[str, list[tuple[int, dict[str, Any]]]]:
     for _, channel, msg in reader.iter_messages(log_time_order=True):
         rows = out.setdefault(channel.topic, [])
         if is_block_channel(channel):
-            rows += [(r.pop("t_ns"), r) for r in block_rows(msg.data)]
+            rows += [(r.pop("t_ns"), r) for r in _rows(channel, msg.data)]
         else:
             rows.append((msg.log_time, json.loads(msg.data)))
     return out

@@ -84,7 +84,7 @@ def test_import_can_log_and_poses(tmp_path: Path, suffix: str, rig_frames, capsy
     assert main(argv) == 0
     node = node_read(out)
     assert node["complete"] and node["bad_json"] == 0
-    assert node["topics"]["/can_raw"] == n_frames
+    assert node["samples"]["/can_raw"] == n_frames  # frame blocks (docs/recording.md)
     assert node["samples"]["/tensions"] == n  # column blocks (docs/recording.md)
     assert node["topics"]["/pose"] == len(rows) - 1
     assert node["schemas"]["/pose"] == "foxglove.PoseInFrame"

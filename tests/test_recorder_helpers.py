@@ -23,7 +23,10 @@ def node_read(path: str | Path) -> dict[str, Any]:
     """Summary of an MCAP file by @mcap/core: topics (message counts), samples (per column-block
     topic), schemas, metadata, attachments, chunks, complete (valid footer), statistics, error."""
     res = subprocess.run(
-        ["node", str(MCAP_CHECK), str(path)], capture_output=True, text=True, timeout=120
+        ["node", "--single-threaded", str(MCAP_CHECK), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)

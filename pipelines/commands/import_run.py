@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     start_ns = time.time_ns()
     counts: dict[str, int] = {}
     try:
-        w = McapRunWriter(tmp, flush_interval_s=1.0)
+        w = McapRunWriter(tmp, flush_interval_s=1.0, background_compression=True)
         try:
             md = run_metadata(
                 label=args.label,
@@ -169,8 +169,10 @@ def run(args: argparse.Namespace) -> int:
                 a = Attachment.from_file(args.poses, "poses/" + Path(args.poses).name)
                 w.add_attachment(a.name, a.data, a.media_type)
             for stream, desc in src.describe().items():
-                # the decoded samples as column blocks, whatever the log's rate
-                w.add_stream(stream, desc, blocks=True if stream == "tensions" else None)
+                # the decoded samples and the raw frames as column blocks, whatever the rate
+                w.add_stream(
+                    stream, desc, blocks=True if stream in ("tensions", "can_raw") else None
+                )
             first_ns, can_stats = _write_can_log(w, src, args.can_log, start_ns)
             if (
                 can_stats["samples"] == 0 and not args.raw_only
@@ -261,9 +263,9 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
     import numpy as np
 
     from cdpr.daq import can_raw
-    from cdpr.daq.canlog import ERROR, EXTENDED, FD, REMOTE, RX, read_log
+    from cdpr.daq.canlog import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, RX, read_log
     from cdpr.daq.replay import _RELATIVE_LIMIT_S
-    from cdpr.daq.source import STATUS_GAP
+    from cdpr.daq.source import STATUS_BAD_FRAME, STATUS_GAP
 
     dec = src.decoder
     fids = np.array(dec.frame_ids if dec is not None else [], np.int64)
@@ -290,23 +292,20 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
         t_ns = np.where(rel, start_ns + np.rint((cols.t_s - log_t0) * 1e9).astype(np.int64), t_bus)
         if first_ns is None:
             first_ns = int(t_ns[0])
-        fl = cols.flags.astype(np.int64)
-        chans = cols.channel
-        ch0 = chans[0]
-        same = np.asarray(chans == ch0, bool)
-        enc_flags = (
-            ((fl & EXTENDED) > 0) * 1 | ((fl & ERROR) > 0) * 2 | ((fl & REMOTE) > 0) * 4
-            | ((fl & FD) > 0) * 8
-        )  # fmt: skip
-        lens = np.where(same & (cols.dlc == 8), cols.length, -1)
-        rec = can_raw.encode_columns(
-            cols.arbitration_id, enc_flags, cols.data, lens, t_bus, ch0, (fl & RX) > 0
-        )
-        w.write_records(
+        fl = cols.flags
+        codes, table = _channel_codes(cols.channel)
+        bits = {
+            "is_extended": fl & EXTENDED, "is_remote": fl & REMOTE, "is_error_frame": fl & ERROR,
+            "is_fd": fl & FD, "bitrate_switch": fl & BRS, "error_state_indicator": fl & ESI,
+        }  # fmt: skip
+        w.write_columns(
             "can_raw",
             t_ns,
-            rec,
-            lambda i, c=cols, t=t_ns: can_raw.raw_reading(c.message(i), int(t[i])),
+            can_raw.block_columns(
+                cols.arbitration_id, bits, cols.dlc, cols.data, cols.length, codes, fl & RX, t_bus
+            ),
+            np.where(fl & ERROR, STATUS_BAD_FRAME, 0),
+            {"channel": table},
         )
         if dec is not None:
             lc = np.flatnonzero(
@@ -318,6 +317,19 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
         emit(dec.flush(), at_end=True)
     progress.done()
     return first_ns, stats
+
+
+def _channel_codes(channel: Any) -> tuple[Any, list[Any]]:
+    """Indexes (n,) into a table of the distinct channels (as python-can gives them: a name, a
+    number or None) of a block of frames."""
+    import numpy as np
+    import pandas as pd
+
+    ch0 = channel[0]
+    if ch0 is not None and bool(np.all(channel == ch0)):  # one channel (the usual log)
+        return np.zeros(len(channel), np.uint8), [ch0]
+    codes, uniq = pd.factorize(channel, use_na_sentinel=False)
+    return codes, [None if u is None or u != u else u for u in uniq.tolist()]
 
 
 def _decode_frames(
