@@ -291,3 +291,58 @@ def test_small_blocks_and_line_numbers(tmp_path: Path) -> None:
             assert calls == {"fixed": 2000, "general": 0}
         else:  # the block holding line 1501 and the lines around it
             assert calls["general"] == 1 and calls["fixed"] >= 1, block_bytes
+
+
+def test_random_layouts_and_damage_give_the_general_parsers_result() -> None:
+    """Random layouts, a few bytes of each block replaced, inserted or deleted at random: the
+    block parser gives what the general parser gives (the same columns or the same error), and
+    the fast path, when it takes a block, the general parser's columns."""
+    rng = np.random.default_rng(12)
+    alphabet = list(b"0123456789abcdefABCDEFG.() #RrTt\r\n\x01\x80xz-")
+    taken = errors = 0
+
+    def outcome(fn: Callable[..., FrameColumns], buf: np.ndarray) -> FrameColumns | str:
+        try:
+            return fn(buf, "f.log", 5)
+        except ConfigError as exc:
+            return str(exc)
+
+    for it in range(600):
+        lines = _lines(
+            int(rng.integers(1, 40)),
+            seed=it,
+            t0=int(rng.choice([0, 12_345, 1_700_000_000, 2**31 - 1])),
+            frac=int(rng.integers(1, 10)),
+            id_len=int(rng.integers(1, 9)),
+            nbytes=int(rng.integers(0, 9)),
+            channel=str(rng.choice(["can0", "0", "vcan12", "x#)"])),
+            direction=str(rng.choice(["", " R", " T", " r"])),
+            lower=bool(rng.integers(0, 2)),
+            us0=int(rng.integers(0, 1_000_000)),
+            step_us=int(rng.integers(1, 300)),
+        )
+        b = bytearray("".join(x + "\n" for x in lines).encode())
+        for _ in range(int(rng.integers(0, 3))):
+            b[int(rng.integers(0, len(b)))] = int(rng.choice(alphabet))
+        if rng.integers(0, 4) == 0:
+            j = int(rng.integers(0, len(b) - 1))
+            if rng.integers(0, 2):
+                b.insert(j, int(rng.choice(alphabet)))
+            else:
+                del b[j]
+        if not b.endswith(b"\n"):
+            b += b"\n"
+        buf = np.frombuffer(bytes(b), np.uint8)
+        want = outcome(canlog._parse_general, buf)
+        got = outcome(canlog._parse_block, buf)
+        fast = canlog._parse_fixed(buf, "f.log", 5)
+        if isinstance(want, str):
+            errors += 1
+            assert got == want and fast is None, bytes(b)
+        else:
+            assert not isinstance(got, str)
+            _assert_same(got, want)
+            if fast is not None:
+                taken += 1
+                _assert_same(fast, want)
+    assert taken > 150 and errors > 150, (taken, errors)
