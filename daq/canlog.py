@@ -8,7 +8,9 @@ float: the text converted by the C library, like ``float()``), an order of magni
 read ``block_bytes`` of the file at a time (bounded memory).  A line they cannot parse raises
 :class:`~cdpr.analysis.errors.ConfigError` naming the file and the line number (python-can stops
 or skips silently on some of them); blank lines are skipped, as python-can does.  A timestamp
-whose integer ns would not fit an int64 (after 2262) is an error in every format.
+whose integer ns would not fit an int64 (after 2262) is an error in every format.  A candump block
+whose lines all have one length and one layout (a load-cell log) is read by a fixed-width fast
+path (:func:`_parse_fixed`, several times faster), any other by the general parser.
 
 candump line layout (can-utils ``lib.c``): ``(<seconds>) <channel> <frame>[ R|T]``, frame
 ``<id>#<hex data>`` (classic), ``<id>#R[<dlc>]`` (remote), ``<id>##<flags><hex data>`` (CAN FD,
@@ -177,7 +179,148 @@ def _gather(buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int) 
     return out
 
 
+#: a candump line of the common layout (every line of a block alike: the fast path)
+_FIXED_LINE = re.compile(
+    rb"\(([0-9]+)\.([0-9]+)\) ([!-~]+) ([0-9A-Fa-f]{1,8})#((?:[0-9A-Fa-f]{2}){0,8})( [RrTt])?\n"
+)
+_PAIR = np.arange(1 << 16)
+_PAIR_1ST, _PAIR_2ND = _PAIR & 0xFF, _PAIR >> 8  # two bytes read as a little-endian uint16
+#: the value of two hex digits (0-255), 256 for anything else
+_HEX2 = np.where(
+    (_HEX[_PAIR_1ST] < 16) & (_HEX[_PAIR_2ND] < 16),
+    _HEX[_PAIR_1ST].astype(np.uint16) * 16 + _HEX[_PAIR_2ND],
+    256,
+).astype(np.uint16)
+#: the value of two decimal digits (0-99), 256 for anything else
+_DEC2 = np.where(
+    (_DEC[_PAIR_1ST] < 10) & (_DEC[_PAIR_2ND] < 10),
+    _DEC[_PAIR_1ST].astype(np.uint16) * 10 + _DEC[_PAIR_2ND],
+    256,
+).astype(np.uint16)
+
+
+def _pairs(rows: np.ndarray, start: int, stop: int, table: np.ndarray) -> np.ndarray:
+    """``table`` of the byte pairs of columns ``start:stop`` of ``rows``: (n, ceil(width / 2));
+    an odd width gets a leading '0'."""
+    n, w = len(rows), stop - start
+    c = np.empty((n, w + w % 2), np.uint8)
+    c[:, : w % 2] = 48
+    c[:, w % 2 :] = rows[:, start:stop]
+    return table.take(c.view("<u2"))
+
+
+def _parse_fixed(buf: np.ndarray, path: str, first_line: int) -> FrameColumns | None:
+    """The frames of ``buf`` when every line has the layout and the length of the first one
+    (``(<digits>.<digits>) <channel> <id>#<data>[ R|T]``: classic data frames of one id length,
+    one data length, one channel, one direction token and timestamps of one digit count: a
+    load-cell log), else None.
+
+    The lines are the rows of a 2-D view of the block: each row must hold the first row's bytes
+    at the fixed positions (punctuation, channel, direction token, newline) and decimal / hex
+    digits at the others (read two at a time through 65536-entry tables), so that each row is one
+    line the general parser (:func:`_parse_general`) reads into exactly these fields.  Anything
+    else (another line, an error frame, a timestamp :func:`_fixed_timestamps` does not take or
+    beyond :data:`T_MAX_S`) is None: the general parser then reads the block or names the bad
+    line."""
+    head = buf[:1024]
+    nl = int(np.argmax(head == 10))
+    if len(head) == 0 or head[nl] != 10:
+        return None
+    width = nl + 1
+    m = _FIXED_LINE.fullmatch(bytes(buf[:width]))
+    if m is None or len(buf) % width:
+        return None
+    a = buf.reshape(len(buf) // width, width)
+    n = len(a)
+    dot, rpar = m.end(1), m.end(2)
+    id_s, id_e = m.span(4)
+    d_s, d_e = m.span(5)
+    # fixed bytes: '(', '.', ') <channel> ', '#', ' R|T' and the newline
+    line0 = a[0]
+    for s, e in ((0, 1), (dot, dot + 1), (rpar, id_s), (id_e, d_s), (d_e, width)):
+        if not bool((a[:, s:e] == line0[s:e]).all()):
+            return None
+    ipart, fpart = _pairs(a, 1, dot, _DEC2), _pairs(a, dot + 1, rpar, _DEC2)
+    data_hex = _pairs(a, d_s, d_e, _HEX2)
+    id_hex = _HEX[a[:, id_s:id_e]]
+    if max(int(ipart.max()), int(fpart.max()), int(data_hex.max(initial=0))) > 255:
+        return None
+    if int(id_hex.max()) > 15:
+        return None
+    t_s = _fixed_timestamps(ipart, fpart, dot - 1, rpar - dot - 1)
+    if t_s is None or not bool((t_s < T_MAX_S).all()):
+        return None
+    idlen = id_e - id_s
+    ids = np.zeros(n, np.int64)
+    for c in range(idlen):
+        ids = ids * 16 + id_hex[:, c]
+    if bool((((ids & _CAN_ERR_FLAG) != 0) & ((ids & _CAN_ERR_BUSERROR) != 0)).any()):
+        return None  # error frames: the general parser
+    nbytes = data_hex.shape[1]
+    data = np.zeros((n, 8), np.uint8)
+    data[:, :nbytes] = data_hex
+    name = m[3].decode("ascii")
+    channel = np.empty(n, object)
+    channel.fill(int(name) if name.isdigit() else name)
+    rx = m[6] is None or m[6][1:] in (b"R", b"r")
+    flags = np.full(n, EXTENDED * (idlen > 3) | RX * rx, np.uint8)
+    return FrameColumns(
+        t_s, ids & 0x1FFFFFFF, flags, np.full(n, nbytes, np.int64), data,
+        np.full(n, nbytes, np.int64), channel,
+        first_line + np.arange(n, dtype=np.int64),
+    )  # fmt: skip
+
+
+def _fixed_timestamps(ipairs: np.ndarray, fpairs: np.ndarray, ni: int, k: int) -> np.ndarray | None:
+    """float64 of timestamps of ``ni`` integer and ``k`` fraction digits, given as two-digit
+    values (0-99, a leading '0' for an odd count), exactly as ``float()`` converts the text, or
+    None (more than 15 digits on a side; more than 15 in all with an integer part of 0 or of 2**40
+    or more).
+
+    The integer part I and the fraction F are matrix products: every product and partial sum is
+    an integer below 2**53, exact in float64 in any summation order.  Up to 15 digits in all:
+    N = I * 10**k + F is below 2**53 and N / 10**k (both exact) rounds as ``float()``, as in
+    :func:`_timestamps`.  More digits: the value is rounded to 53 bits in integer arithmetic:
+    with s = 53 - bit length of I, the mantissa M = round(N * 2**s / 10**k) = I * 2**s +
+    round(F * 2**s / 10**k) (half to even) and the value M * 2**-s: the correctly rounded
+    quotient, which is what ``float()`` gives."""
+    if ni > 15 or k > 15:
+        return None
+
+    def value(pairs: np.ndarray) -> np.ndarray:
+        p = pairs.shape[1]
+        return pairs.astype(np.float64) @ np.array([100.0**j for j in range(p - 1, -1, -1)])
+
+    ipart, frac = value(ipairs), value(fpairs)
+    d = 10**k
+    if ni + k <= 15:
+        return (ipart * float(d) + frac) / float(d)
+    ipart_i, frac_i = ipart.astype(np.int64), frac.astype(np.int64)
+    lo, hi = int(ipart_i.min()), int(ipart_i.max())
+    if lo < 1 or hi >= 1 << 40:
+        return None
+    if lo.bit_length() == hi.bit_length():  # one shift for the block (the usual case)
+        s: Any = 53 - hi.bit_length()
+    else:  # 53 - bit length of I
+        s = 53 - np.frexp(ipart)[1].astype(np.int64)
+    if d << (53 - lo.bit_length()) >= 1 << 61:  # F * 2**s and twice the remainder fit an int64
+        return None
+    scaled = frac_i << s
+    q = scaled // d
+    r2 = 2 * (scaled - q * d)
+    mant = (ipart_i << s) + q
+    mant += (r2 > d) | ((r2 == d) & ((mant & 1) == 1))
+    return np.ldexp(mant.astype(np.float64), -s)
+
+
 def _parse_block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
+    """Parse complete lines ``buf`` (ends with a newline) whose first line is ``first_line``: the
+    fast path when all lines are alike (:func:`_parse_fixed`), else :func:`_parse_general`."""
+    cols = _parse_fixed(buf, path, first_line)
+    return cols if cols is not None else _parse_general(buf, path, first_line)
+
+
+def _parse_general(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     """Parse complete lines ``buf`` (ends with a newline) whose first line is ``first_line``."""
     _check_control_bytes(buf, path, first_line)
     nl = np.flatnonzero(buf == 10)
