@@ -441,7 +441,7 @@ class _ChunkedWriter:
         self.chunk_count = 0
 
     #: chunks waiting for the background thread at most (bounded memory)
-    MAX_PENDING = 4
+    MAX_PENDING = 32
 
     def drain(self, keep: int = 0) -> None:
         """Wait until at most ``keep`` chunks are still being written by the background thread (an
@@ -945,14 +945,14 @@ class McapRunWriter:
             add(cid, int(t[-1]), body, int(t[0]), buf.messages)
             buf.messages += 1
             buf.written += len(t)
-            if bs.view_cid is None:
-                continue
-            # the view: the first sample in each VIEW_PERIOD_NS bin of time
-            bins = t // column_blocks.VIEW_PERIOD_NS
-            pick = np.flatnonzero(np.diff(bins, prepend=bs.last_bin) != 0)
-            bs.last_bin = int(bins[-1])
-            if len(pick):
-                self._emit_view(bs, t[pick], {k: v[pick] for k, v in cols.items()})
+        if bs.view_cid is None:
+            return
+        # the view: the first sample in each VIEW_PERIOD_NS bin of time
+        bins = t_all // column_blocks.VIEW_PERIOD_NS
+        pick = np.flatnonzero(np.diff(bins, prepend=bs.last_bin) != 0)
+        bs.last_bin = int(bins[-1])
+        if len(pick):
+            self._emit_view(bs, t_all[pick], {k: v[pick] for k, v in cols_all.items()})
 
     def _emit_view(self, bs: _BlockStream, t: Any, cols: dict[str, Any]) -> None:
         """The view messages of samples at times ``t`` (``cols``: their values): rows of finite

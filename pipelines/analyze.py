@@ -1159,14 +1159,16 @@ class _RunsProgress:
 
 
 #: settings of the local cluster: no sampling profiler (a stack sample of the task every 10 ms)
-#: and no GIL monitor (every 1 ms) in the workers, resource polls once a second: on a machine
-#: with as many cores as workers they take CPU from the runs
+#: and no GIL monitor (every 1 ms) in the workers, resource polls once a second (on a machine
+#: with as many cores as workers they take CPU from the runs); workers forked from this process
+#: once it has imported what a run needs (spawned workers each imported it anew: ~1 s each)
 _LOCAL_DASK = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.system-monitor.gil.enabled": False,
     "distributed.admin.system-monitor.interval": "1s",
     "distributed.admin.system-monitor.disk": False,
     "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.worker.multiprocessing-method": "fork",
 }
 
 
@@ -1184,7 +1186,15 @@ class _ClusterStart:
     @staticmethod
     def _start(n: int) -> Any:
         import dask
+        import matplotlib
         from dask.distributed import LocalCluster
+
+        import cdpr.pipelines.plotting
+        import cdpr.pipelines.report  # noqa: F401  (imported here, the forked workers have them)
+        from cdpr.daq import run_reader  # noqa: F401
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot  # noqa: F401
 
         # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set, which also fixes glibc's mmap
         # threshold: every array over 128 KiB is then mapped and unmapped anew (page faults: a

@@ -131,3 +131,24 @@ def test_batch_on_a_real_dask_scheduler_process(runs: Path, tmp_path: Path) -> N
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+def test_batch_on_a_local_cluster_of_two_workers(runs: Path, tmp_path: Path) -> None:
+    """``--workers 2``: a local Dask cluster whose workers are forked from the command's process
+    (a separate process here, as a user runs it) gives the results of one worker in-process."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
+    out = tmp_path / "two"
+    res = subprocess.run(
+        [sys.executable, "-m", "cdpr.pipelines.cli", "analyze", str(runs), "--out", str(out),
+         "--workers", "2", "--no-progress", *GEO],
+        env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=600,
+        preexec_fn=_default_sigint,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count(" points (") == 2, res.stdout
+    local = tmp_path / "one"
+    assert main(["analyze", str(runs), "--out", str(local), "--workers", "1", *GEO]) == 0
+    for name in ("sweep31", "sweep32"):
+        a = pd.read_csv(out / name / "points.csv")
+        b = pd.read_csv(local / name / "points.csv")
+        pd.testing.assert_frame_equal(a, b)
