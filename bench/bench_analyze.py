@@ -121,7 +121,7 @@ def bench_scaling(tmp: Path, n_runs: int = 4, duration_s: float = 3600.0) -> dic
         "context": (
             f"{n_runs} runs of {duration_s:.0f} s; 1 worker {times[1]:.1f} s, 2 workers "
             f"{times[2]:.1f} s (1 worker runs in-process; 2 workers include the start of the "
-            "local cluster and the imports in each worker process); load average "
+            "local cluster, its workers forked from the command); load average "
             f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
         ),
     }
