@@ -312,10 +312,35 @@ def block_columns(
     return cols
 
 
+def block_columns_of(fields: Sequence[str]) -> set[str]:
+    """The frame-block columns that give the per-frame ``fields`` (``data``: every ``data_<j>``
+    and ``length``)."""
+    out = {f for f in fields if f != "data"}
+    if "data" in fields:
+        out |= {"length", *(f"data_{j}" for j in range(64))}
+    return out
+
+
 def frames_from_blocks(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The per-frame columns (the fields of :data:`FIELDS` and ``status``, as the per-frame JSON
     layout reads back: 0/1 and counts int64, ``data`` bytes, ``channel`` as recorded) of decoded
-    frame blocks (:func:`cdpr.daq.column_blocks.decode_blocks`)."""
+    frame blocks (:func:`cdpr.daq.column_blocks.decode_blocks`; with some columns only: the
+    fields they give)."""
+    out: dict[str, np.ndarray] = {"t_ns": cols["t_ns"]}
+    for name in (*FIELDS, "status"):
+        if name == "data":
+            if "length" in cols:
+                out["data"] = _frame_bytes(cols)
+        elif name == "channel":
+            if "channel" in cols:
+                out["channel"] = cols["channel"]
+        elif name in cols:
+            out[name] = cols[name].astype(np.int64)
+    return out
+
+
+def _frame_bytes(cols: dict[str, np.ndarray]) -> np.ndarray:
+    """``bytes`` per frame: the first ``length`` of ``data_0``, ``data_1``, ..."""
     n = len(cols["t_ns"])
     length = cols["length"].astype(np.int64)
     w = 0
@@ -329,17 +354,7 @@ def frames_from_blocks(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     flat = rows.tobytes()
     data = np.empty(n, object)
     data[:] = [flat[i * w : i * w + k] for i, k in enumerate(length.tolist())]
-    out: dict[str, np.ndarray] = {"t_ns": cols["t_ns"]}
-    out["arbitration_id"] = cols["arbitration_id"].astype(np.int64)
-    for name in FLAG_FIELDS:
-        out[name] = cols[name].astype(np.int64)
-    out["dlc"] = cols["dlc"].astype(np.int64)
-    out["data"] = data
-    out["channel"] = cols["channel"]
-    out["is_rx"] = cols["is_rx"].astype(np.int64)
-    out["t_bus_ns"] = cols["t_bus_ns"].astype(np.int64)
-    out["status"] = cols["status"].astype(np.int64)
-    return out
+    return data
 
 
 def frame_rows(cols: dict[str, np.ndarray]) -> list[tuple[int, dict[str, Any]]]:

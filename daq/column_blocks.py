@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import base64
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -189,10 +189,13 @@ def encode_block(
     )
 
 
-def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndarray]:
+def decode_blocks(
+    bodies: Sequence[bytes], where: str = "", columns: Collection[str] | None = None
+) -> dict[str, np.ndarray]:
     """Columns (``t_ns`` first) of block message bodies, concatenated in the given order (an
     indexed column as its values, an object array); a column some blocks lack is NaN there (and
-    float64), or 0 for a uint8 column.  Bad blocks raise InputError naming ``where``."""
+    float64), or 0 for a uint8 column.  ``columns``: only these (and ``t_ns``).  Bad blocks raise
+    InputError naming ``where``."""
     if not bodies:
         return {"t_ns": np.empty(0, np.int64)}
     # the writer puts "data" last: the header is parsed as JSON, the base64 decoded straight from
@@ -226,15 +229,19 @@ def decode_blocks(bodies: Sequence[bytes], where: str = "") -> dict[str, np.ndar
                 pos += n * d.itemsize
             if pos != len(raw) or "t_ns" not in cols:
                 raise ValueError("data length does not match count x columns")
+            if columns is not None:  # copies: the block's bytes are not kept alive
+                cols = {k: v.copy() for k, v in cols.items() if k == "t_ns" or k in columns}
             for name, table in (h.get("values") or {}).items():
+                if name not in cols:
+                    continue
                 cols[name] = _looked_up(cols[name], table, tables.setdefault(name, {}))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"{where}: a column block is malformed ({exc})") from None
         parts.append(cols)
-    return _concat(parts)
+    return concat(parts)
 
 
-def _concat(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
+def concat(parts: Sequence[Mapping[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """The columns of consecutive parts (each with ``t_ns``) one after the other; a column a part
     lacks is 0 there when it is uint8 where present (bytes past a frame's length), else NaN."""
     if len(parts) == 1:
@@ -355,6 +362,6 @@ class BlockBuffer:
         if len(pieces) == 1:
             return pieces[0]
         t = np.concatenate([p[0] for p in pieces])
-        cols = _concat([{"t_ns": tt, **c} for tt, c in pieces])
+        cols = concat([{"t_ns": tt, **c} for tt, c in pieces])
         del cols["t_ns"]
         return t, cols

@@ -477,15 +477,34 @@ class Run:
         return out
 
     def _block_columns(
-        self, cid: int, start_ns: int | None, stop_ns: int | None
+        self,
+        cid: int,
+        start_ns: int | None,
+        stop_ns: int | None,
+        columns: Sequence[str] | None = None,
     ) -> dict[str, np.ndarray]:
-        """Columns (``t_ns`` first) of the samples of block channel ``cid`` in [start_ns,
-        stop_ns), sorted by time."""
-        bodies: list[bytes] = []
-        for ci, idx in self._block_index(cid, start_ns, stop_ns):
-            bodies += self._extract(ci, idx)
-        cols = column_blocks.decode_blocks(bodies, str(self.path))
-        if cid in self._frame_blocks and len(cols["t_ns"]):
+        """Columns (``t_ns`` first; ``columns``: only these) of the samples of block channel
+        ``cid`` in [start_ns, stop_ns), sorted by time; raw CAN frames as their per-frame
+        fields."""
+        frames = cid in self._frame_blocks
+        wanted: Any = columns
+        if frames and columns is not None:
+            from .can_raw import block_columns_of
+
+            wanted = block_columns_of(columns)
+        # a chunk at a time: only the columns asked for outlive their chunk's bytes
+        parts = [
+            column_blocks.decode_blocks(self._extract(ci, idx), str(self.path), wanted)
+            for ci, idx in self._block_index(cid, start_ns, stop_ns)
+        ]
+        cols = column_blocks.concat(parts) if parts else column_blocks.decode_blocks([])
+        keep = _in_window(cols["t_ns"], start_ns, stop_ns)
+        if not keep.all():
+            cols = {k: v[keep] for k, v in cols.items()}
+        if len(cols["t_ns"]) > 1 and np.any(np.diff(cols["t_ns"]) < 0):
+            order = np.argsort(cols["t_ns"], kind="stable")
+            cols = {k: v[order] for k, v in cols.items()}
+        if frames and len(cols["t_ns"]):
             from .can_raw import frames_from_blocks
 
             try:
@@ -494,12 +513,6 @@ class Run:
                 raise InputError(
                     f"{self.path}: a block of CAN frames is malformed ({exc})"
                 ) from None
-        keep = _in_window(cols["t_ns"], start_ns, stop_ns)
-        if not keep.all():
-            cols = {k: v[keep] for k, v in cols.items()}
-        if len(cols["t_ns"]) > 1 and np.any(np.diff(cols["t_ns"]) < 0):
-            order = np.argsort(cols["t_ns"], kind="stable")
-            cols = {k: v[order] for k, v in cols.items()}
         return cols
 
     def _block_extent(self, cid: int) -> tuple[int, int | None, int | None]:
@@ -542,7 +555,7 @@ class Run:
         alone (no chunk is decompressed)."""
         cid = self._cid(topic)
         if cid in self._blocked:
-            return self._block_columns(cid, None, None)["t_ns"]
+            return self._block_columns(cid, None, None, ())["t_ns"]
         parts = [self._message_index(ci, cid)[:, 0] for ci in self._chunks_of(cid, None, None)]
         t = np.concatenate(parts).astype(np.int64) if parts else np.empty(0, np.int64)
         t.sort(kind="stable")
@@ -561,7 +574,7 @@ class Run:
 
         cid = self._cid(topic)
         if cid in self._blocked:
-            cols = self._block_columns(cid, start_ns, stop_ns)
+            cols = self._block_columns(cid, start_ns, stop_ns, columns)
             if columns is not None:  # only the columns asked for (t_ns always)
                 keep = {"t_ns", *columns}
                 cols = {k: v for k, v in cols.items() if k in keep}
@@ -650,7 +663,16 @@ def summarize(run: Run) -> list[StreamSummary]:
     gaps).  Times come from the message indexes; ``status`` is decoded window by window."""
     out = []
     for topic, info in run.streams.items():
-        t = run.times(topic)
+        blocked = info.metadata.get("storage") == column_blocks.STORAGE
+        bad = 0
+        if blocked:  # times and status in one pass over the blocks, a window at a time
+            parts, bad = [], 0
+            for df in run.iter_tables(topic, 600 * 10**9, ["status"]):
+                parts.append(df["t_ns"].to_numpy(np.int64))
+                bad += int(np.count_nonzero(df["status"].fillna(0).to_numpy()))
+            t = np.concatenate(parts) if parts else np.empty(0, np.int64)
+        else:
+            t = run.times(topic)
         n = len(t)
         nominal = info.rate_hz
         if n == 0:
@@ -666,8 +688,7 @@ def summarize(run: Run) -> list[StreamSummary]:
             if ref > 0:
                 gaps = int(np.count_nonzero(dt > 3 * ref))
             max_gap = float(dt.max())
-        bad = 0
-        if "status" in info.fields or info.schema_name.startswith("cdpr."):
+        if not blocked and ("status" in info.fields or info.schema_name.startswith("cdpr.")):
             for df in run.iter_tables(topic, 600 * 10**9):
                 if "status" in df.columns:
                     bad += int(np.count_nonzero(df["status"].fillna(0).to_numpy()))

@@ -18,7 +18,7 @@ from test_recorder_helpers import node_read
 from cdpr.analysis.errors import InputError
 from cdpr.daq.column_blocks import BlockBuffer, decode_blocks, encode_block
 from cdpr.daq.mcap_io import read_run
-from cdpr.daq.run_reader import open_run
+from cdpr.daq.run_reader import open_run, summarize
 from cdpr.pipelines.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,3 +132,15 @@ def test_a_bad_index_or_table_is_named() -> None:
     buf = BlockBuffer()
     with pytest.raises(InputError, match="channel: an index past its table of 1"):
         buf.add_columns(t, {"channel": np.array([0, 1], np.uint8)}, 0, {"channel": ["can0"]})
+
+
+def test_inspect_counts_frames_and_bad_status_from_the_blocks(imported) -> None:
+    out, want = imported
+    with open_run(out) as run:
+        rows = {s.topic: s for s in summarize(run)}
+        times = run.times("/can_raw")
+    raw = rows["/can_raw"]
+    assert raw.count == len(want) == len(times)
+    assert raw.bad_status == sum(m.is_error_frame for m in want) == 1
+    assert times.tolist() == [round(m.timestamp * 1e9) for m in want]
+    assert raw.first_ns == times[0] and raw.last_ns == times[-1]
