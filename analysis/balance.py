@@ -176,30 +176,41 @@ def steady_points(
     # work on the usable samples only: a masked stretch neither splits a point nor enters a mean;
     # a change of level across it still shows in the windows on either side
     idx = np.flatnonzero(ok)
-    xc = x[idx]
+    xc = x[idx] if idx.size < n else x  # x is this function's own array
     nc = idx.size
     dt = float(np.median(np.diff(t[idx])))
     w = max(2, int(round(rule.window_s * 1e9 / dt)))
     med = np.median(xc, axis=0)
     v_med = float(med[0]) if airspeed_mps is not None else 0.0
-    xc = xc - med
-    c = np.concatenate([np.zeros((1, xc.shape[1])), np.cumsum(xc, axis=0)])
+    xc -= med
+    c = np.empty((nc + 1, xc.shape[1]))
+    c[0] = 0.0
+    np.cumsum(xc, axis=0, out=c[1:])
+    del x, xc
     if nc < 2 * w:
         return []
     # at usable sample i: mean of [i, i + w) minus mean of [i - w, i), for w <= i <= nc - w
-    i = np.arange(w, nc - w + 1)
-    D = ((c[i + w] - c[i]) - (c[i] - c[i - w])) / w
+    # (slices of the cumulative sums c[i + w], c[i], c[i - w]: no (n, k) copies)
+    hi, mid, lo = c[2 * w : nc + 1], c[w : nc - w + 1], c[: nc - 2 * w + 1]
+    D = hi - mid
+    D -= mid
+    D += lo
+    D /= w
+    absD = np.abs(D, out=D)  # only |D| is used from here on
     # the 10 % quantile of |D| over the run: |N(0, sigma)| has its 10 % quantile at 0.1257 sigma;
     # robust while at least ~ a fifth of the run is steady (transitions inflate only the tail)
-    sigma = np.quantile(np.abs(D), 0.1, axis=0) / 0.1257
-    band = np.broadcast_to(np.maximum(rule.k_sigma * sigma, np.asarray(floors)), D.shape).copy()
-    if airspeed_mps is not None:  # tunnel noise grows with speed: a relative floor as well
-        v_level = np.abs((c[i + w, 0] - c[i, 0]) / w + v_med)
-        band[:, 0] = np.maximum(band[:, 0], rule.speed_rel * v_level)
+    sigma = np.quantile(absD, 0.1, axis=0) / 0.1257
+    band = np.maximum(rule.k_sigma * sigma, np.asarray(floors))
     # a transition at sample i spreads over (i - w, i + w): the windows see it there.  The first
     # and last w samples have one window only: they share the verdict of the nearest pair.
+    if airspeed_mps is None:
+        out = (absD > band).any(axis=1)
+    else:  # tunnel noise grows with speed: a relative floor for the airspeed as well
+        v_level = np.abs((hi[:, 0] - mid[:, 0]) / w + v_med)
+        out = (absD[:, 1:] > band[1:]).any(axis=1)
+        out |= absD[:, 0] > np.maximum(band[0], rule.speed_rel * v_level)
     sc = np.empty(nc, bool)
-    sc[w : nc - w + 1] = ~(np.abs(D) > band).any(axis=1)
+    sc[w : nc - w + 1] = ~out
     sc[:w] = sc[w]
     sc[nc - w + 1 :] = sc[nc - w]
     # back to all samples: a masked sample is steady when the usable samples on both sides are
