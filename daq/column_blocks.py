@@ -9,8 +9,9 @@ schema, so Foxglove and any MCAP reader open it) is::
      "first_sample": 12000,         # index of the block's first sample in the stream (0-based)
      "count": 250,                  # samples in the block
      "columns": ["t_ns", "T_front_left_top_N", ..., "status"],
-     "dtypes": ["<i8", "<f8", ..., "<i8"],   # little-endian int64 or float64 (NaN: missing),
-                                             # or "|u1" (uint8)
+     "dtypes": ["<i8", "<f8", ..., "|u1"],   # little-endian int64 or float64 (NaN: missing);
+                                             # an integer column whose values fit is stored
+                                             # narrower: "|u1" (uint8) or "<i4" (int32)
      "values": {"channel": ["can0", 1, null]},  # optional: a column of indexes into a table
      "data": "<base64 of the columns' bytes, one column after the other>"}
 
@@ -69,9 +70,9 @@ VIEW_PERIOD_NS = 20_000_000
 #: a block is closed at this many samples (and at every chunk close of the writer)
 MAX_BLOCK_SAMPLES = 2048
 
-_INT, _FLOAT, _U8 = "<i8", "<f8", "|u1"
+_INT, _FLOAT, _U8, _I32 = "<i8", "<f8", "|u1", "<i4"
 _DATA_KEY = b',"data":"'
-_DTYPES = {_INT: np.dtype(_INT), _FLOAT: np.dtype(_FLOAT), _U8: np.dtype(_U8)}
+_DTYPES = {d: np.dtype(d) for d in (_INT, _FLOAT, _U8, _I32)}
 _INT_DTYPES = frozenset({"int64", "int32", "int", "uint8", "bool"})
 _NUMERIC = _INT_DTYPES | {"float64", "float32", "float"}
 
@@ -114,7 +115,10 @@ def block_schema(stream: str, description: Any) -> dict[str, Any]:
             "first_sample": {"type": "integer", "minimum": 0},
             "count": {"type": "integer", "minimum": 1},
             "columns": {"type": "array", "items": {"type": "string"}},
-            "dtypes": {"type": "array", "items": {"type": "string", "enum": [_INT, _FLOAT, _U8]}},
+            "dtypes": {
+                "type": "array",
+                "items": {"type": "string", "enum": [_INT, _FLOAT, _U8, _I32]},
+            },
             "values": {
                 "type": "object",
                 "additionalProperties": {"type": "array"},
@@ -156,13 +160,27 @@ def _column(values: Any) -> np.ndarray:
         ) from None
 
 
+def narrow(a: np.ndarray) -> np.ndarray:
+    """An int64 column in the narrowest storage that holds its values exactly (uint8 for 0..255,
+    int32, else int64); other columns as they are.  The reader gives int64 back."""
+    if a.dtype != np.int64 or not len(a):
+        return a
+    lo, hi = int(a.min()), int(a.max())
+    if lo >= 0 and hi <= 255:
+        return a.astype(np.uint8)
+    if lo >= -(2**31) and hi < 2**31:
+        return a.astype(np.int32)
+    return a
+
+
 def encode_block(
     t_ns: np.ndarray,
     columns: Mapping[str, np.ndarray],
     first_sample: int,
     values: Mapping[str, Sequence[Any]] | None = None,
 ) -> bytes:
-    """One block message body: ``t_ns`` (n,) int64 and the columns (n,) int64, float64 or uint8;
+    """One block message body: ``t_ns`` (n,) int64 and the columns (n,) int64, float64, int32 or
+    uint8;
     ``values``: the tables of the columns that hold indexes into one."""
     t_ns = np.ascontiguousarray(t_ns, dtype=_INT)
     n = len(t_ns)
@@ -171,7 +189,8 @@ def encode_block(
     for name, a in zip(names, arrays, strict=True):
         if a.shape != (n,) or a.dtype.str not in _DTYPES:
             raise InputError(
-                f"column block: {name}: expected ({n},) int64/float64/uint8, got {a.shape} {a.dtype}"
+                f"column block: {name}: expected ({n},) int64/float64/int32/uint8, got {a.shape} "
+                f"{a.dtype}"
             )
     sec, nsec = divmod(int(t_ns[-1]), 1_000_000_000)
     head = {
@@ -225,7 +244,9 @@ def decode_blocks(
             pos = 0
             for name, dt in zip(h["columns"], h["dtypes"], strict=True):
                 d = _DTYPES[dt]
-                cols[name] = np.frombuffer(raw, d, n, pos)
+                a = np.frombuffer(raw, d, n, pos)
+                # integers read back int64 whatever their storage (no uint8 arithmetic downstream)
+                cols[name] = a.astype(np.int64) if d.kind in "iu" and d.itemsize < 8 else a
                 pos += n * d.itemsize
             if pos != len(raw) or "t_ns" not in cols:
                 raise ValueError("data length does not match count x columns")

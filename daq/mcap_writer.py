@@ -935,12 +935,13 @@ class McapRunWriter:
         if got is None:
             return
         t_all, cols_all = got
+        stored = {k: column_blocks.narrow(v) for k, v in cols_all.items()}  # the same values
         cid = self._channels[stream]
         add = self._writer.add_message
         step = buf.max_samples
         for a in range(0, len(t_all), step):
             t = t_all[a : a + step]
-            cols = {k: v[a : a + step] for k, v in cols_all.items()}
+            cols = {k: v[a : a + step] for k, v in stored.items()}
             body = column_blocks.encode_block(t, cols, buf.written, buf.values)
             add(cid, int(t[-1]), body, int(t[0]), buf.messages)
             buf.messages += 1

@@ -9,7 +9,7 @@ import json
 import struct
 from typing import Any
 
-_FMT = {"<i8": "q", "<f8": "d", "|u1": "B"}
+_FMT = {"<i8": "q", "<f8": "d", "|u1": "B", "<i4": "i"}
 _FLAGS = ("is_extended", "is_remote", "is_error_frame", "is_fd", "bitrate_switch",
           "error_state_indicator")  # fmt: skip
 

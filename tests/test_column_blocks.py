@@ -160,3 +160,40 @@ def test_a_block_stream_refuses_strings_and_the_record_path(tmp_path: Path) -> N
         w.flush()
     with pytest.raises(InputError, match="write_columns"):
         w.write_records("tensions", [T0], FrameRecords(np.ones(1, bool), np.zeros((1, 3))), None)
+
+
+def test_integer_columns_are_stored_narrow_and_read_back_int64(tmp_path: Path) -> None:
+    """Integers that fit are stored as uint8 or int32 (fewer bytes to encode, compress and read);
+    every reader gives the exact values back, int64 from open_run."""
+    p = tmp_path / "narrow.mcap"
+    desc = StreamDescription(
+        {k: FieldDescription("", "int64") for k in ("small", "mid", "neg", "big")}, 1000.0, "t"
+    )
+    n = 3000
+    t = T0 + np.arange(n, dtype=np.int64) * 1_000_000
+    cols = {
+        "small": np.arange(n, dtype=np.int64) % 256,  # 0..255: uint8
+        "mid": np.arange(n, dtype=np.int64) * 700_000,  # up to 2.1e9: int32
+        "neg": -np.arange(n, dtype=np.int64),  # negative: int32
+        "big": np.arange(n, dtype=np.int64) + 2**40,  # int64
+    }
+    w = McapRunWriter(p)
+    w.add_stream("tensions", desc)
+    w.write_columns("tensions", t, cols, 0)
+    w.finish()
+    with p.open("rb") as fh:
+        reader = make_reader(fh)
+        bodies = [m.data for _, _, m in reader.iter_messages(["/tensions"])]
+    dtypes = dict(
+        zip(json.loads(bodies[0])["columns"], json.loads(bodies[0])["dtypes"], strict=True)
+    )
+    assert dtypes == {"t_ns": "<i8", "small": "|u1", "mid": "<i4", "neg": "<i4", "big": "<i8",
+                      "status": "|u1"}  # fmt: skip
+    with open_run(p) as run:
+        df = run.table("/tensions")
+    for k, v in cols.items():
+        assert df[k].dtype == np.int64 and df[k].tolist() == v.tolist(), k
+    with p.open("rb") as fh:
+        rows = messages(make_reader(fh))["/tensions"]
+    for k, v in cols.items():
+        assert [r[k] for _, r in rows] == v.tolist(), k

@@ -30,9 +30,9 @@ async function indexedCounts(buf, decompressHandlers) {
 }
 
 // A column block (docs/recording.md, "Column blocks"): base64 of the columns one after the other,
-// little-endian int64 ("<i8") or float64 ("<f8"); count its samples, check its length and that its
+// little-endian int64 ("<i8"), float64 ("<f8"), int32 ("<i4") or uint8 ("|u1"); count its samples, check its length and that its
 // t_ns column (first) rises and ends at the message's timestamp.
-const ITEMSIZE = { "<i8": 8, "<f8": 8, "|u1": 1 };
+const ITEMSIZE = { "<i8": 8, "<f8": 8, "|u1": 1, "<i4": 4 };
 function countBlock(out, topic, body) {
   const raw = Buffer.from(body.data, "base64");
   let size = 0;
@@ -57,10 +57,15 @@ function countBlock(out, topic, body) {
     const table = body.values ? body.values[body.columns[k]] : undefined;
     if (table !== undefined) {
       const dt = body.dtypes[k];
-      if (!Array.isArray(table) || (dt !== "|u1" && dt !== "<i8")) out.bad_blocks += 1;
+      if (!Array.isArray(table) || !["|u1", "<i4", "<i8"].includes(dt)) out.bad_blocks += 1;
       else
         for (let i = 0; i < body.count; i++) {
-          const v = dt === "|u1" ? raw[pos + i] : Number(dv.getBigInt64(pos + 8 * i, true));
+          const v =
+            dt === "|u1"
+              ? raw[pos + i]
+              : dt === "<i4"
+                ? dv.getInt32(pos + 4 * i, true)
+                : Number(dv.getBigInt64(pos + 8 * i, true));
           if (v < 0 || v >= table.length) out.bad_blocks += 1;
         }
     }
