@@ -144,3 +144,19 @@ def test_inspect_counts_frames_and_bad_status_from_the_blocks(imported) -> None:
     assert raw.bad_status == sum(m.is_error_frame for m in want) == 1
     assert times.tolist() == [round(m.timestamp * 1e9) for m in want]
     assert raw.first_ns == times[0] and raw.last_ns == times[-1]
+
+
+def test_every_message_of_the_import_validates_against_its_schema(imported) -> None:
+    import json
+
+    import jsonschema
+
+    out, want = imported
+    n = 0
+    with out.open("rb") as fh:
+        for schema, channel, msg in make_reader(fh).iter_messages():
+            jsonschema.Draft202012Validator(json.loads(schema.data)).validate(json.loads(msg.data))
+            if channel.topic == "/can_raw":
+                assert schema.name == "cdpr.column_block"
+                n += json.loads(msg.data)["count"]
+    assert n == len(want)
