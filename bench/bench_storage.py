@@ -231,7 +231,7 @@ def run() -> dict[str, dict]:
         out["storage_block_bytes_per_sample"] = {
             "value": run_path.stat().st_size / N_SAMPLES,
             "unit": "B/sample",
-            "context": "the same samples in column blocks (float64/int64 columns, base64 in "
+            "context": "the same samples in column blocks (float64 and narrow integer columns, base64 in "
             "JSON, zstd) with the 50 Hz per-sample view beside them",
         }
         out["storage_block_read_rows"] = {
