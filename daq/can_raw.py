@@ -270,14 +270,7 @@ def encode_can_frames(messages: Sequence[Any]) -> FrameRecords:
 #: the ``layout`` of a channel of frame blocks
 BLOCK_LAYOUT = "can_frames"
 #: the 0/1 fields of a frame, each a uint8 column of a frame block
-FLAG_FIELDS = (
-    "is_extended",
-    "is_remote",
-    "is_error_frame",
-    "is_fd",
-    "bitrate_switch",
-    "error_state_indicator",
-)
+FLAG_FIELDS = FIELDS[1:7]
 
 
 def block_columns(
@@ -306,7 +299,7 @@ def block_columns(
     cols["length"] = length.astype(np.uint8)
     for j in range(w):
         cols[f"data_{j}"] = np.ascontiguousarray(data[:, j])
-    cols["channel"] = np.asarray(channel_index, np.uint8)
+    cols["channel"] = np.asarray(channel_index, np.int64)  # stored narrow when it fits
     cols["is_rx"] = np.asarray(is_rx, bool).view(np.uint8)
     cols["t_bus_ns"] = np.asarray(t_bus, np.int64)
     return cols

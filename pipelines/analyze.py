@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 import tomllib
 from collections.abc import Sequence
@@ -1162,14 +1163,15 @@ class _RunsProgress:
 #: and no GIL monitor (every 1 ms) in the workers, resource polls once a second (on a machine
 #: with as many cores as workers they take CPU from the runs); workers forked from this process
 #: once it has imported what a run needs (spawned workers each imported it anew: ~1 s each)
-_LOCAL_DASK = {
+_LOCAL_DASK: dict[str, Any] = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.system-monitor.gil.enabled": False,
     "distributed.admin.system-monitor.interval": "1s",
     "distributed.admin.system-monitor.disk": False,
     "distributed.worker.memory.monitor-interval": "1s",
-    "distributed.worker.multiprocessing-method": "fork",
 }
+if sys.platform.startswith("linux"):  # fork is not safe on macOS; spawn (Dask's default) there
+    _LOCAL_DASK["distributed.worker.multiprocessing-method"] = "fork"
 
 
 class _ClusterStart:

@@ -118,10 +118,7 @@ def test_batch_on_a_real_dask_scheduler_process(runs: Path, tmp_path: Path) -> N
         assert main(["analyze", str(runs), "--out", str(out), "--scheduler", address, *GEO]) == 0
         local = tmp_path / "c"
         assert main(["analyze", str(runs), "--out", str(local), "--workers", "1", *GEO]) == 0
-        for name in ("sweep31", "sweep32"):
-            a = pd.read_csv(out / name / "points.csv")
-            b = pd.read_csv(local / name / "points.csv")
-            pd.testing.assert_frame_equal(a, b)
+        _same_points(out, local)
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -148,6 +145,11 @@ def test_batch_on_a_local_cluster_of_two_workers(runs: Path, tmp_path: Path) -> 
     assert res.stdout.count(" points (") == 2, res.stdout
     local = tmp_path / "one"
     assert main(["analyze", str(runs), "--out", str(local), "--workers", "1", *GEO]) == 0
+    _same_points(out, local)
+
+
+def _same_points(out: Path, local: Path) -> None:
+    """The points of both runs in ``out`` equal those of ``local`` (one worker in-process)."""
     for name in ("sweep31", "sweep32"):
         a = pd.read_csv(out / name / "points.csv")
         b = pd.read_csv(local / name / "points.csv")
