@@ -160,3 +160,15 @@ def test_every_message_of_the_import_validates_against_its_schema(imported) -> N
                 assert schema.name == "cdpr.column_block"
                 n += json.loads(msg.data)["count"]
     assert n == len(want)
+
+
+def test_a_table_of_more_than_256_values_keeps_every_index() -> None:
+    names = [f"can{i}" for i in range(300)]
+    codes = np.arange(600, dtype=np.int64) % 300
+    buf = BlockBuffer()
+    t = np.arange(600, dtype=np.int64)
+    buf.add_columns(t, {"channel": codes}, 0, {"channel": names})
+    got = buf.take()
+    assert got is not None
+    body = encode_block(got[0], got[1], 0, buf.values)
+    assert decode_blocks([body])["channel"].tolist() == [names[c] for c in codes]
