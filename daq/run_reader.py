@@ -660,13 +660,14 @@ def summarize(run: Run) -> list[StreamSummary]:
 
     A gap is an interval longer than 3x the larger of the nominal period (channel metadata
     ``rate_hz``) and the 90th-percentile interval (so bursts, e.g. 4 CAN frames per sample, are not
-    gaps).  Times come from the message indexes; ``status`` is decoded window by window."""
+    gaps).  Times come from the message indexes (of a column-block stream: from its blocks, read
+    with its status in one pass); ``status`` is decoded window by window."""
     out = []
     for topic, info in run.streams.items():
         blocked = info.metadata.get("storage") == column_blocks.STORAGE
         bad = 0
         if blocked:  # times and status in one pass over the blocks, a window at a time
-            parts, bad = [], 0
+            parts = []
             for df in run.iter_tables(topic, 600 * 10**9, ["status"]):
                 parts.append(df["t_ns"].to_numpy(np.int64))
                 bad += int(np.count_nonzero(df["status"].fillna(0).to_numpy()))
