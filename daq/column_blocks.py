@@ -363,8 +363,7 @@ class BlockBuffer:
                 glob.append(v)
         if len(idx) and (idx.min() < 0 or idx.max() >= len(table)):
             raise InputError(f"column block: {name}: an index past its table of {len(table)}")
-        out = m[idx.astype(np.intp)]
-        return out.astype(np.uint8) if len(glob) <= 256 else out
+        return m[idx.astype(np.intp)]  # int64: stored narrow by the writer (narrow)
 
     def _close_rows(self) -> None:
         if not self._rows:
