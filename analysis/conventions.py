@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 
 WRENCH_NAMES: tuple[str, ...] = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
@@ -38,3 +40,98 @@ GRAVITY_O_MPS2 = np.array([0.0, 0.0, -STANDARD_GRAVITY_MPS2])
 
 NS_PER_S: int = 1_000_000_000
 """Nanoseconds per second."""
+
+# --------------------------------------------------------------------------------------------
+# Status words: one owner.  A reading's ``status`` (every stream) is a bit field of STATUS_*; the
+# analysis adds its own MASK_* bits on the samples it cannot use.  No two bits share a value (a
+# test checks it), so a word never stands for another by accident.
+# --------------------------------------------------------------------------------------------
+STATUS_OK: int = 0
+STATUS_SATURATED: int = 1 << 0
+"""A load cell at the end of its range."""
+STATUS_SLACK: int = 1 << 1
+"""A cable below its slack threshold."""
+STATUS_STALE: int = 1 << 2
+"""The sample repeats an old value (no new frame from the sensor)."""
+STATUS_BAD_FRAME: int = 1 << 3
+"""A frame that could not be decoded (wrong length, checksum, field out of range)."""
+STATUS_GAP: int = 1 << 4
+"""Samples were lost before this one (a counter jump or a missing frame)."""
+STATUS_SENSOR_FAULT: int = 1 << 5
+"""The sensor reports a fault of its own."""
+
+STATUS_NAMES: dict[int, str] = {
+    STATUS_SATURATED: "saturated",
+    STATUS_SLACK: "slack",
+    STATUS_STALE: "stale",
+    STATUS_BAD_FRAME: "bad_frame",
+    STATUS_GAP: "gap",
+    STATUS_SENSOR_FAULT: "sensor_fault",
+}
+"""The flag word of every status bit."""
+
+STATUS_ALL: int = 0
+for _bit in STATUS_NAMES:
+    STATUS_ALL |= _bit
+
+CHANNEL_STATUS_SATURATED: int = 1
+CHANNEL_STATUS_SLACK: int = 2
+CHANNEL_STATUS_FAULT: int = 4
+CHANNEL_TO_STATUS: tuple[tuple[int, int], ...] = (
+    (CHANNEL_STATUS_SATURATED, STATUS_SATURATED),
+    (CHANNEL_STATUS_SLACK, STATUS_SLACK),
+    (CHANNEL_STATUS_FAULT, STATUS_SENSOR_FAULT),
+)
+"""A load cell's own channel status (the ``status_<cable>`` field of ``/tensions``: the DBC's
+``ChN_Saturated``/``ChN_Slack``/``ChN_Fault`` signals, or the serial line's three bits per cell) is a
+different, smaller vocabulary: each of its bits maps to one STATUS_* bit here and only here."""
+
+
+@overload
+def status_from_channel_bits(channel_bits: int) -> int: ...
+@overload
+def status_from_channel_bits(channel_bits: np.ndarray) -> np.ndarray: ...
+def status_from_channel_bits(channel_bits: int | np.ndarray) -> int | np.ndarray:
+    """STATUS_* bits from load-cell channel status bits: an int for an int (the per-frame path,
+    no numpy round trip), else an int64 array of the same shape."""
+    if isinstance(channel_bits, int):
+        return sum(status for bit, status in CHANNEL_TO_STATUS if channel_bits & bit)
+    c = np.asarray(channel_bits).astype(np.int64)
+    out = np.zeros(c.shape, np.int64)
+    for bit, status in CHANNEL_TO_STATUS:
+        out |= np.where(c & bit, status, 0)
+    return out
+
+
+MASK_NAN: int = 1 << 8
+"""Analysis mask: a NaN or inf in the sample."""
+MASK_COUNTER_GAP: int = 1 << 9
+"""Analysis mask: the sample counter jumped before this sample."""
+MASK_POSE: int = 1 << 10
+"""Analysis mask: a flagged camera frame."""
+
+MASK_NAMES: dict[int, str] = {
+    **STATUS_NAMES,
+    MASK_NAN: "nan",
+    MASK_COUNTER_GAP: "counter_gap",
+    MASK_POSE: "pose_flagged",
+}
+"""Name of every bit a sample mask can carry (the flag words of the per-point table)."""
+
+# --------------------------------------------------------------------------------------------
+# Names of things the reduction produces and the test matrix uses
+# --------------------------------------------------------------------------------------------
+COEFFICIENTS: tuple[str, ...] = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
+"""The six aerodynamic coefficients, in this order: wind-axis forces on ``q S`` (drag, side force,
+lift) and body-axis moments about the MRP (roll and yaw on ``q S b``, pitch on ``q S c``)."""
+
+POINT_KINDS: tuple[str, ...] = ("wind_on", "tare", "zero", "windage")
+"""Kinds of a steady test point: wind on; wind-off weight tare; wind-off zero (level, for the zero
+drift); model-off wind-on windage tare."""
+
+WIND_OFF_KINDS: tuple[str, ...] = ("tare", "zero")
+"""Point kinds taken wind-off: they feed the weight model and serve as tares."""
+
+TENSION_METHODS: tuple[str, ...] = ("closed-form", "improved-closed-form", "penalty", "exact")
+"""Names of the tension-distribution methods (:data:`cdpr.analysis.tension.METHODS` has one entry
+per name, in this order)."""

@@ -33,14 +33,13 @@ import pandas as pd
 
 from cdpr.analysis.aero import ModelGeometry, air_density, transfer_moment
 from cdpr.analysis.balance import (
-    MASK_NAMES,
     SteadyRule,
     interpolate_at,
     points_from_events,
     sample_mask,
     steady_points,
 )
-from cdpr.analysis.conventions import WRENCH_COLUMNS
+from cdpr.analysis.conventions import MASK_NAMES, WRENCH_COLUMNS, status_from_channel_bits
 from cdpr.analysis.errors import CdprError, ConfigError
 from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.rig import Rig
@@ -162,10 +161,11 @@ def _no_raw_counts(p: Path, topic: str, missing: Sequence[str]) -> ConfigError:
 def _tension_columns(
     run: Any, topic: str, rig: Rig, p: Path, raw: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Times (n,), tensions (n, m) (NaN where a field is missing), the status words OR-ed over the
-    cables and the message (n,), the counter ``seq`` (None unless every message has one), and with
-    ``raw`` the ``raw_<cable>_counts`` (n, m) (NaN where missing; else None), read window by
-    window into arrays sized from the stream's message count."""
+    """Times (n,), tensions (n, m) (NaN where a field is missing), the status words (STATUS_*)
+    OR-ed over the message and the cables (each cable's channel bits mapped to STATUS_*) (n,),
+    the counter ``seq`` (None unless every message has one), and with ``raw`` the
+    ``raw_<cable>_counts`` (n, m) (NaN where missing; else None), read window by window into
+    arrays sized from the stream's message count."""
     cols = [f"T_{n}_N" for n in rig.cable_names]
     rcols = _raw_columns(rig) if raw else []
     R = np.empty((run.streams[topic].count, len(rcols)))
@@ -187,9 +187,10 @@ def _tension_columns(
             T[i : i + k, j] = _column(df, c)
         for j, c in enumerate(rcols):
             R[i : i + k, j] = _column(df, c)
-        for c in scols:
+        for c in scols:  # a cable's own status bits are mapped, the message status is STATUS_*
             if c in df:
-                st[i : i + k] |= np.nan_to_num(_column(df, c)).astype(np.int64)
+                bits = np.nan_to_num(_column(df, c)).astype(np.int64)
+                st[i : i + k] |= bits if c == "status" else status_from_channel_bits(bits)
         if seq is not None:
             if "seq" in df and df["seq"].notna().all():
                 seq[i : i + k] = df["seq"].to_numpy(np.int64)

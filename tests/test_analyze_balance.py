@@ -9,11 +9,6 @@ import pandas as pd
 import pytest
 
 from cdpr.analysis.balance import (
-    MASK_COUNTER_GAP,
-    MASK_NAN,
-    MASK_POSE,
-    STATUS_SATURATED,
-    STATUS_SLACK,
     SteadyRule,
     interpolate_at,
     nearest_tare,
@@ -21,6 +16,13 @@ from cdpr.analysis.balance import (
     points_from_events,
     sample_mask,
     steady_points,
+)
+from cdpr.analysis.conventions import (
+    MASK_COUNTER_GAP,
+    MASK_NAN,
+    MASK_POSE,
+    STATUS_SATURATED,
+    STATUS_SLACK,
 )
 from cdpr.pipelines.cli import main
 

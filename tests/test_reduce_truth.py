@@ -14,12 +14,11 @@ from truth_rig import RIG_FILE, alpha_sweep, controller, statics, weight
 
 from cdpr.analysis.aero import ModelGeometry
 from cdpr.analysis.balance import (
-    STATUS_SATURATED,
-    STATUS_SLACK,
     points_from_events,
     sample_mask,
     steady_points,
 )
+from cdpr.analysis.conventions import STATUS_SATURATED, STATUS_SLACK
 from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.weight import fit_weight
 from cdpr.daq.schema import rig_from_mapping

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-METHOD_NAMES = ("closed-form", "improved-closed-form", "penalty", "exact")
+from cdpr.analysis.conventions import TENSION_METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("runs", nargs="+", help="run files (.mcap) or folders holding them")
     p.add_argument("--out", required=True, help="output folder (one sub-folder per run + index.md)")
-    p.add_argument("--method", default="exact", choices=METHOD_NAMES, help="controller's method")
+    p.add_argument("--method", default="exact", choices=TENSION_METHODS, help="controller's method")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--workers", type=int, default=2, help="local Dask workers (default 2)")
     p.add_argument(
