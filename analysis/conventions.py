@@ -5,9 +5,10 @@
   components in {O} axes unless a name says otherwise.
 - Frame {O}: fixed to the tunnel, x downstream along the tunnel axis, y to the left looking
   downstream, z up.  Frame {P}: fixed to the platform at its reference point P.
-- Pose ``q = (p, psi)``: ``p`` the position of P in {O} (m); ``psi = (alpha, beta, gamma)`` Z-Y-X Euler
-  angles (rad): alpha roll about x, beta pitch about y, gamma yaw about z, with
-  ``R_O_P = Rz(gamma) @ Ry(beta) @ Rx(alpha)``.
+- Pose ``q = (p, psi)``: ``p`` the position of P in {O} (m); ``psi = (roll, pitch, yaw)`` Z-Y-X
+  Euler angles (rad): roll about x, pitch about y, yaw about z, with
+  ``R_O_P = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (the paper's alpha, beta, gamma; "alpha" is never the
+  angle of attack here: that is ``aoa``, the sideslip ``sideslip``).
 - Quaternions are ``[w, x, y, z]`` (scalar first), unit norm, ``w >= 0``.
 - Cable i: ``l_i = b_i - p - R pp_i`` (from the platform point to the anchor), ``u_i = l_i/|l_i|``,
   ``r_i = R pp_i``, column ``a_i = [u_i; r_i x u_i]`` of the structure matrix ``A`` (6 x m).
@@ -30,7 +31,7 @@ WRENCH_COLUMNS: tuple[str, ...] = ("fx_N", "fy_N", "fz_N", "mx_Nm", "my_Nm", "mz
 """Column names used in CSV and HDF5 tables for a wrench, in wrench order."""
 
 POSE_COLUMNS: tuple[str, ...] = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-"""Column names of a pose (position of P in {O}, Z-Y-X Euler angles alpha, beta, gamma)."""
+"""Column names of a pose (position of P in {O}, Z-Y-X Euler angles roll, pitch, yaw)."""
 
 STANDARD_GRAVITY_MPS2: float = 9.80665
 """Standard gravity (m/s^2)."""

@@ -54,7 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from cdpr.analysis.aero import attitude_from_flow_angles
+from cdpr.analysis.aero import ModelGeometry, attitude_from_flow_angles
+from cdpr.analysis.conventions import POINT_KINDS as KINDS
+from cdpr.analysis.conventions import WIND_OFF_KINDS
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_rotation
@@ -62,9 +64,6 @@ from cdpr.daq.files import load_toml
 from cdpr.daq.virtual_rig import Schedule, schedule_from_mapping
 
 from .tunnel_section import TunnelSection, tunnel_section_from_mapping
-
-KINDS = ("wind_on", "tare", "zero", "windage")
-WIND_OFF_KINDS = ("tare", "zero")
 
 _TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig"}
 _CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
@@ -94,18 +93,6 @@ _VRIG = {
     "test_points_on_link",
 }  # fmt: skip
 _AERO_FROM_MODEL = ("c_ref_m", "b_ref_m", "s_ref_m2", "mrp_P_m")
-
-
-@dataclass(frozen=True)
-class ModelGeometry:
-    """Reference geometry of the model: area (m^2), span and chord (m), MRP in {P} (m)."""
-
-    name: str
-    area_m2: float
-    span_m: float
-    chord_m: float
-    mrp_P_m: tuple[float, float, float]
-    volume_m3: float | None = None
 
 
 @dataclass(frozen=True)
