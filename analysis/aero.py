@@ -44,20 +44,6 @@ SPECIFIC_GAS_CONSTANT_AIR_JPKGK: float = 287.05287
 """Specific gas constant of dry air, J/(kg K) (ISA value)."""
 
 
-def air_density(static_pressure_Pa: ArrayLike, temperature_K: ArrayLike) -> FloatArray:
-    """Dry-air density (kg/m^3) from static pressure (Pa) and temperature (K), ideal gas.
-
-    ``rho = p / (R T)`` with ``R`` = :data:`SPECIFIC_GAS_CONSTANT_AIR_JPKGK`; broadcast.
-    """
-    p = as_float_array(static_pressure_Pa, "static_pressure_Pa")
-    t = as_float_array(temperature_K, "temperature_K")
-    if np.any(~np.isfinite(p)) or np.any(p <= 0):
-        raise InputError("static_pressure_Pa: expected finite values > 0 Pa")
-    if np.any(~np.isfinite(t)) or np.any(t <= 0):
-        raise InputError("temperature_K: expected finite values > 0 K")
-    return np.asarray(p / (SPECIFIC_GAS_CONSTANT_AIR_JPKGK * t), dtype=np.float64)
-
-
 def dynamic_pressure(density_kgpm3: ArrayLike, airspeed_mps: ArrayLike) -> FloatArray:
     """Dynamic pressure ``q = rho V^2 / 2`` (Pa) from density (kg/m^3) and airspeed (m/s)."""
     rho = as_float_array(density_kgpm3, "density_kgpm3")

@@ -12,7 +12,9 @@
 - Quaternions are ``[w, x, y, z]`` (scalar first), unit norm, ``w >= 0``.
 - Cable i: ``l_i = b_i - p - R pp_i`` (from the platform point to the anchor), ``u_i = l_i/|l_i|``,
   ``r_i = R pp_i``, column ``a_i = [u_i; r_i x u_i]`` of the structure matrix ``A`` (6 x m).
-- Statics: ``A T = -(M qdd + C + G + W_ext)`` with ``G = [m g; (R c) x m g]``.
+- Equation of motion (Newton–Euler about P): ``A T + G + W_ext = M qdd + C`` with
+  ``G = [m g; (R c) x m g]``; at rest ``A T = -(G + W_ext)`` (the paper's eq. 5-6; its eq. 4
+  prints the inertia with the other sign, see :mod:`cdpr.analysis.wrench`).
 """
 
 from __future__ import annotations

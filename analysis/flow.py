@@ -11,7 +11,7 @@ Formulas and sources:
   deg C.
 - Moist-air density: ideal mixture of dry air and water vapour,
   ``rho = (p - e)/(R_d T) + e/(R_v T)`` with ``e = RH e_s(T)``, ``R_d = 287.05287``,
-  ``R_v = 461.495`` J/(kg K).  With ``RH = 0`` it is :func:`cdpr.analysis.aero.air_density`.
+  ``R_v = 461.495`` J/(kg K).  With ``RH = 0`` it is dry air, ``p / (R_d T)``.
 - Dynamic viscosity: Sutherland's law, ``mu = mu_ref (T/T_ref)^1.5 (T_ref + S)/(T + S)``,
   ``mu_ref = 1.716e-5`` Pa s, ``T_ref = 273.15`` K, ``S = 110.4`` K (White, *Viscous Fluid Flow*).
 - Speed of sound ``a = sqrt(gamma R_d T)``, ``gamma = 1.4``; Mach ``V / a``.

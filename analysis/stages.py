@@ -193,12 +193,13 @@ def weight_tare_stage(
 
 @stage("inertia", wraps=inertia_wrench)
 def inertia_stage(p: Points, *, rig: Rig, pose_rate: FloatArray, pose_accel: FloatArray) -> Points:
-    """Subtract the inertia and Coriolis wrench ``M qdd + C`` of a moving platform
+    """Add back the inertia and Coriolis wrench ``M qdd + C`` of a moving platform
     (:func:`cdpr.analysis.dynamics.inertia_wrench`) at each point's pose, from its pose rate and
-    acceleration (s, 6) (Euler-angle rates, rad/s and rad/s²)."""
+    acceleration (s, 6) (Euler-angle rates, rad/s and rad/s²): Newton–Euler,
+    ``A T + G + W_ext = M qdd + C`` (:mod:`cdpr.analysis.wrench`)."""
     D = inertia_wrench(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, p[POSE], pose_rate, pose_accel)
     return with_updates(
-        p, arrays={WRENCH: p[WRENCH] - D, "inertia_N": D}, meta={"_note": "M qdd + C"}
+        p, arrays={WRENCH: p[WRENCH] + D, "inertia_N": D}, meta={"_note": "M qdd + C"}
     )
 
 

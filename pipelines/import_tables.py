@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cdpr.analysis.aero import air_density
+from cdpr.analysis.flow import air_density
 from cdpr.analysis.errors import ConfigError, InputError
 from cdpr.analysis.flow import air_density as moist_air_density
 from cdpr.analysis.flow import saturation_vapour_pressure

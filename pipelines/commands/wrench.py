@@ -5,8 +5,9 @@ Euler angles); a tension CSV with one ``T_<cable>_N`` column per cable of the ri
 pose; optionally wind-off tare tensions (same columns, one row for all poses or one per pose).
 
 Methods: with ``--tare`` the tare method ``W_ext = A (T0 - Tw)`` (paper eq. 7), otherwise the
-absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also subtracts the
-inertia wrench ``M qdd + C`` computed from the pose time series (needs an integer ``t_ns`` column).
+absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also adds back the
+inertia wrench ``M qdd + C`` (Newton: ``A T + G + W_ext = M qdd + C``) computed from the pose time
+series (needs an integer ``t_ns`` column).
 
 Output: the pose table's columns, then ``fx_N, fy_N, fz_N, mx_Nm, my_Nm, mz_Nm`` (W_ext on the
 platform at P, {O} axes, moments about P) and their standard deviations ``sd_fx_N ... sd_mz_Nm``
@@ -76,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--dynamic",
         action="store_true",
-        help="subtract M qdd + C from the pose time series (needs a t_ns column)",
+        help="add M qdd + C from the pose time series back (Newton-Euler; needs a t_ns column)",
     )
     aero = p.add_argument_group("aerodynamic coefficients (optional)")
     aero.add_argument("--airspeed-mps", dest="airspeed_mps", type=float, help="free-stream speed")
@@ -109,8 +110,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def _aero_setup(args: argparse.Namespace) -> tuple[float, str, float] | None:
     """Dynamic pressure (Pa), a provenance note and the density (kg/m^3), or None without
     ``--airspeed-mps``."""
-    from cdpr.analysis.aero import air_density, dynamic_pressure
+    from cdpr.analysis.aero import dynamic_pressure
     from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.flow import air_density
 
     given = [
         f
@@ -304,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         method = "absolute: W_ext = -A Tw - G with the rig file's mass (flag weight_nominal)"
     if motion is not None:
-        method += " - (M qdd + C)"
+        method += " + (M qdd + C)"
     header = {
         "cdpr": f"wrench {__version__}",
         "rig": f"{args.rig} sha256={file_sha256(args.rig)}",
