@@ -538,10 +538,12 @@ def _polygon(
     origin is assumed infeasible.  By the KKT conditions (``lam* = -sum mu_k g_k`` with
     ``|lam*|^2 = -sum mu_k h_k > 0`` for constraints ``g_k . lam <= h_k``) the optimum lies on the
     line of a constraint the origin violates; on each such line the foot of the origin is clipped
-    into the line's feasible interval (the line intersected with the other 2m - 1 half-planes), and
-    the candidate of least norm wins.  Poses are bucketed by their number of violated constraints,
-    so most poses check one or two lines.  Returns lam1, lam2 (K,) and found (K,) (False: the
-    polygon is empty).
+    into the line's feasible interval (the line intersected with the other 2m - 1 half-planes; the
+    limits' own interval where it is not empty, else the relaxed one).  The candidate that
+    satisfies the KKT conditions wins, lines that meet the unrelaxed polygon first; the least norm
+    decides only among those (see :func:`_polygon_lines` for why it cannot decide alone).  Poses
+    are bucketed by their number of violated constraints, so most poses check one or two lines.
+    Returns lam1, lam2 (K,) and found (K,) (False: the polygon is empty).
     """
     m, K = n1.shape
     q = n1 * n1 + n2 * n2  # |n_i|^2, (m, K)
@@ -559,7 +561,7 @@ def _polygon(
             sel = np.flatnonzero((cnt > prev) & (cnt <= kb))
             prev = kb
             if sel.size:
-                _polygon_lines(n1, n2, lo_, hi_, q, V, lower, width, kb, sel, out)
+                _polygon_lines(n1, n2, lo_, hi_, q, V, lower, width, tol, kb, sel, out)
     return out
 
 
@@ -572,6 +574,7 @@ def _polygon_lines(
     V: BoolArray,
     lower: FloatArray,
     width: FloatArray,
+    tol: FloatArray,
     kb: int,
     sel: NDArray[np.intp],
     out: tuple[FloatArray, FloatArray, BoolArray],
@@ -599,8 +602,9 @@ def _polygon_lines(
     qi = np.where(valid, qi, 1.0)
     t = c / qi  # foot of the origin on the line is t n_i; points t n_i + s (-n2_i, n1_i)
     # constraint l along line i: lower_l <= n_l . (t n_i) + s (n_i x n_l) <= lower_l + width_l
-    a = _take(lower, sel)[None] - (t * n1i)[:, None] * n1s[None]  # (kb, m, Ks)
-    a -= (t * n2i)[:, None] * n2s[None]
+    dot = n1i[:, None] * n1s[None]  # n_l . n_i, (kb, m, Ks)
+    dot += n2i[:, None] * n2s[None]
+    a = _take(lower, sel)[None] - t[:, None] * dot
     e = n1i[:, None] * n2s[None]
     e -= n2i[:, None] * n1s[None]
     b = a + _take(width, sel)[None]
@@ -608,12 +612,48 @@ def _polygon_lines(
     # (a < 0 < b), an empty interval if not, NaN (ignored by fmin/fmax) if it holds with equality.
     a /= e
     b /= e
-    slo = np.fmax.reduce(np.fmin(a, b), axis=1)  # (kb, Ks)
-    shi = np.fmin.reduce(np.fmax(a, b, out=b), axis=1)
+    lo_s = np.fmin(a, b)
+    hi_s = np.fmax(a, b, out=b)
+    slo = np.fmax.reduce(lo_s, axis=1)  # (kb, Ks)
+    shi = np.fmin.reduce(hi_s, axis=1)
+    ok = valid & (slo <= shi)
+    # the relaxed interval decides whether the line meets the polygon; the point is clipped into
+    # the interval of the limits themselves where that is not empty (the relaxation would move a
+    # vertex by tol / sin(angle), 2e-7 N where narrow ranges cross at a shallow angle)
+    tol_e = _take(tol, sel) / np.abs(e)
+    lo_0 = lo_s + tol_e
+    hi_0 = hi_s - tol_e
+    slo0 = np.fmax.reduce(lo_0, axis=1)
+    shi0 = np.fmin.reduce(hi_0, axis=1)
+    unrelaxed: BoolArray = np.less_equal(slo0, shi0)
+    slo = _select(unrelaxed, slo0, slo)
+    shi = _select(unrelaxed, shi0, shi)
+    lo_s = _select(unrelaxed[:, None], lo_0, lo_s)
+    hi_s = _select(unrelaxed[:, None], hi_0, hi_s)
     s = np.minimum(np.maximum(0.0, slo), shi)
-    ok = valid & (slo <= shi) & (np.abs(s) < _BIG)
+    ok &= np.abs(s) < _BIG
     norm2 = np.where(ok, (c * c + s * s * qi * qi) / qi, np.inf)  # |t n_i|^2 + s^2 |n_i|^2
-    best = np.argmin(norm2, axis=0)
+    # The least norm alone is not a safe choice: a candidate on line j clipped by a constraint
+    # relaxed by tol can beat the optimum by ~|lam| tol in norm^2 (or by the rounding of norm^2,
+    # ~eps |lam|^2), and since |x|^2 >= |x*|^2 + |x - x*|^2 on the polygon, the wrong point can be
+    # ~sqrt(|lam| tol) away -- 1e-5 N when a range narrower than that puts two candidates close.
+    # So the candidate that satisfies the KKT conditions wins: the foot itself (s = 0: the
+    # polygon lies in the line's half-plane, whose closest point it is), or a vertex with the one
+    # cable l bounding the interval where the multiplier of line i, sigma_i (t - s rho_l),
+    # rho_l = (n_l . n_i) / (n_l x n_i), is >= 0 (as in :func:`_polygon_one_line`).  The least
+    # norm decides only among certified candidates, or when none is (ties of two bounds).
+    at_hi = np.less(s, 0.0)[:, None]
+    bound = np.where(at_hi, hi_s == shi[:, None], lo_s == slo[:, None])
+    one = bound.sum(axis=1) == 1
+    rho_b = np.where(bound, dot / e, -np.inf).max(axis=1)
+    mu = np.where(lines < m, 1.0, -1.0) * (t - s * rho_b)
+    cert = ok & ((s == 0.0) | (one & (mu >= 0.0)))
+    # lines that meet the polygon of the limits themselves come first: where it is not empty, the
+    # optimum is on one of them, and a vertex of the relaxed polygon can be far from it
+    if_exact = ok & unrelaxed
+    first = np.where(if_exact.any(axis=0), if_exact, ok)
+    pick = np.where((cert & first).any(axis=0), cert & first, first)
+    best = np.argmin(np.where(pick, norm2, np.inf), axis=0)
     ab = np.arange(Ks)
     f = np.isfinite(norm2[best, ab])
     tb, sb = t[best, ab], np.where(f, s[best, ab], 0.0)
@@ -622,6 +662,12 @@ def _polygon_lines(
     lam1[sel] = tb * n1b - sb * n2b
     lam2[sel] = tb * n2b + sb * n1b
     found[sel] = f
+
+
+def _select(cond: BoolArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.where(cond, a, b)`` (typed: mypy resolves some calls to the one-argument form)."""
+    out: FloatArray = np.where(cond, a, b)
+    return out
 
 
 def _interval(
