@@ -36,5 +36,16 @@ STANDARD_GRAVITY_MPS2: float = 9.80665
 GRAVITY_O_MPS2 = np.array([0.0, 0.0, -STANDARD_GRAVITY_MPS2])
 """Default gravity vector in {O} (z up), m/s^2."""
 
+STEADY_POINT_KINDS: tuple[str, ...] = ("wind_on", "tare", "zero", "windage")
+"""Test-point kinds of a platform held still: wind on, wind-off weight tare, level wind-off zero,
+model-off windage (docs/campaign.md)."""
+
+OSCILLATION_POINT_KINDS: tuple[str, ...] = ("oscillation", "oscillation_tare")
+"""Test-point kinds of a forced oscillation (issue 22): wind on, and its wind-off inertia tare
+(docs/dynamic_tests.md)."""
+
+POINT_KINDS: tuple[str, ...] = STEADY_POINT_KINDS + OSCILLATION_POINT_KINDS
+"""Every test-point kind a test matrix, a schedule and the test-point events may name."""
+
 NS_PER_S: int = 1_000_000_000
 """Nanoseconds per second."""
