@@ -11,7 +11,9 @@
 - Quaternions are ``[w, x, y, z]`` (scalar first), unit norm, ``w >= 0``.
 - Cable i: ``l_i = b_i - p - R pp_i`` (from the platform point to the anchor), ``u_i = l_i/|l_i|``,
   ``r_i = R pp_i``, column ``a_i = [u_i; r_i x u_i]`` of the structure matrix ``A`` (6 x m).
-- Statics: ``A T = -(M qdd + C + G + W_ext)`` with ``G = [m g; (R c) x m g]``.
+- Statics: ``A T = -(G + W_ext)`` with ``G = [m g; (R c) x m g]``; a moving platform
+  ``A T + G + W_ext = M qdd + C`` (Newton-Euler, :mod:`cdpr.analysis.dynamics`; the paper's eq. 4
+  puts ``M qdd + C`` on the loads' side, which holds at rest only).
 """
 
 from __future__ import annotations

@@ -1,8 +1,10 @@
 """Gravity, inertia and Coriolis wrenches of the platform (paper eq. 4), batched over poses.
 
-The equation of motion is ``A T = -(M qdd + C + G + W_ext)`` with wrenches at P in {O} axes and the
-order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load* on the platform
-(so ``A T0 = -G`` holds wind-off).
+The equation of motion (Newton-Euler) is ``A T + G + W_ext = M qdd + C`` with wrenches at P in {O}
+axes and the order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load*
+on the platform (so ``A T0 = -G`` holds wind-off at rest) and ``M qdd + C`` the rate of change of
+the platform's momentum (:func:`inertia_wrench`).  At rest this is the paper's eq. (4),
+``A T = -(G + W_ext)``; the paper's sign of ``M qdd + C`` holds only there.
 """
 
 from __future__ import annotations

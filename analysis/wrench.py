@@ -1,11 +1,15 @@
 """Recovery of the external (aerodynamic) wrench from measured cable tensions and pose (paper eq. 4-7).
 
-The equation of motion of the platform is (see :mod:`cdpr.analysis.dynamics`)::
+The equation of motion of the platform is (Newton-Euler; see :mod:`cdpr.analysis.dynamics`)::
 
-    A(q) T = -(M qdd + C + G + W_ext)
+    A(q) T + G + W_ext = M qdd + C        (at rest: A T = -(G + W_ext), the paper's eq. 4)
 
 with ``A`` (..., 6, m) the structure matrix at the measured pose, ``T`` (..., m) the cable tensions
-(N), ``G`` the gravity load and ``M qdd + C`` the inertia and Coriolis terms.  Every wrench here is the
+(N), ``G`` the gravity load and ``D = M qdd + C`` the rate of change of the platform's momentum
+(:func:`cdpr.analysis.dynamics.inertia_wrench`: ``m a`` of the centre of mass and its moment).
+The paper's eq. (4) writes ``A T = -(M qdd + C + G + W_ext)``: with ``G`` and ``W_ext`` loads on
+the platform that sign of the inertia term holds only at rest (a platform accelerated by ``a``
+while its cables carry exactly its weight needs ``W_ext = +m a``).  Every wrench here is the
 load *on the platform* at its reference point P, components in {O} axes (x downstream, z up), order
 ``[Fx, Fy, Fz, Mx, My, Mz]`` in N and N m, moments about P.
 
@@ -15,9 +19,9 @@ Two methods recover ``W_ext``:
   ``W_ext = A (T0 - Tw)``.  Needs no mass model; errors in ``A`` scale with ``T0 - Tw`` only.
 - **absolute**: ``W_ext = -A Tw - G`` from the mass model (mass, centre of mass, gravity).
 
-When the platform moves, subtract the inertia wrench ``D = M qdd + C`` (from the pose time series,
-:func:`inertia_wrench_from_poses`): ``W_ext = A (T0 - Tw) - D`` (tare taken static) or
-``W_ext = -A Tw - G - D``.
+When the platform moves, add the inertia wrench ``D = M qdd + C`` (from the pose time series,
+:func:`inertia_wrench_from_poses`): ``W_ext = A (T0 - Tw) + D`` (tare taken static) or
+``W_ext = -A Tw - G + D``.
 """
 
 from __future__ import annotations
@@ -68,7 +72,7 @@ def wrench_absolute(
     gravity_wrench_N: ArrayLike,
     inertia_wrench_N: ArrayLike | None = None,
 ) -> FloatArray:
-    """Absolute method: ``W_ext = -A T - G [- (M qdd + C)]`` (..., 6) at P in {O} axes.
+    """Absolute method: ``W_ext = -A T - G [+ (M qdd + C)]`` (..., 6) at P in {O} axes.
 
     A: (..., 6, m) structure matrix; tensions_N: (..., m) measured tensions, N;
     gravity_wrench_N: (..., 6) gravity load G on the platform (see
@@ -79,7 +83,7 @@ def wrench_absolute(
     g = check_trailing(gravity_wrench_N, "gravity_wrench_N", (6,))
     w = -np.einsum("...ij,...j->...i", a, t) - g
     if inertia_wrench_N is not None:
-        w = w - check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
+        w = w + check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
     return w
 
 
@@ -120,7 +124,8 @@ def recover_wrench(
     tensions_N: (..., m) measured tensions, N.
     tare_tensions_N: optional (..., m) wind-off tensions at the same poses: tare method
         ``A (T0 - Tw)``; without it the absolute method ``-A Tw - G`` (rig mass model).
-    inertia_wrench_N: optional (..., 6) ``M qdd + C`` subtracted in either method.
+    inertia_wrench_N: optional (..., 6) ``M qdd + C`` added in either method (the load that
+        accelerates the platform is part of what the cables and gravity do not carry).
     """
     q = check_trailing(poses, "poses", (6,))
     R = rotation_from_euler(q[..., 3:])
@@ -128,7 +133,7 @@ def recover_wrench(
     if tare_tensions_N is not None:
         w = wrench_tare(A, tensions_N, tare_tensions_N)
         if inertia_wrench_N is not None:
-            w = w - check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
+            w = w + check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
         return w
     G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
     return wrench_absolute(A, tensions_N, G, inertia_wrench_N)

@@ -5,8 +5,9 @@ Euler angles); a tension CSV with one ``T_<cable>_N`` column per cable of the ri
 pose; optionally wind-off tare tensions (same columns, one row for all poses or one per pose).
 
 Methods: with ``--tare`` the tare method ``W_ext = A (T0 - Tw)`` (paper eq. 7), otherwise the
-absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also subtracts the
-inertia wrench ``M qdd + C`` computed from the pose time series (needs an integer ``t_ns`` column).
+absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` accounts for the
+platform's acceleration: ``W_ext += M qdd + C`` (Newton-Euler: the load that accelerates the
+platform), computed from the pose time series (needs an integer ``t_ns`` column).
 
 Output: the pose table's columns, then ``fx_N, fy_N, fz_N, mx_Nm, my_Nm, mz_Nm`` (W_ext on the
 platform at P, {O} axes, moments about P) and their standard deviations ``sd_fx_N ... sd_mz_Nm``
@@ -76,7 +77,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--dynamic",
         action="store_true",
-        help="subtract M qdd + C from the pose time series (needs a t_ns column)",
+        help="add the inertia wrench M qdd + C of the pose time series (Newton-Euler: "
+        "W_ext = -A T - G + M qdd + C; needs a t_ns column)",
     )
     aero = p.add_argument_group("aerodynamic coefficients (optional)")
     aero.add_argument("--airspeed-mps", dest="airspeed_mps", type=float, help="free-stream speed")
@@ -278,7 +280,8 @@ def run(args: argparse.Namespace) -> int:
     extra = {}
     if D is not None:
         D_all = np.concatenate([D, np.zeros_like(D)]) if T0 is not None else D
-        extra["inertia"] = [functools.partial(subtract_wrench, what="inertia", wrench_N=D_all)]
+        # W_ext = -A T - G + D (Newton-Euler, cdpr.analysis.wrench): "subtract" -D
+        extra["inertia"] = [functools.partial(subtract_wrench, what="inertia", wrench_N=-D_all)]
     stages = reduction_stages(rig, geometry, settings, extra=extra)  # type: ignore[arg-type]
     res = reduce_points(pts, stages)
     rows = np.arange(n)
