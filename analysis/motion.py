@@ -249,17 +249,21 @@ def forward_kinematics(
     lengths_m: ArrayLike,
     length_sd_m: ArrayLike,
     initial_pose: ArrayLike,
-    max_iterations: int = 30,
-    tol: float = 1e-12,
+    max_iterations: int = 100,
+    tol: float = 1e-6,
 ) -> ForwardKinematics:
-    """The platform pose from measured cable lengths (e.g. a controller's motor encoders), by
-    Gauss-Newton on ``sum_i ((L_i(q) - L_i,meas) / sigma_i)^2``, batched over samples.
+    """The platform pose from measured cable lengths (e.g. a controller's motor encoders): the
+    least squares of ``sum_i ((L_i(q) - L_i,meas) / sigma_i)^2``, batched over samples, by
+    Gauss-Newton steps, then Newton's (the residuals' curvature from differences of the gradient)
+    once a step is below ten sigmas, each step the best of a few multiples of itself: a small
+    platform sees its yaw poorly, and there Gauss-Newton alone creeps or oscillates.
 
     lengths_m: (n, m) measured lengths from the platform point to the anchor; length_sd_m: (m,)
     or scalar sigma of each length (m); initial_pose: (6,) or (n, 6) a starting pose (the
     reference pose, or the commanded one).  The Jacobian ``dL_i/dq = -[u_i ; H^T (r_i x u_i)]``
     (``H`` the Euler-rate matrix) gives the covariance ``(J^T W J)^-1``, ``W = diag(1/sigma^2)``.
-    A sample whose step does not fall below ``tol`` within ``max_iterations`` is not converged.
+    A sample is converged when every component of its last step is below ``tol`` times that
+    component's sigma (a millionth of the pose's own uncertainty by default).
     """
     b = check_trailing(anchors_O_m, "anchors_O_m", (3,))
     pp = check_trailing(attach_P_m, "attach_P_m", (3,))
@@ -276,17 +280,32 @@ def forward_kinematics(
     q = np.broadcast_to(check_trailing(initial_pose, "initial_pose", (6,)), (n, 6)).copy()
     wgt = 1.0 / sd**2
     converged = np.zeros(n, dtype=bool)
+    newton = np.zeros(n, dtype=bool)  # near the minimum: Newton's steps
     it = 0
-    JtWJ = np.zeros((n, 6, 6))
-    for it in range(1, max_iterations + 1):  # noqa: B007  (iterations of Gauss-Newton, not samples)
-        J, res = _fk_jacobian(b, pp, q, Lm)
+    for it in range(1, max_iterations + 1):  # noqa: B007  (iterations, not samples)
+        act = np.flatnonzero(~converged)
+        qa, La = q[act], Lm[act]
+        J, res = _fk_jacobian(b, pp, qa, La)
         JtW = np.swapaxes(J, -1, -2) * wgt
-        JtWJ = JtW @ J
-        step = -np.linalg.solve(JtWJ, np.einsum("nij,nj->ni", JtW, res)[..., None])[..., 0]
-        q = q + step
-        small = np.max(np.abs(step), axis=-1) < tol * (1.0 + np.max(np.abs(q), axis=-1))
-        converged = small
-        if bool(np.all(small)):
+        Hm = JtW @ J
+        g = np.einsum("nij,nj->ni", JtW, res)
+        sigma = np.sqrt(np.diagonal(np.linalg.inv(Hm), axis1=-2, axis2=-1))
+        nw = np.flatnonzero(newton[act])
+        if nw.size:  # the residuals' curvature matters where a coordinate is poorly seen
+            Hn = _fk_hessian(b, pp, qa[nw], La[nw], wgt)
+            pd = np.all(np.linalg.eigvalsh(Hn) > 0, axis=-1)
+            Hm[nw[pd]] = Hn[pd]
+        step = -np.linalg.solve(Hm, g[..., None])[..., 0]
+        # the best of a few multiples of the step (a flat, curved valley: Gauss-Newton creeps)
+        cost = [
+            np.sum((_fk_lengths(b, pp, qa + a * step) - La) ** 2 * wgt, axis=-1) for a in _STEPS
+        ]
+        step = step * np.asarray(_STEPS)[np.argmin(np.stack(cost), axis=0)][:, None]
+        q[act] = qa + step
+        size = np.max(np.abs(step) / sigma, axis=-1)
+        newton[act] = size < 10.0
+        converged[act] = size < tol
+        if bool(np.all(converged)):
             break
     J, res = _fk_jacobian(b, pp, q, Lm)
     JtWJ = (np.swapaxes(J, -1, -2) * wgt) @ J
@@ -300,6 +319,66 @@ def forward_kinematics(
         converged=converged,
         iterations=it,
     )
+
+
+_STEPS = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+
+
+def _fk_lengths(b: FloatArray, pp: FloatArray, q: FloatArray) -> FloatArray:
+    lv = b - q[:, None, :3] - np.einsum("nij,mj->nmi", rotation_from_euler(q[:, 3:]), pp)
+    return np.asarray(np.sqrt(np.einsum("nmi,nmi->nm", lv, lv)))
+
+
+def _axis_rotations(a: FloatArray, axis: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """R_k(a), its first and second derivatives (n, 3, 3) for a rotation about axis k."""
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.zeros(a.shape + (3, 3))
+    d1 = np.zeros_like(R)
+    R[..., axis, axis] = 1.0
+    R[..., i, i] = R[..., j, j] = c
+    R[..., i, j], R[..., j, i] = -s, s
+    d1[..., i, i] = d1[..., j, j] = -s
+    d1[..., i, j], d1[..., j, i] = -c, c
+    d2 = -R.copy()
+    d2[..., axis, axis] = 0.0
+    return R, d1, d2
+
+
+def _fk_hessian(
+    b: FloatArray, pp: FloatArray, q: FloatArray, L_meas: FloatArray, wgt: FloatArray
+) -> FloatArray:
+    """The full Hessian (n, 6, 6) of ``sum w r^2 / 2``: ``sum w (J J^T + r d2L/dq2)``, with the
+    second derivatives of each length through those of ``R = Rz Ry Rx`` (exact)."""
+    Rx = _axis_rotations(q[:, 3], 0)
+    Ry = _axis_rotations(q[:, 4], 1)
+    Rz = _axis_rotations(q[:, 5], 2)
+    R = Rz[0] @ Ry[0] @ Rx[0]
+    lv = b - q[:, None, :3] - np.einsum("nij,mj->nmi", R, pp)
+    L = np.sqrt(np.einsum("nmi,nmi->nm", lv, lv))
+    u = lv / L[..., None]
+    n, m = L.shape
+    D = np.zeros((n, m, 6, 3))  # d l / d q_a
+    D[:, :, [0, 1, 2], [0, 1, 2]] = -1.0
+
+    def rot(kx: int, ky: int, kz: int) -> FloatArray:  # a derivative of R by its factors' orders
+        return np.asarray(Rz[kz] @ Ry[ky] @ Rx[kx])
+
+    first = (rot(1, 0, 0), rot(0, 1, 0), rot(0, 0, 1))
+    for k in range(3):
+        D[:, :, 3 + k] = -np.einsum("nij,mj->nmi", first[k], pp)
+    Ju = np.einsum("nmai,nmi->nma", D, u)  # the Jacobian (n, m, 6)
+    DD = D @ np.swapaxes(D, -1, -2)
+    H2 = (DD - Ju[..., :, None] * Ju[..., None, :]) / L[..., None, None]
+    orders = {(0, 0): (2, 0, 0), (1, 1): (0, 2, 0), (2, 2): (0, 0, 2),
+              (0, 1): (1, 1, 0), (0, 2): (1, 0, 1), (1, 2): (0, 1, 1)}  # fmt: skip
+    for (k, l_), o in orders.items():
+        c = -np.einsum("nmi,nmi->nm", u, np.einsum("nij,mj->nmi", rot(*o), pp))
+        H2[:, :, 3 + k, 3 + l_] += c
+        if k != l_:
+            H2[:, :, 3 + l_, 3 + k] += c
+    r = (L - L_meas) * wgt
+    return np.asarray(np.einsum("nma,nmb,m->nab", Ju, Ju, wgt) + np.einsum("nm,nmab->nab", r, H2))
 
 
 def _fk_jacobian(
