@@ -296,7 +296,7 @@ def _mode_check(
     for h in np.flatnonzero(hc.near):
         k = int(hc.mode[h])
         text = (
-            f"harmonic {h + 1} ({hc.harmonic_Hz[h]:.3g} Hz) is within {100 * band:g} % of mode "
+            f"harmonic {h + 1} ({hc.harmonic_Hz[h]:.4g} Hz) is within {100 * band:g} % of mode "
             f"{k + 1} ({dof[k]}, {_mode_range(lo[k], hi[k])}): {100 * hc.distance_rel[h]:.1f} % away"
         )
         if h == 0:
