@@ -197,10 +197,10 @@ def plan_point(
         hi_m = rig.t_max_N - T[good]
         k, c = np.unravel_index(np.argmin(lo_m), lo_m.shape)
         k2, c2 = np.unravel_index(np.argmin(hi_m), hi_m.shape)
-        nums.update(  # a sample at a limit (within the solver's tolerance) shows 0, not -0
-            t_min_margin_N=float(lo_m[k, c]) + 0.0, t_min_margin_cable=names[c],
+        nums.update(
+            t_min_margin_N=_at_least_zero(lo_m[k, c]), t_min_margin_cable=names[c],
             t_min_margin_t_s=float(t[good[k]]),
-            t_max_margin_N=float(hi_m[k2, c2]) + 0.0, t_max_margin_cable=names[c2],
+            t_max_margin_N=_at_least_zero(hi_m[k2, c2]), t_max_margin_cable=names[c2],
             t_max_margin_t_s=float(t[good[k2]]),
             tension_min_N=float(T[good].min()), tension_max_N=float(T[good].max()),
         )  # fmt: skip
@@ -244,6 +244,11 @@ def plan_point(
     nums["peak_inertia_wrench"] = float(np.abs(mt.inertia_O).max())
     nums["peak_aero_wrench"] = float(np.abs(W).max())
     return plan
+
+
+def _at_least_zero(x: float) -> float:
+    """A margin; a sample at its limit within the solver's tolerance (1e-6 N) shows 0."""
+    return max(float(x), 0.0) if float(x) > -1e-6 else float(x)
 
 
 def _mode_check(
@@ -448,7 +453,7 @@ def plot_point(plan: PointPlan, rig: Rig, path: str | os.PathLike[str], band: fl
     ph = _phase_deg(plan.t_s[sel] - t0, f)
     T = np.asarray(plan.tensions.result.tensions_N)[sel]
     ok = np.asarray(plan.tensions.result.feasible)[sel]
-    with png_figure(path, 1, 2, size=(11.0, 4.2), width_ratios=[1.6, 1.0]) as (_, axes):
+    with png_figure(path, 1, 2, size=(11.0, 4.8), width_ratios=[1.6, 1.0]) as (_, axes):
         ax = axes[0, 0]
         for c, name in enumerate(rig.cable_names):
             y = np.where(ok, T[:, c], np.nan)
@@ -474,7 +479,7 @@ def plot_point(plan: PointPlan, rig: Rig, path: str | os.PathLike[str], band: fl
             else "no feasible tensions"
         )
         ax.set_title(f"{plan.point.label}: {plan.verdict}\n{margin}", fontsize=9)
-        ax.legend(fontsize=6, ncol=2, loc="best")
+        ax.legend(fontsize=6, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.16))
         ax = axes[0, 1]
         mc = plan.modes
         if mc is None:
@@ -483,7 +488,7 @@ def plot_point(plan: PointPlan, rig: Rig, path: str | os.PathLike[str], band: fl
             for k in range(mc.lo_Hz.size):
                 ax.axvspan(mc.lo_Hz[k] * (1 - band), mc.hi_Hz[k] * (1 + band), color="0.85")
                 ax.axvspan(mc.lo_Hz[k], max(mc.hi_Hz[k], mc.lo_Hz[k] * 1.002), color="0.3")
-                ax.text(mc.lo_Hz[k], 0.92 - 0.08 * (k % 2), f"{k + 1} {mc.dof[k]}", fontsize=7)
+                ax.text(mc.lo_Hz[k], 0.93 - 0.07 * (k % 3), f"{k + 1} {mc.dof[k]}", fontsize=7)
             for h, fh in enumerate(mc.harmonics.harmonic_Hz):
                 near = bool(mc.harmonics.near[h])
                 ax.axvline(fh, color="r" if near else "C0", lw=1.5)
