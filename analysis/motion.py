@@ -112,6 +112,35 @@ class Oscillation:
         return (self.settling_cycles + self.cycles + self.ramp_down_cycles) / self.frequency_Hz
 
 
+@dataclass(frozen=True, kw_only=True)
+class OscillationFields:
+    """The motion a test point or a virtual-rig segment carries, in the shared names of its
+    ``test_point`` events (issue 22): ``motion_axis`` ("" for a steady point), the amplitude in SI
+    (rad or m), the frequency, the cycles analysed and the settling cycles before them, and the
+    label of the inertia tare that serves it ("" if none).  A base of
+    :class:`cdpr.pipelines.campaign.TestPoint` and :class:`cdpr.daq.vrig_schedule.Segment`."""
+
+    motion_axis: str = ""
+    motion_amplitude: float = 0.0
+    motion_frequency_Hz: float = 0.0
+    motion_cycles: int = 0
+    motion_settling_cycles: int = 0
+    inertia_tare: str = ""
+
+    @property
+    def oscillation(self) -> Oscillation | None:
+        """The forced oscillation (checked), or None for a point that holds still."""
+        if not self.motion_axis:
+            return None
+        return Oscillation(
+            self.motion_axis,
+            self.motion_amplitude,
+            self.motion_frequency_Hz,
+            self.motion_cycles,
+            self.motion_settling_cycles,
+        )
+
+
 def envelope(tau_s: ArrayLike, osc: Oscillation) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The amplitude envelope at times ``tau_s`` (...,) from the motion's start and its first and
     second time derivatives (1/s, 1/s^2): raised-cosine ramps up over the settling cycles and down

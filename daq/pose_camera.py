@@ -35,6 +35,24 @@ MAX_BATCH = 10_000
 """Most frames one read returns (a reader far behind catches up over several reads)."""
 
 
+def pose_stream(rate_hz: float, doc: str) -> StreamDescription:
+    """The ``"pose"`` stream of a camera (its fields; both camera sources share them)."""
+    return StreamDescription(
+        {
+            "position_O_m": FieldDescription("m", shape=(3,)),
+            "quaternion_wxyz": FieldDescription("", shape=(4,)),
+            "euler_rad": FieldDescription("rad", shape=(3,)),
+            "reprojection_px": FieldDescription("px"),
+            "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
+            "flags": FieldDescription("", "int64"),
+            "n_points": FieldDescription("", "int64"),
+            "frame_index": FieldDescription("", "int64"),
+        },
+        rate_hz,
+        doc,
+    )
+
+
 class PoseCameraSource(Source):
     """Poses at ``rate_hz`` from ``pose_at`` with white noise (see the module docstring).
 
@@ -87,17 +105,7 @@ class PoseCameraSource(Source):
 
     def describe(self) -> dict[str, StreamDescription]:
         return {
-            "pose": StreamDescription(
-                {
-                    "position_O_m": FieldDescription("m", shape=(3,)),
-                    "quaternion_wxyz": FieldDescription("", shape=(4,)),
-                    "euler_rad": FieldDescription("rad", shape=(3,)),
-                    "reprojection_px": FieldDescription("px"),
-                    "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
-                    "flags": FieldDescription("", "int64"),
-                    "n_points": FieldDescription("", "int64"),
-                    "frame_index": FieldDescription("", "int64"),
-                },
+            "pose": pose_stream(
                 self.rate_hz,
                 "platform pose of {P} in {O} from a pose camera (no frames), stamped with the "
                 "camera's clock; covariance order [position_O_m, rotation_O_rad]",

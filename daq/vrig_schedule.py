@@ -19,7 +19,7 @@ from pydantic import Field
 
 from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, POINT_KINDS
 from cdpr.analysis.errors import ConfigError, InputError
-from cdpr.analysis.motion import MOTION_AXES, Oscillation
+from cdpr.analysis.motion import MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
 
 from .aero_model import AeroModel, aero_from_mapping
@@ -52,11 +52,13 @@ FAULT_KINDS = (
 # schedule
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class Segment:
+class Segment(OscillationFields):
     """One constant test condition: pose of P in {O}, wind speed, duration.
 
     Values ramp linearly from the previous segment's over ``transition_s`` (quasi-static: the
     inertia of the slow move is neglected).  ``tare``: a wind-off tare segment (wind must be 0).
+    An oscillation segment (``kind`` oscillation or oscillation_tare) carries its motion
+    (:class:`~cdpr.analysis.motion.OscillationFields`, ``.oscillation``) about its pose.
     """
 
     label: str
@@ -70,31 +72,11 @@ class Segment:
     target_aoa_deg: float = 0.0
     target_sideslip_deg: float = 0.0
     repeat_of: str = ""
-    motion_axis: str = ""
-    motion_amplitude: float = 0.0
-    motion_frequency_Hz: float = 0.0
-    motion_cycles: int = 0
-    motion_settling_cycles: int = 0
-    inertia_tare: str = ""
 
     @property
     def is_test_point(self) -> bool:
         """A segment from a test matrix (it has a kind): the rig emits its test-point events."""
         return self.kind != ""
-
-    @property
-    def oscillation(self) -> Oscillation | None:
-        """The forced oscillation of an ``oscillation`` / ``oscillation_tare`` segment (about its
-        pose, starting when its ramp ends), else None."""
-        if not self.motion_axis:
-            return None
-        return Oscillation(
-            self.motion_axis,
-            self.motion_amplitude,
-            self.motion_frequency_Hz,
-            self.motion_cycles,
-            self.motion_settling_cycles,
-        )
 
 
 @dataclass(frozen=True)
@@ -339,12 +321,12 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
                 s.target_aoa_deg,
                 s.target_sideslip_deg,
                 s.repeat_of,
-                s.motion_axis,
-                s.motion_amplitude,
-                s.motion_frequency_Hz,
-                s.motion_cycles,
-                s.motion_settling_cycles,
-                s.inertia_tare,
+                motion_axis=s.motion_axis,
+                motion_amplitude=s.motion_amplitude,
+                motion_frequency_Hz=s.motion_frequency_Hz,
+                motion_cycles=s.motion_cycles,
+                motion_settling_cycles=s.motion_settling_cycles,
+                inertia_tare=s.inertia_tare,
             )
         )
         prev_p, prev_e = pos, eul

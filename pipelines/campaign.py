@@ -57,7 +57,7 @@ import numpy as np
 from cdpr.analysis.aero import attitude_from_flow_angles
 from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, POINT_KINDS
 from cdpr.analysis.errors import ConfigError
-from cdpr.analysis.motion import ANGULAR_AXES, MOTION_AXES, Oscillation
+from cdpr.analysis.motion import ANGULAR_AXES, MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_rotation
 from cdpr.daq.files import load_toml
@@ -133,11 +133,13 @@ class ModelGeometry:
 
 
 @dataclass(frozen=True)
-class TestPoint:
+class TestPoint(OscillationFields):
     """One test point of the matrix, in run order.
 
-    kind: "wind_on" | "tare" | "zero" | "windage"; targets in degrees and m/s; duration_s: time
-    held at the target after a ramp of transition_s; repeat_of: label of the point it repeats or "".
+    kind: one of :data:`KINDS`; targets in degrees and m/s; duration_s: time held at the target
+    after a ramp of transition_s (an oscillation: its motion, ramp-down included); repeat_of:
+    label of the point it repeats or ""; an oscillation point's motion and inertia tare
+    (:class:`~cdpr.analysis.motion.OscillationFields`, ``.oscillation``).
     """
 
     __test__ = False  # not a pytest class
@@ -151,26 +153,6 @@ class TestPoint:
     transition_s: float
     repeat_of: str = ""
     position_O_m: tuple[float, float, float] | None = None
-    motion_axis: str = ""
-    motion_amplitude: float = 0.0
-    motion_frequency_Hz: float = 0.0
-    motion_cycles: int = 0
-    motion_settling_cycles: int = 0
-    inertia_tare: str = ""
-
-    @property
-    def oscillation(self) -> Oscillation | None:
-        """The forced oscillation of an ``oscillation`` / ``oscillation_tare`` point, else None
-        (amplitude in SI: rad or m)."""
-        if self.kind not in OSCILLATION_POINT_KINDS:
-            return None
-        return Oscillation(
-            self.motion_axis,
-            self.motion_amplitude,
-            self.motion_frequency_Hz,
-            self.motion_cycles,
-            self.motion_settling_cycles,
-        )
 
     def event_fields(self) -> dict[str, Any]:
         """The fields of this point's ``test_point`` events (docs/campaign.md): ``point``,
@@ -609,7 +591,9 @@ def _point(
     osc = Oscillation(motion.axis, amp, frequency, motion.cycles, motion.settling_cycles)
     return TestPoint(
         label, kind, aoa, beta, speed, osc.duration_s, transition, repeat_of, pos,
-        motion.axis, amp, frequency, motion.cycles, motion.settling_cycles, motion.inertia_tare,
+        motion_axis=motion.axis, motion_amplitude=amp, motion_frequency_Hz=frequency,
+        motion_cycles=motion.cycles, motion_settling_cycles=motion.settling_cycles,
+        inertia_tare=motion.inertia_tare,
     )  # fmt: skip
 
 

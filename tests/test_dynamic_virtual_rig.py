@@ -16,6 +16,7 @@ import pytest
 from _block_reader import messages
 from _oscillation_truth import gravity, momentum_rate, motion, pitch_aero, read_rig, structure
 from mcap.reader import make_reader
+from test_dynamic_plan import HEAD  # the matrix's [campaign], [model] and [aero_estimate]
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.daq.aero_model import AeroModel
@@ -26,18 +27,9 @@ from cdpr.pipelines.campaign import load_test_matrix, schedule_from_matrix
 ROOT = Path(__file__).resolve().parents[1]
 RIG = ROOT / "data_samples" / "flat_optimum.toml"
 
-SMALL = """
-[campaign]
-name = "osc-small"
-rig = "{rig}"
-[model]
-area_m2 = 0.014646
-span_m = 0.2441
-chord_m = 0.060
-mrp_P_m = [0.0, 0.0, 0.0]
-[aero_estimate]
-Cmq = -5.0
-[virtual_rig]
+SMALL = (
+    HEAD
+    + """[virtual_rig]
 rate_hz = 1000.0
 seed = 5
 camera_clock_offset_ns = 3000000
@@ -63,6 +55,7 @@ cycles = 3
 airspeed_mps = 25.51
 transition_s = 0.2
 """
+)
 
 
 def _small(tmp_path: Path) -> Path:
