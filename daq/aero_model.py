@@ -63,6 +63,10 @@ FloatArray = NDArray[np.float64]
 R_AIR_J_PER_KGK = 287.05
 DERIVATIVE_COEFFICIENTS = ("CL", "CD", "CY", "CN", "CA", "Cl", "Cm", "Cn")
 """The coefficients :meth:`AeroModel.oscillation_derivatives` projects on a motion's phase."""
+DERIVATIVE_NAMES = ("k",) + tuple(
+    f"{c}_{w}" for c in DERIVATIVE_COEFFICIENTS for w in ("inphase", "quadrature")
+)
+"""The keys of :meth:`AeroModel.oscillation_derivatives`, in order."""
 R_P_B = np.diag([-1.0, 1.0, -1.0])
 """Rotation from the AIAA body axes B (x nose, y right wing, z down) to {P} (nose upstream)."""
 
@@ -275,10 +279,9 @@ class AeroModel:
         from cdpr.analysis.motion import oscillation_motion
         from cdpr.analysis.rotations import rotation_from_euler
 
-        names = [f"{c}_{w}" for c in DERIVATIVE_COEFFICIENTS for w in ("inphase", "quadrature")]
         V = float(airspeed_mps)
         if not V > 0:
-            return {"k": math.nan, **dict.fromkeys(names, math.nan)}
+            return dict.fromkeys(DERIVATIVE_NAMES, math.nan)
         f, A = osc.frequency_Hz, osc.amplitude
         phase = 2.0 * math.pi * np.arange(n_phase) / n_phase
         mo = oscillation_motion(osc.window_s[0] + phase / (2.0 * math.pi * f), mean_pose, osc)

@@ -49,14 +49,14 @@ from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.flow import sutherland_viscosity
 from cdpr.analysis.kinematics import structure_matrix
-from cdpr.analysis.motion import Motion, Oscillation, motion_tensions, oscillation_offset
+from cdpr.analysis.motion import Motion, motion_tensions, oscillation_offset
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
 from cdpr.analysis.test_section import SectionGeometry
 from cdpr.analysis.windage import windage_of_rig
 
-from .aero_model import AeroModel
+from .aero_model import DERIVATIVE_NAMES, AeroModel
 from .files import atomic_output, load_toml
 from .loadcell import INT24_MAX, INT24_MIN, Calibration
 from .vrig_events import oscillation_event_fields
@@ -75,7 +75,6 @@ from .vrig_transports import TRANSPORTS, RigRun
 FloatArray = NDArray[np.float64]
 
 CH_SATURATED, CH_SLACK, CH_FAULT = 1, 2, 4
-_NO_MOTION = Oscillation("pitch", 1.0, 1.0, 1, 1)  # a placeholder for steady segments (wind 0: NaN)
 
 
 # --------------------------------------------------------------------------------------------
@@ -493,17 +492,15 @@ class VirtualRig:
         (:meth:`~cdpr.daq.aero_model.AeroModel.oscillation_derivatives` at the segment's motion,
         mean pose and wind): ``(names, values (n_segments, k))``, NaN rows for other segments
         and wind-off ones."""
-        rows = []
-        names: list[str] = []
-        for s in self.schedule.segments:
+        names = list(DERIVATIVE_NAMES)
+        out = np.full((len(self.schedule.segments), len(names)), np.nan)
+        for i, s in enumerate(self.schedule.segments):  # segments, not samples
             osc = s.oscillation
-            mean = np.array([*s.position_O_m, *s.euler_rad])
-            d = self.aero.oscillation_derivatives(
-                osc if osc is not None else _NO_MOTION, mean, s.wind_mps if osc else 0.0
-            )
-            names = list(d)
-            rows.append([d[k] for k in names])
-        return names, np.array(rows, dtype=np.float64).reshape(len(rows), len(names))
+            if osc is not None and s.wind_mps > 0 and s.kind != "windage":
+                mean = np.array([*s.position_O_m, *s.euler_rad])
+                d = self.aero.oscillation_derivatives(osc, mean, s.wind_mps)
+                out[i] = [d[k] for k in names]
+        return names, out
 
     def write_calibration(self, path: str | os.PathLike[str]) -> Path:
         """Write the amplifiers' true calibration as a load-cell calibration file (the format

@@ -480,12 +480,12 @@ def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint])
     ref = next((q for q in before if q.label == p.repeat_of), None)
     if ref is None:
         raise ConfigError(src, f"{key}.repeat_of", f"no earlier point labelled {p.repeat_of!r}")
-    if (ref.kind, ref.aoa_deg, ref.sideslip_deg, ref.airspeed_mps, ref.motion_key()) != (
+    if (ref.kind, ref.aoa_deg, ref.sideslip_deg, ref.airspeed_mps, ref.motion_key()[:3]) != (
         p.kind,
         p.aoa_deg,
         p.sideslip_deg,
         p.airspeed_mps,
-        p.motion_key(),
+        p.motion_key()[:3],  # and the same motion (axis, amplitude, frequency)
     ):
         raise ConfigError(
             src,

@@ -346,11 +346,11 @@ def check_matrix_motion(matrix: TestMatrix, rig: Rig, method: str = "exact") -> 
     """Before anything is recorded: plan every oscillation point (checks only, at 100 samples a
     cycle) and raise ``ConfigError(matrix, "points (<label>)", "refused by the motion plan: ...")``
     for the first one refused."""
+    aero, given = aero_estimate(matrix)
     for p in matrix.points:
         osc = p.oscillation
         if osc is None:
             continue
-        aero, given = aero_estimate(matrix)
         plan = plan_point(rig, p, aero, given, rate_hz=100.0 * osc.frequency_Hz, method=method)
         if plan.refused:
             raise ConfigError(

@@ -348,6 +348,18 @@ def test_an_inertia_tare_of_another_motion_is_refused(tmp_path: Path) -> None:
     assert ei.value.key == "points[1].inertia_tare" and "another motion" in ei.value.problem
 
 
+def test_a_repeat_of_another_motion_is_refused(tmp_path: Path) -> None:
+    wind = "airspeed_mps = 20.0\n"
+    body = _osc("o1", "pitch", 5.0, 1.0, "oscillation", wind) + _osc(
+        "o2", "pitch", 5.0, 2.0, "oscillation", wind + 'repeat_of = "o1"\n'
+    )
+    with pytest.raises(ConfigError) as ei:
+        load_test_matrix(_matrix(tmp_path, body))
+    assert ei.value.key == "points[1].repeat_of" and "another target" in ei.value.problem
+    ok = body.replace("frequency_Hz = 2.0", "frequency_Hz = 1.0")
+    assert load_test_matrix(_matrix(tmp_path, ok)).point("o2").repeat_of == "o1"
+
+
 def test_simulate_refuses_a_point_the_plan_refuses_before_recording(tmp_path: Path) -> None:
     body = _osc("fine", "pitch", 5.0, 2.0) + _osc("yaw2", "yaw", 2.0, 1.0)
     out = tmp_path / "runs"
