@@ -34,6 +34,23 @@ def gravity_wrench(
     return np.concatenate([f, np.cross(rc, f)], axis=-1)
 
 
+def weight_basis(poses: ArrayLike, gravity_O_mps2: ArrayLike) -> FloatArray:
+    """``B(q)`` (..., 6, 4) with ``G(q) = B(q) @ theta``, ``theta = [m, m c_x, m c_y, m c_z]``
+    (kg, kg m; c in {P}), at P in {O} axes: :func:`gravity_wrench` written linear in the mass and
+    its first moment, as the weight model fits them (:mod:`cdpr.analysis.weight`).
+
+    poses: (..., 6) ``[x, y, z, roll, pitch, yaw]`` (m, rad); gravity_O_mps2: (3,).
+    """
+    q = check_trailing(poses, "poses", (6,))
+    g = check_trailing(gravity_O_mps2, "gravity_O_mps2", (3,))
+    R = rotation_from_euler(q[..., 3:])
+    sk = np.array([[0.0, -g[2], g[1]], [g[2], 0.0, -g[0]], [-g[1], g[0], 0.0]])
+    B = np.zeros(q.shape[:-1] + (6, 4))
+    B[..., :3, 0] = g
+    B[..., 3:, 1:] = -sk @ R
+    return B
+
+
 def finite_difference(values: ArrayLike, t_ns: ArrayLike) -> FloatArray:
     """Time derivative (n, k) of samples ``values`` (n, k) at integer-nanosecond times ``t_ns`` (n,).
 
@@ -61,15 +78,15 @@ def inertia_wrench(
 ) -> FloatArray:
     """Inertia plus Coriolis/centrifugal wrench ``M qdd + C`` (..., 6) at P in {O} axes.
 
-    pose (..., 6) = [x, y, z, alpha, beta, gamma]; pose_rate and pose_accel are its first and second
+    pose (..., 6) = [x, y, z, roll, pitch, yaw]; pose_rate and pose_accel are its first and second
     time derivatives (m/s, rad/s; m/s^2, rad/s^2).  The rigid body is referred to P: with
     ``rc = R c``, ``I_O = R I_P R^T`` (about P),
 
-        F = m (a_P + alpha x rc + omega x (omega x rc))
-        M = I_O alpha + omega x (I_O omega) + m rc x a_P
+        F = m (a_P + omega_dot x rc + omega x (omega x rc))
+        M = I_O omega_dot + omega x (I_O omega) + m rc x a_P
 
     which reduce to the paper's ``M qdd + C`` when the centre of mass is at P.  ``omega = H psi_dot``
-    and ``alpha = H psi_ddot + H_dot psi_dot``.
+    and the angular acceleration ``omega_dot = H psi_ddot + H_dot psi_dot``.
     """
     q = check_trailing(pose, "pose", (6,))
     qd = check_trailing(pose_rate, "pose_rate", (6,))
@@ -78,14 +95,14 @@ def inertia_wrench(
     I_P = check_trailing(inertia_P_kgm2, "inertia_P_kgm2", (3, 3))
     psi = q[..., 3:]
     R = rotation_from_euler(psi)
-    omega, alpha = angular_rates(psi, qd[..., 3:], qdd[..., 3:])
+    omega, omega_dot = angular_rates(psi, qd[..., 3:], qdd[..., 3:])
     rc = np.einsum("...ij,...j->...i", R, c)
     I_O = R @ I_P @ np.swapaxes(R, -1, -2)
     a_P = qdd[..., :3]
-    F = mass_kg * (a_P + np.cross(alpha, rc) + np.cross(omega, np.cross(omega, rc)))
+    F = mass_kg * (a_P + np.cross(omega_dot, rc) + np.cross(omega, np.cross(omega, rc)))
     Iw = np.einsum("...ij,...j->...i", I_O, omega)
     M = (
-        np.einsum("...ij,...j->...i", I_O, alpha)
+        np.einsum("...ij,...j->...i", I_O, omega_dot)
         + np.cross(omega, Iw)
         + mass_kg * np.cross(rc, a_P)
     )

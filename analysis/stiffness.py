@@ -25,6 +25,7 @@ file gives it, so the platform and model are both in it).  Modes: ``K phi = omeg
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
 from .conventions import GRAVITY_O_MPS2
-from .errors import InputError
+from .errors import CdprError, InputError
 from .records import CorrectionRecord
 from .rig import Rig
 from .rotations import skew
@@ -355,3 +356,59 @@ def harmonic_check(
     j = np.argmin(d, axis=1)
     dist = d[np.arange(h.size), j]
     return HarmonicCheck(h, j, dist, dist <= band_rel)
+
+
+@dataclass(frozen=True)
+class PointSpectra:
+    """The spectrum check of every point (computed from the samples, which the core does not
+    hold): ``modes_Hz`` (s, 6) the rig's natural frequencies at each point's pose (NaN: none),
+    ``too_few_periods`` and ``peak_near_mode`` (s,), ``peak_Hz`` (s, m), and the spectra of each
+    point for the report's plot (``freqs_Hz`` (s) arrays, ``psd`` (s) (m, nf) arrays)."""
+
+    modes_Hz: NDArray[np.float64]
+    too_few_periods: NDArray[np.bool_]
+    peak_near_mode: NDArray[np.bool_]
+    peak_Hz: NDArray[np.float64]
+    freqs_Hz: list[NDArray[np.float64]]
+    psd: list[NDArray[np.float64]]
+
+
+def point_spectra(
+    rig: Rig,
+    t_ns: NDArray[np.int64],
+    tensions_N: NDArray[np.float64],
+    ranges: Sequence[tuple[int, int]],
+    poses: NDArray[np.float64],
+) -> PointSpectra:
+    """:func:`spectrum_check` of each point's tension window against the
+    rig's modes at the point's mean pose (:func:`rig_modes`).  A window
+    with fewer than 8 finite samples, or a pose where no tension distribution exists, gets NaN."""
+    s, m = len(ranges), tensions_N.shape[1]
+    # the mean sample rate over the run: reception times come in bursts (a loaded host, a pty), so
+    # the median interval can be near zero while the samples are evenly spaced at the source
+    span_ns = float(t_ns[-1] - t_ns[0]) if len(t_ns) > 1 else 0.0
+    fs = (len(t_ns) - 1) * 1e9 / span_ns if span_ns > 0 else float("nan")
+    modes = np.full((s, 6), np.nan)
+    few = np.zeros(s, bool)
+    near = np.zeros(s, bool)
+    peak = np.full((s, m), np.nan)
+    freqs: list[NDArray[np.float64]] = []
+    psd: list[NDArray[np.float64]] = []
+    for i, (a, b) in enumerate(ranges):  # one Welch estimate per point (vectorised inside)
+        freqs.append(np.zeros(0))
+        psd.append(np.zeros((m, 0)))
+        x = tensions_N[a:b]
+        x = x[np.isfinite(x).all(axis=1)]
+        if x.shape[0] < 8 or not np.isfinite(poses[i]).all() or not np.isfinite(fs):
+            continue
+        try:
+            f = rig_modes(rig, poses[i, :3], poses[i, 3:]).modes.frequencies_Hz
+        except CdprError:
+            continue
+        modes[i] = f
+        if not np.isfinite(f).any():
+            continue
+        sc = spectrum_check(x, fs, f)
+        few[i], near[i], peak[i] = sc.too_few_periods, bool(sc.peak_near_mode.any()), sc.peak_Hz
+        freqs[i], psd[i] = sc.freqs_Hz, sc.psd
+    return PointSpectra(modes, few, near, peak, freqs, psd)

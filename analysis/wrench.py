@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
-from .dynamics import finite_difference, gravity_wrench, inertia_wrench
+from .dynamics import finite_difference, gravity_wrench, inertia_wrench, weight_basis
 from .errors import InputError
 from .kinematics import structure_matrix
 from .rig import Rig
@@ -87,19 +87,14 @@ def wrench_absolute(
     return w
 
 
-def inertia_wrench_from_poses(
-    mass_kg: float,
-    com_P_m: ArrayLike,
-    inertia_P_kgm2: ArrayLike,
-    poses: ArrayLike,
-    t_ns: ArrayLike,
-) -> FloatArray:
-    """Inertia plus Coriolis wrench ``M qdd + C`` (n, 6) at P in {O} axes from a pose time series.
+def pose_derivatives(poses: ArrayLike, t_ns: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """First and second time derivatives ``(qd, qdd)`` (n, 6) each of a pose time series.
 
-    poses: (n, 6) ``[x, y, z, alpha, beta, gamma]`` (m, rad) sampled at integer-nanosecond times
-    t_ns (n,), strictly increasing, n >= 3.  The Euler angles are unwrapped, then differentiated twice
-    with :func:`cdpr.analysis.dynamics.finite_difference` (second-order central differences, one-sided
-    at the ends, so the first and last samples are the least accurate).
+    poses: (n, 6) ``[x, y, z, roll, pitch, yaw]`` (m, rad) sampled at integer-nanosecond times
+    t_ns (n,), strictly increasing, n >= 3.  The Euler angles are unwrapped, then differentiated
+    twice with :func:`cdpr.analysis.dynamics.finite_difference` (second-order central differences,
+    one-sided at the ends, so the first and last samples are the least accurate; noise in the
+    poses is amplified twice: fit a smooth motion first where there is one).
     """
     q = check_trailing(poses, "poses", (6,))
     if q.ndim != 2:
@@ -107,8 +102,20 @@ def inertia_wrench_from_poses(
     q = q.copy()
     q[:, 3:] = np.unwrap(q[:, 3:], axis=0)
     qd = finite_difference(q, t_ns)
-    qdd = finite_difference(qd, t_ns)
-    return inertia_wrench(mass_kg, com_P_m, inertia_P_kgm2, q, qd, qdd)
+    return qd, finite_difference(qd, t_ns)
+
+
+def inertia_wrench_from_poses(
+    mass_kg: float,
+    com_P_m: ArrayLike,
+    inertia_P_kgm2: ArrayLike,
+    poses: ArrayLike,
+    t_ns: ArrayLike,
+) -> FloatArray:
+    """Inertia plus Coriolis wrench ``M qdd + C`` (n, 6) at P in {O} axes from a pose time series
+    (its derivatives by :func:`pose_derivatives`)."""
+    qd, qdd = pose_derivatives(poses, t_ns)
+    return inertia_wrench(mass_kg, com_P_m, inertia_P_kgm2, poses, qd, qdd)
 
 
 def recover_wrench(
@@ -117,15 +124,19 @@ def recover_wrench(
     tensions_N: ArrayLike,
     tare_tensions_N: ArrayLike | None = None,
     inertia_wrench_N: ArrayLike | None = None,
+    weight_theta: ArrayLike | None = None,
 ) -> FloatArray:
     """External wrench ``W_ext`` (..., 6) on the platform at P in {O} axes (N, N m) for a rig.
 
-    poses: (..., 6) measured poses ``[x, y, z, alpha, beta, gamma]`` (m, rad).
+    poses: (..., 6) measured poses ``[x, y, z, roll, pitch, yaw]`` (m, rad).
     tensions_N: (..., m) measured tensions, N.
     tare_tensions_N: optional (..., m) wind-off tensions at the same poses: tare method
-        ``A (T0 - Tw)``; without it the absolute method ``-A Tw - G`` (rig mass model).
+        ``A (T0 - Tw)``; without it the absolute method ``-A Tw - G``.
     inertia_wrench_N: optional (..., 6) ``M qdd + C`` added in either method (the load that
         accelerates the platform is part of what the cables and gravity do not carry).
+    weight_theta: optional (4,) ``[m, m c_x, m c_y, m c_z]`` (kg, kg m; c in {P}), a fitted weight
+        (:mod:`cdpr.analysis.weight`): ``G = B(q) theta`` (:func:`~cdpr.analysis.dynamics.weight_basis`);
+        None: the rig file's mass and centre of mass.  Absolute method only.
     """
     q = check_trailing(poses, "poses", (6,))
     R = rotation_from_euler(q[..., 3:])
@@ -135,5 +146,8 @@ def recover_wrench(
         if inertia_wrench_N is not None:
             w = w + check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
         return w
-    G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+    if weight_theta is None:
+        G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+    else:
+        G = weight_basis(q, rig.gravity_O_mps2) @ check_trailing(weight_theta, "weight_theta", (4,))
     return wrench_absolute(A, tensions_N, G, inertia_wrench_N)

@@ -54,8 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from cdpr.analysis.aero import attitude_from_flow_angles
-from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, POINT_KINDS
+from cdpr.analysis.aero import ModelGeometry, attitude_from_flow_angles
+from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, WIND_OFF_KINDS
+from cdpr.analysis.conventions import POINT_KINDS as KINDS
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.motion import ANGULAR_AXES, MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
@@ -66,10 +67,8 @@ from cdpr.daq.vrig_events import oscillation_event_fields
 
 from .tunnel_section import TunnelSection, tunnel_section_from_mapping
 
-KINDS = POINT_KINDS
-"""The test-point kinds (:data:`cdpr.analysis.conventions.POINT_KINDS`): the steady ones and the
-forced oscillation with its wind-off inertia tare."""
-WIND_OFF_KINDS = ("tare", "zero", "oscillation_tare")
+_WIND_OFF = (*WIND_OFF_KINDS, "oscillation_tare")
+"""Kinds whose airspeed must be 0: the wind-off ones at rest and the inertia tare."""
 
 _TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig", "aero_estimate"}
 _CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
@@ -118,18 +117,6 @@ _AERO_ESTIMATE = {
     "static_pressure_Pa", "temperature_K", "relative_humidity",
 }  # fmt: skip
 """Keys of ``[aero_estimate]``: the aero model's coefficients and air (geometry from [model])."""
-
-
-@dataclass(frozen=True)
-class ModelGeometry:
-    """Reference geometry of the model: area (m^2), span and chord (m), MRP in {P} (m)."""
-
-    name: str
-    area_m2: float
-    span_m: float
-    chord_m: float
-    mrp_P_m: tuple[float, float, float]
-    volume_m3: float | None = None
 
 
 @dataclass(frozen=True)
@@ -369,7 +356,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         for name, vals in (("aoa_deg", aoas), ("sideslip_deg", betas)):
             if any(abs(v) >= 90.0 for v in vals):
                 raise ConfigError(src, f"{key}.{name}", "expected angles within (-90, 90) degrees")
-        if kind in WIND_OFF_KINDS and any(v != 0.0 for v in speeds):
+        if kind in _WIND_OFF and any(v != 0.0 for v in speeds):
             raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point is wind-off: must be 0")
         if kind in ("wind_on", "windage", "oscillation") and any(v == 0.0 for v in speeds):
             raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point needs airspeed > 0")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-METHOD_NAMES = ("closed-form", "improved-closed-form", "penalty", "exact")
+from cdpr.analysis.conventions import TENSION_METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--rig", required=True, help="rig file (TOML)")
     p.add_argument("--poses", help="pose CSV (default: the rig's reference pose)")
     p.add_argument("--wrench", help="external wrench CSV (default: none, wind off)")
-    p.add_argument("--method", default="exact", choices=METHOD_NAMES)
+    p.add_argument("--method", default="exact", choices=TENSION_METHODS)
     p.add_argument("--out", required=True, help="output tension CSV")
     p.add_argument("--strict", action="store_true", help="exit 2 if any pose is infeasible")
     p.set_defaults(func=run)
