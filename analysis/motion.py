@@ -237,7 +237,7 @@ def cable_motion(
     """Inverse kinematics along a trajectory: the cable lengths and their first two derivatives.
 
     With ``l_i = b_i - p - R pp_i``, ``r_i = R pp_i``, the point's velocity
-    ``v_i = pdot + omega x r_i`` and acceleration ``a_i = pddot + alpha x r_i + omega x (omega x r_i)``:
+    ``v_i = pdot + omega x r_i`` and acceleration ``a_i = pddot + omega_dot x r_i + omega x (omega x r_i)``:
     ``L_i' = -u_i . v_i`` and ``L_i'' = (|v_i|^2 - (u_i . v_i)^2) / L_i - u_i . a_i``.
     pose, pose_rate, pose_accel: (..., 6); anchors/attach (m, 3).
     """
@@ -246,11 +246,11 @@ def cable_motion(
     qdd = check_trailing(pose_accel, "pose_accel", (6,))
     R = rotation_from_euler(q[..., 3:])
     geo = cable_geometry(anchors_O_m, attach_P_m, q[..., :3], R)
-    omega, alpha = angular_rates(q[..., 3:], qd[..., 3:], qdd[..., 3:])
+    omega, omega_dot = angular_rates(q[..., 3:], qd[..., 3:], qdd[..., 3:])
     r, u, L = geo.r_O_m, geo.u_O, geo.length_m
     w = omega[..., None, :]
     v = qd[..., None, :3] + np.cross(w, r)
-    a = qdd[..., None, :3] + np.cross(alpha[..., None, :], r) + np.cross(w, np.cross(w, r))
+    a = qdd[..., None, :3] + np.cross(omega_dot[..., None, :], r) + np.cross(w, np.cross(w, r))
     uv = np.einsum("...i,...i->...", u, v)
     speed = -uv
     accel = (np.einsum("...i,...i->...", v, v) - uv * uv) / L - np.einsum("...i,...i->...", u, a)

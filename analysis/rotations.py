@@ -131,11 +131,11 @@ def euler_rate_matrix(psi_rad: ArrayLike) -> FloatArray:
 def angular_rates(
     psi_rad: ArrayLike, psi_dot: ArrayLike, psi_ddot: ArrayLike
 ) -> tuple[FloatArray, FloatArray]:
-    """Angular velocity and acceleration in {O}, ``(omega, alpha)`` each (..., 3), from Z-Y-X Euler
-    angles (..., 3) and their first and second time derivatives (rad/s, rad/s^2).
+    """Angular velocity and acceleration in {O}, ``(omega, omega_dot)`` each (..., 3), from Z-Y-X
+    Euler angles (..., 3) and their first and second time derivatives (rad/s, rad/s^2).
 
-    ``omega = H psi_dot`` and ``alpha = H psi_ddot + H_dot psi_dot``, with ``H_dot`` by the chain
-    rule on ``H(beta, gamma)`` (:func:`euler_rate_matrix`).
+    ``omega = H psi_dot`` and ``omega_dot = H psi_ddot + H_dot psi_dot``, with ``H_dot`` by the
+    chain rule on ``H(pitch, yaw)`` (:func:`euler_rate_matrix`).
     """
     psi = check_trailing(psi_rad, "psi_rad", (3,))
     psid = check_trailing(psi_dot, "psi_dot", (3,))
@@ -151,8 +151,8 @@ def angular_rates(
     Hd[..., 1, 1] = -sg * gd
     Hd[..., 2, 0] = -cb * bd
     omega = np.einsum("...ij,...j->...i", H, psid)
-    alpha = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
-    return omega, alpha
+    omega_dot = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    return omega, omega_dot
 
 
 def skew(v: ArrayLike) -> FloatArray:

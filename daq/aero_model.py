@@ -187,10 +187,10 @@ class AeroModel:
         qdd = np.asarray(pose_accel, dtype=np.float64)
         V = np.broadcast_to(np.asarray(airspeed_mps, dtype=np.float64), qp.shape[:-1])
         R = rotation_from_euler(qp[..., 3:])
-        omega, alpha_dot_O = angular_rates(qp[..., 3:], qd[..., 3:], qdd[..., 3:])
+        omega, omega_dot = angular_rates(qp[..., 3:], qd[..., 3:], qdd[..., 3:])
         r = np.einsum("...ij,j->...i", R, np.asarray(self.mrp_P_m, dtype=np.float64))
         v_mrp = qd[..., :3] + np.cross(omega, r)
-        a_mrp = qdd[..., :3] + np.cross(alpha_dot_O, r) + np.cross(omega, np.cross(omega, r))
+        a_mrp = qdd[..., :3] + np.cross(omega_dot, r) + np.cross(omega, np.cross(omega, r))
         v_rel = v_mrp.copy()
         v_rel[..., 0] -= V
         R_B_O = np.swapaxes(R @ R_P_B, -1, -2)
