@@ -128,12 +128,20 @@ COEFFICIENTS: tuple[str, ...] = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
 """The six aerodynamic coefficients, in this order: wind-axis forces on ``q S`` (drag, side force,
 lift) and body-axis moments about the MRP (roll and yaw on ``q S b``, pitch on ``q S c``)."""
 
-POINT_KINDS: tuple[str, ...] = ("wind_on", "tare", "zero", "windage")
+STEADY_POINT_KINDS: tuple[str, ...] = ("wind_on", "tare", "zero", "windage")
 """Kinds of a steady test point: wind on; wind-off weight tare; wind-off zero (level, for the zero
 drift); model-off wind-on windage tare."""
 
+OSCILLATION_POINT_KINDS: tuple[str, ...] = ("oscillation", "oscillation_tare")
+"""Kinds of a forced-oscillation test point (issue 22): wind on, and its wind-off inertia tare
+(the same motion wind off; docs/dynamic_tests.md)."""
+
+POINT_KINDS: tuple[str, ...] = STEADY_POINT_KINDS + OSCILLATION_POINT_KINDS
+"""Every test-point kind a test matrix, a schedule and the test-point events may name."""
+
 WIND_OFF_KINDS: tuple[str, ...] = ("tare", "zero")
-"""Point kinds taken wind-off: they feed the weight model and serve as tares."""
+"""Point kinds taken wind-off at rest: they feed the weight model and serve as tares (an
+``oscillation_tare`` is wind off too, but moves: the inertia tare of the oscillation points)."""
 
 TENSION_METHODS: tuple[str, ...] = ("closed-form", "improved-closed-form", "penalty", "exact")
 """Names of the tension-distribution methods (:data:`cdpr.analysis.tension.METHODS` has one entry

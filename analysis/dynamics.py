@@ -1,8 +1,10 @@
 """Gravity, inertia and Coriolis wrenches of the platform (paper eq. 4), batched over poses.
 
-The equation of motion is ``A T = -(M qdd + C + G + W_ext)`` with wrenches at P in {O} axes and the
-order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load* on the platform
-(so ``A T0 = -G`` holds wind-off).
+The equation of motion (Newton-Euler) is ``A T + G + W_ext = M qdd + C`` with wrenches at P in {O}
+axes and the order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load*
+on the platform (so ``A T0 = -G`` holds wind-off at rest) and ``M qdd + C`` the rate of change of
+the platform's momentum (:func:`inertia_wrench`).  At rest this is the paper's eq. (4),
+``A T = -(G + W_ext)``; the paper's sign of ``M qdd + C`` holds only there.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import check_trailing
 from .conventions import GRAVITY_O_MPS2
 from .errors import InputError
-from .rotations import euler_rate_matrix, rotation_from_euler
+from .rotations import angular_rates, rotation_from_euler
 
 FloatArray = NDArray[np.float64]
 
@@ -91,21 +93,9 @@ def inertia_wrench(
     qdd = check_trailing(pose_accel, "pose_accel", (6,))
     c = check_trailing(com_P_m, "com_P_m", (3,))
     I_P = check_trailing(inertia_P_kgm2, "inertia_P_kgm2", (3, 3))
-    psi, psid, psidd = q[..., 3:], qd[..., 3:], qdd[..., 3:]
+    psi = q[..., 3:]
     R = rotation_from_euler(psi)
-    H = euler_rate_matrix(psi)
-    omega = np.einsum("...ij,...j->...i", H, psid)
-    # H_dot psi_dot by the chain rule on H(pitch, yaw).
-    b, g = psi[..., 1], psi[..., 2]
-    bd, gd = psid[..., 1], psid[..., 2]
-    sb, cb, sg, cg = np.sin(b), np.cos(b), np.sin(g), np.cos(g)
-    Hd = np.zeros(psi.shape[:-1] + (3, 3))
-    Hd[..., 0, 0] = -sb * bd * cg - cb * sg * gd
-    Hd[..., 0, 1] = -cg * gd
-    Hd[..., 1, 0] = -sb * bd * sg + cb * cg * gd
-    Hd[..., 1, 1] = -sg * gd
-    Hd[..., 2, 0] = -cb * bd
-    omega_dot = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    omega, omega_dot = angular_rates(psi, qd[..., 3:], qdd[..., 3:])
     rc = np.einsum("...ij,...j->...i", R, c)
     I_O = R @ I_P @ np.swapaxes(R, -1, -2)
     a_P = qdd[..., :3]

@@ -94,20 +94,23 @@ class LongRun:
         return np.maximum(self.n_eff(c) / 2.0, 1.0)
 
 
-def _lagged(
-    d: FloatArray, ok: NDArray[np.bool_], p: int, start: int
-) -> tuple[FloatArray, FloatArray]:
-    """Rows t >= start where samples t-p..t are all usable: (Y (N, m), X (N, m p))."""
-    n = d.shape[0]
+def _rows(ok: NDArray[np.bool_], p: int, start: int) -> NDArray[np.bool_]:
+    """Samples t >= start whose samples t-p..t are all usable."""
     good = ok.copy()
     for k in range(1, p + 1):
         good[k:] &= ok[:-k]
-        good[:k] = False
-    good[:start] = False
+    good[: max(p, start)] = False
+    return good
+
+
+def _lagged(
+    d: FloatArray, ok: NDArray[np.bool_], p: int, start: int
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """The regression of :func:`_rows`: (Y (N, m), X (N, m p), the rows used (n,))."""
+    good = _rows(ok, p, start)
     t = np.flatnonzero(good)
     X = np.concatenate([d[t - k] for k in range(1, p + 1)], axis=1) if p else np.zeros((t.size, 0))
-    del n
-    return d[t], X
+    return d[t], X, good
 
 
 def _least_squares(X: FloatArray, Y: FloatArray) -> FloatArray:
@@ -161,7 +164,7 @@ def long_run(x: ArrayLike, usable: ArrayLike | None = None, max_order: int = MAX
     if a.ndim != 2:
         raise InputError(f"x: expected (n, m), got {a.shape}")
     n_all, m = a.shape
-    ok = np.isfinite(a).all(axis=1)
+    ok: NDArray[np.bool_] = np.asarray(np.isfinite(a).all(axis=1), dtype=bool)
     if usable is not None:
         u = np.asarray(usable, dtype=bool)
         if u.shape != (n_all,):
@@ -178,33 +181,28 @@ def long_run(x: ArrayLike, usable: ArrayLike | None = None, max_order: int = MAX
     # order by AIC on a common sample (t >= p_max)
     best = (np.inf, 0, np.zeros((0, m)), d)
     for p in range(p_max + 1):
-        Y, X = _lagged(d, ok, p, p_max)
+        Y, X, _ = _lagged(d, ok, p, p_max)
         N = Y.shape[0]
         if N <= m * p + m:
             break
         B = _least_squares(X, Y) if p else np.zeros((0, m))
         E = Y - X @ B
         S = E.T @ E / N
-        sign, logdet = np.linalg.slogdet(S + np.eye(m) * 1e-300)
-        if sign <= 0:
-            logdet = -np.inf if np.allclose(S, 0) else np.log(max(np.linalg.det(S), 1e-300))
+        sign, logdet = np.linalg.slogdet(S)
+        if sign <= 0:  # a perfect fit (a constant channel): nothing left to explain
+            logdet = -np.inf
         aic = logdet + (m * m * p) * 2.0 / N
         if aic < best[0]:
             best = (aic, p, B, E)
     _, p, B, _ = best
     A = [B[k * m : (k + 1) * m].T for k in range(p)]  # d_t = sum A_k d_{t-k}
     # residuals on every usable sample with usable predecessors (others left out)
-    Y, X = _lagged(d, ok, p, p)
-    good = ok.copy()
-    for k in range(1, p + 1):
-        good[k:] &= ok[:-k]
-        good[:k] = False
+    Y, X, good = _lagged(d, ok, p, p)
     res = np.zeros_like(d)
     res[good] = Y - X @ B if p else Y
     L = _andrews_bandwidth(res, good)
     G = _autocov(res, good, L)
-    k = np.arange(1, L + 1)
-    w = 1.0 - k / (L + 1.0)
+    w = 1.0 - np.arange(1, L + 1) / (L + 1.0)
     omega_u = G[0] + np.einsum("k,kij->ij", w, G[1:] + np.swapaxes(G[1:], 1, 2))
     stationary = True
     if p:

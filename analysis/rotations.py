@@ -128,6 +128,33 @@ def euler_rate_matrix(psi_rad: ArrayLike) -> FloatArray:
     return H
 
 
+def angular_rates(
+    psi_rad: ArrayLike, psi_dot: ArrayLike, psi_ddot: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Angular velocity and acceleration in {O}, ``(omega, omega_dot)`` each (..., 3), from Z-Y-X
+    Euler angles (..., 3) and their first and second time derivatives (rad/s, rad/s^2).
+
+    ``omega = H psi_dot`` and ``omega_dot = H psi_ddot + H_dot psi_dot``, with ``H_dot`` by the
+    chain rule on ``H(pitch, yaw)`` (:func:`euler_rate_matrix`).
+    """
+    psi = check_trailing(psi_rad, "psi_rad", (3,))
+    psid = check_trailing(psi_dot, "psi_dot", (3,))
+    psidd = check_trailing(psi_ddot, "psi_ddot", (3,))
+    H = euler_rate_matrix(psi)
+    b, g = psi[..., 1], psi[..., 2]
+    bd, gd = psid[..., 1], psid[..., 2]
+    sb, cb, sg, cg = np.sin(b), np.cos(b), np.sin(g), np.cos(g)
+    Hd = np.zeros(np.broadcast_shapes(psi.shape, psid.shape)[:-1] + (3, 3))
+    Hd[..., 0, 0] = -sb * bd * cg - cb * sg * gd
+    Hd[..., 0, 1] = -cg * gd
+    Hd[..., 1, 0] = -sb * bd * sg + cb * cg * gd
+    Hd[..., 1, 1] = -sg * gd
+    Hd[..., 2, 0] = -cb * bd
+    omega = np.einsum("...ij,...j->...i", H, psid)
+    omega_dot = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    return omega, omega_dot
+
+
 def skew(v: ArrayLike) -> FloatArray:
     """Cross-product matrices (..., 3, 3) with ``skew(a) @ b == cross(a, b)`` for ``v`` (..., 3)."""
     a = check_trailing(v, "v", (3,))

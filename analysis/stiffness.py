@@ -281,19 +281,81 @@ def rig_modes(
     if not bool(np.all(res.feasible)):
         raise InfeasibleError(f"{rig.name}: no feasible tensions at the pose ({method})")
     T = np.asarray(res.tensions_N, dtype=np.float64)
+    st, modes = modes_at(rig, p, R, T)
+    return RigModes(tensions_N=T, stiffness=st, modes=modes, method=method)
+
+
+def modes_at(
+    rig: Rig, position_O_m: ArrayLike, R_O_P: ArrayLike, tensions_N: ArrayLike
+) -> tuple[Stiffness, Modes]:
+    """The rig's stiffness and natural modes at a batch of poses (position (..., 3), R_O_P
+    (..., 3, 3)) under given tensions (..., m): EA, mass, centre of mass and inertia from the rig,
+    gravity's term included (as :func:`rig_modes`, for tensions other than gravity's alone, e.g.
+    those that carry a motion)."""
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
     st = stiffness_matrix(
         rig.anchors_O_m,
         rig.attach_P_m,
-        p,
+        position_O_m,
         R,
-        T,
+        tensions_N,
         rig.cable_EA_N,
         rig.mass_kg,
         rig.com_P_m,
         rig.gravity_O_mps2,
     )
     M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R)
-    return RigModes(tensions_N=T, stiffness=st, modes=natural_modes(st.K, M), method=method)
+    return st, natural_modes(st.K, M)
+
+
+def dominant_coordinates(shapes: ArrayLike, M: ArrayLike) -> FloatArray:
+    """Each mode's share of kinetic energy per coordinate (..., 6 coordinates, 6 modes): the
+    columns of ``|phi * (M phi)|`` normalised to sum 1 (coordinates ``[x, y, z, roll, pitch,
+    yaw]`` as small displacements and rotations in {O})."""
+    phi = check_trailing(shapes, "shapes", (6, 6))
+    Mm = check_trailing(M, "M", (6, 6))
+    e = np.abs(phi * (Mm @ phi))
+    return np.asarray(e / np.maximum(e.sum(axis=-2, keepdims=True), 1e-300))
+
+
+@dataclass(frozen=True)
+class HarmonicCheck:
+    """The harmonics ``h f`` (h = 1..n) of a motion against modes: harmonic_Hz (n,), mode (n,) the
+    index of the nearest mode, distance_rel (n,) the distance from ``h f`` to that mode's band
+    ``[lo, hi]`` relative to the band's edge (0 inside it), near (n,) ``distance_rel <=
+    band_rel``."""
+
+    harmonic_Hz: FloatArray
+    mode: NDArray[np.intp]
+    distance_rel: FloatArray
+    near: NDArray[np.bool_]
+
+
+def harmonic_check(
+    frequency_Hz: float,
+    modes_lo_Hz: ArrayLike,
+    modes_hi_Hz: ArrayLike,
+    n_harmonics: int = 3,
+    band_rel: float = 0.1,
+) -> HarmonicCheck:
+    """The first ``n_harmonics`` multiples of ``frequency_Hz`` against modes whose frequency
+    ranges over ``[modes_lo_Hz, modes_hi_Hz]`` (k,) (e.g. over a cycle of the motion): a harmonic
+    is near a mode when it lies within ``band_rel`` (relative) of that range."""
+    if not (np.isfinite(frequency_Hz) and frequency_Hz > 0):
+        raise InputError(f"frequency_Hz: expected > 0, got {frequency_Hz}")
+    if n_harmonics < 1:
+        raise InputError(f"n_harmonics: expected >= 1, got {n_harmonics}")
+    lo = as_float_array(modes_lo_Hz, "modes_lo_Hz").reshape(-1)
+    hi = as_float_array(modes_hi_Hz, "modes_hi_Hz").reshape(-1)
+    if lo.shape != hi.shape or lo.size == 0 or np.any(~np.isfinite(lo) | ~np.isfinite(hi)):
+        raise InputError("modes_lo_Hz, modes_hi_Hz: expected finite ranges of the same length")
+    h = float(frequency_Hz) * np.arange(1, n_harmonics + 1, dtype=np.float64)
+    below = (lo[None, :] - h[:, None]) / lo[None, :]
+    above = (h[:, None] - hi[None, :]) / hi[None, :]
+    d = np.maximum(np.maximum(below, above), 0.0)  # (n, k)
+    j = np.argmin(d, axis=1)
+    dist = d[np.arange(h.size), j]
+    return HarmonicCheck(h, j, dist, dist <= band_rel)
 
 
 @dataclass(frozen=True)

@@ -593,17 +593,6 @@ def test_oscillation_files_give_back_the_truth(osc_case: lg.LabCase) -> None:
     assert lag_s == pytest.approx(truth["camera"]["camera_clock_offset_ns"] * 1e-9, abs=2e-5)
 
 
-def _kinds() -> tuple[str, ...]:
-    from cdpr.pipelines.campaign import KINDS
-
-    return tuple(KINDS)
-
-
-@pytest.mark.xfail(
-    "oscillation" not in _kinds(),
-    reason="cdpr's test matrix and import have no oscillation kinds yet (issue 22)",
-    strict=True,
-)
 def test_oscillation_files_import_and_analyse_with_cdpr(
     osc_case: lg.LabCase, tmp_path: Path
 ) -> None:
@@ -652,12 +641,6 @@ def test_common_mode_and_ringing_mode_in_the_files(tmp_path: Path) -> None:
             assert 8.5 < f0 < 9.5
 
 
-@pytest.mark.xfail(
-    reason="cdpr subtracts M qdd + C with the paper's sign (A T = -(M qdd + C + G + W_ext), "
-    "analysis/wrench.py): Newton gives A T + G + W_ext = M qdd + C, so a wind-off motion comes "
-    "back as -2 (M qdd + C) instead of 0",
-    strict=True,
-)
 def test_cdpr_dynamic_correction_removes_the_inertia_of_a_wind_off_oscillation(
     osc_case: lg.LabCase,
 ) -> None:

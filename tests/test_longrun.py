@@ -125,7 +125,9 @@ def test_masked_samples_are_left_out_not_bridged() -> None:
     assert a.n == N - 60 and np.all(np.isfinite(a.cov_of_mean))
     b = long_run(x)
     # the variances agree (the independent channels' cross term is noise about 0 in both)
-    np.testing.assert_allclose(np.diag(a.cov_of_mean) * a.n, np.diag(b.cov_of_mean) * b.n, rtol=0.25)
+    np.testing.assert_allclose(
+        np.diag(a.cov_of_mean) * a.n, np.diag(b.cov_of_mean) * b.n, rtol=0.25
+    )
     lrs = window_long_runs(y, [(0, 1000), (1000, N)], np.where(usable, 0, 1))
     assert [lr.n for lr in lrs] == [940, 1000]
 
