@@ -46,6 +46,9 @@ class ZeroDrift:
       at the last zero's value, not measured.
     no_opening_zero: (n,) True where no zero precedes the point (held at the first zero's value).
     record: what was done.
+    weights: (n, k) ``drift = weights @ zero_T_N``: how much of each zero reading enters each
+      point's drift (the same for every cable), so that a point, its tare and the zeros they share
+      can be carried as one covariance.
     """
 
     drift_N: FloatArray
@@ -53,6 +56,7 @@ class ZeroDrift:
     no_closing_zero: BoolArray
     no_opening_zero: BoolArray
     record: CorrectionRecord
+    weights: FloatArray
 
 
 def _interp_weights(t: FloatArray, knots: FloatArray) -> FloatArray:
@@ -124,7 +128,7 @@ def zero_drift(
         },
         flags=flags,
     )
-    return ZeroDrift(drift, sigma, no_close, no_open, rec)
+    return ZeroDrift(drift, sigma, no_close, no_open, rec, C)
 
 
 # ---------------------------------------------------------------------------------------------
