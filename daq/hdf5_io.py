@@ -129,6 +129,8 @@ def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
             for topic, info in run.streams.items():
                 if info.metadata.get("view_of"):
                     continue  # the per-sample view of a block stream: a copy of some samples
+                if info.metadata.get("status_of") in run.streams:
+                    continue  # a pose's status channel: joined into the pose stream's table
                 name = topic.lstrip("/").replace("/", ".") or "root"
                 table, blobs = _table(run.table(topic))
                 ds = streams.create_dataset(name, data=table, chunks=True if len(table) else None)

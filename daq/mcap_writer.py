@@ -7,10 +7,12 @@ Layout of a run file (see ``docs/recording.md``):
   ``jsonschema``; a message's ``log_time`` is the reading's ``t_ns`` (host time of reception, ns since
   the Unix epoch) and its JSON body holds the reading's values (flat numeric fields, so a plot panel
   graphs them) plus ``status``;
-- Foxglove's well-known schemas where one exists: streams whose name contains ``pose`` use
-  ``foxglove.PoseInFrame``, else ``image`` ``foxglove.CompressedImage``; ``event*`` use
-  ``foxglove.Log``; drivers register more (:func:`register_stream_codec`: the CAN driver registers
-  ``can_raw``, :mod:`cdpr.daq.can_raw`);
+- Foxglove's well-known schemas where one exists, embedded exactly as Foxglove publishes them
+  (:mod:`cdpr.daq.foxglove_schemas`): streams whose name contains ``pose`` use
+  ``foxglove.PoseInFrame`` (only for a frame with a pose; every frame's status, flags, covariance
+  ... go on ``/<stream>_status``, schema ``cdpr.<stream>_status``), else ``image``
+  ``foxglove.CompressedImage``; ``event*`` use ``foxglove.Log``; drivers register more
+  (:func:`register_stream_codec`: the CAN driver registers ``can_raw``, :mod:`cdpr.daq.can_raw`);
 - metadata records (``run`` at the start, ``run_end`` at the end) and attachments (rig file,
   calibration files, config file), so a run file is self-contained.
 
@@ -36,8 +38,8 @@ from typing import Any
 
 from cdpr.analysis.errors import InputError
 
-from . import column_blocks
-from .source import Reading, StreamDescription
+from . import column_blocks, foxglove_schemas
+from .source import FieldDescription, Reading, StreamDescription
 
 PROFILE = ""
 LIBRARY = "cdpr-recorder"
@@ -53,12 +55,6 @@ _JSON_TYPES = {
     "bool": {"type": "boolean"},
     "str": {"type": "string"},
     "bytes": {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": 255}},
-}
-
-_TIME_SCHEMA = {
-    "type": "object",
-    "title": "time",
-    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer"}},
 }
 
 
@@ -117,12 +113,17 @@ class StreamCodec:
 
     schema_name: MCAP schema name (``foxglove.PoseInFrame``, ``cdpr.tensions``, ...).
     schema: JSON schema (dict).
-    encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes).
+    encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes), or
+        None: no message on this channel for that reading (a camera frame without a pose).
     encode_frames: optional batch encoder of raw CAN frames (``can.Message`` objects, see
         :class:`cdpr.daq.can_source.CanFrameBatch`) -> :class:`FrameRecords`.
     block_layout: the ``layout`` of the stream stored as column blocks when it is added with
         ``blocks=True`` (its columns written with :meth:`McapRunWriter.write_columns`; no view),
         e.g. ``can_frames`` (:mod:`cdpr.daq.can_raw`); None: no block layout.
+    status: the codec of a second channel, ``/<stream>_status`` (channel metadata ``status_of``),
+        that gets one message for every reading, whether ``encode`` gave one or not: what a
+        well-known schema has no field for (a pose's status, flags, covariance).  ``open_run``
+        joins the two back into one table per reading.
     """
 
     schema_name: str
@@ -130,6 +131,7 @@ class StreamCodec:
     encode: Callable[[Reading], Any]
     encode_frames: Callable[[Any], FrameRecords] | None = None
     block_layout: str | None = None
+    status: StreamCodec | None = None
 
 
 #: a float that may be missing: NaN is written as JSON ``null`` (strict JSON has no NaN)
@@ -181,74 +183,72 @@ def flat_codec(stream: str, description: StreamDescription | None) -> StreamCode
     return StreamCodec(f"cdpr.{stream}", schema, encode)
 
 
-def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
-    """``foxglove.PoseInFrame``; values ``position_O_m`` (3,), ``quaternion_xyzw`` (4,) or
-    ``quaternion_wxyz`` (4,, scalar first), optional ``frame_id`` (default ``"O"``); every other
-    value is carried as an extra flat field."""
-    schema = {
-        "type": "object",
-        "title": "foxglove.PoseInFrame",
-        "description": "A timestamped pose in a named coordinate frame (cdpr: platform {P} in {O})",
-        "properties": {
-            "timestamp": _TIME_SCHEMA,
-            "frame_id": {"type": "string"},
-            "pose": {
-                "type": "object",
-                "properties": {
-                    "position": {
-                        "type": "object",
-                        "properties": {k: _NUMBER_OR_NULL for k in "xyz"},
-                    },
-                    "orientation": {
-                        "type": "object",
-                        "properties": {k: _NUMBER_OR_NULL for k in "xyzw"},
-                    },
-                },
-            },
-            "status": {"type": "integer"},
-        },
-        "additionalProperties": True,
-    }
+def _pose_parts(r: Reading) -> tuple[list[float], list[float], str, dict[str, Any]]:
+    """A pose reading's position (3), quaternion ``[x, y, z, w]``, frame id and other values."""
+    v = dict(r.values)
+    p = [float(x) for x in v.pop("position_O_m", (math.nan,) * 3)]
+    if "quaternion_wxyz" in v:  # the project's convention elsewhere (scalar first)
+        w_, x_, y_, z_ = (float(x) for x in v.pop("quaternion_wxyz"))
+        q = [x_, y_, z_, w_]
+    else:
+        q = [float(x) for x in v.pop("quaternion_xyzw", (0.0, 0.0, 0.0, 1.0))]
+    return p, q, str(v.pop("frame_id", "O")), v
 
-    def encode(r: Reading) -> Mapping[str, Any]:
-        v = dict(r.values)
-        p = [float(x) for x in v.pop("position_O_m", (math.nan,) * 3)]
-        if "quaternion_wxyz" in v:  # the project's convention elsewhere (scalar first)
-            w_, x_, y_, z_ = (float(x) for x in v.pop("quaternion_wxyz"))
-            q = [x_, y_, z_, w_]
-        else:
-            q = [float(x) for x in v.pop("quaternion_xyzw", (0.0, 0.0, 0.0, 1.0))]
-        body: dict[str, Any] = {
+
+def _pose_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
+    """``foxglove.PoseInFrame`` (Foxglove's schema, nothing added) for a frame with a pose, and
+    ``/<stream>_status`` (``cdpr.<stream>_status``) for every frame.  Values: ``position_O_m``
+    (3,), ``quaternion_xyzw`` (4,) or ``quaternion_wxyz`` (4,, scalar first), optional
+    ``frame_id`` (default ``"O"``); a frame has a pose when these 7 numbers are finite.  The status
+    message holds every other value (``covariance``, ``flags``, ``reprojection_px``, ...),
+    ``has_pose`` (1: this frame has its ``PoseInFrame`` message) and ``status``."""
+    pose_keys = ("position_O_m", "quaternion_xyzw", "quaternion_wxyz", "frame_id")
+    fields = {} if description is None else dict(description.fields)
+    fields = {k: f for k, f in fields.items() if k not in pose_keys}
+    fields["has_pose"] = FieldDescription("", "int64")
+    rate = 0.0 if description is None else description.rate_hz
+    status = flat_codec(
+        f"{stream}_status",
+        StreamDescription(
+            fields,
+            rate,
+            f"Every frame of /{stream}, with or without a pose: what foxglove.PoseInFrame has no "
+            f"field for; has_pose = 1 when the frame has its /{stream} message (same log time).",
+        ),
+    )
+
+    def encode(r: Reading) -> Mapping[str, Any] | None:
+        p, q, frame_id, _ = _pose_parts(r)
+        if not all(math.isfinite(x) for x in (*p, *q)):
+            return None  # no pose: not a PoseInFrame message (its status says why)
+        return {
             "timestamp": ns_to_time(r.t_ns),
-            "frame_id": str(v.pop("frame_id", "O")),
+            "frame_id": frame_id,
             "pose": {
                 "position": {"x": p[0], "y": p[1], "z": p[2]},
                 "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
             },
         }
-        body.update(v)
+
+    def encode_status(r: Reading) -> Mapping[str, Any]:
+        p, q, _, body = _pose_parts(r)
+        body["has_pose"] = int(all(math.isfinite(x) for x in (*p, *q)))
         body["status"] = r.status
         return body
 
-    return StreamCodec("foxglove.PoseInFrame", schema, encode)
+    return StreamCodec(
+        "foxglove.PoseInFrame",
+        foxglove_schemas.POSE_IN_FRAME,
+        encode,
+        status=StreamCodec(status.schema_name, status.schema, encode_status),
+    )
 
 
 def _image_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
     """``foxglove.CompressedImage``; values ``data`` (bytes: JPEG/PNG), ``format`` (``"jpeg"``,
-    ``"png"``), optional ``frame_id`` (default ``"camera"``)."""
-    schema = {
-        "type": "object",
-        "title": "foxglove.CompressedImage",
-        "description": "A compressed image",
-        "properties": {
-            "timestamp": _TIME_SCHEMA,
-            "frame_id": {"type": "string"},
-            "data": {"type": "string", "contentEncoding": "base64"},
-            "format": {"type": "string"},
-            "status": {"type": "integer"},
-        },
-        "additionalProperties": True,
-    }
+    ``"png"``), optional ``frame_id`` (default ``"camera"``); the other values (``width``,
+    ``height``, ``frame_index``, ``status``) ride along as extra fields, which Foxglove's schema
+    allows."""
 
     def encode(r: Reading) -> Mapping[str, Any]:
         v = dict(r.values)
@@ -263,7 +263,7 @@ def _image_codec(stream: str, description: StreamDescription | None) -> StreamCo
         body["status"] = r.status
         return body
 
-    return StreamCodec("foxglove.CompressedImage", schema, encode)
+    return StreamCodec("foxglove.CompressedImage", foxglove_schemas.COMPRESSED_IMAGE, encode)
 
 
 LOG_LEVELS = {
@@ -278,32 +278,18 @@ LOG_LEVELS = {
 
 
 def _log_codec(stream: str, description: StreamDescription | None) -> StreamCodec:
-    """``foxglove.Log``; values ``message`` (str), optional ``level`` (name or 0-5, default info),
-    ``name`` (origin, default the stream); other values are kept as extra fields."""
-    schema = {
-        "type": "object",
-        "title": "foxglove.Log",
-        "description": "A log message (cdpr: events such as wind on/off, test points, errors)",
-        "properties": {
-            "timestamp": _TIME_SCHEMA,
-            "level": {
-                "type": "integer",
-                "description": "0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal",
-            },
-            "message": {"type": "string"},
-            "name": {"type": "string"},
-            "file": {"type": "string"},
-            "line": {"type": "integer", "minimum": 0},
-            "status": {"type": "integer"},
-        },
-        "additionalProperties": True,
-    }
+    """``foxglove.Log``; values ``message`` (str), optional ``level`` (name or 0-5, default info;
+    anything else is 0, unknown), ``name`` (origin, default the stream); the other values (a test
+    point's ``point``, ``phase``, ...; ``status``) ride along as extra fields, which Foxglove's
+    schema allows."""
 
     def encode(r: Reading) -> Mapping[str, Any]:
         v = dict(r.values)
         level = v.pop("level", 2)
         if isinstance(level, str):
             level = LOG_LEVELS.get(level.lower(), 0)
+        elif level not in range(6):
+            level = 0
         body: dict[str, Any] = {
             "timestamp": ns_to_time(r.t_ns),
             "level": int(level),
@@ -316,7 +302,7 @@ def _log_codec(stream: str, description: StreamDescription | None) -> StreamCode
         body["status"] = r.status
         return body
 
-    return StreamCodec("foxglove.Log", schema, encode)
+    return StreamCodec("foxglove.Log", foxglove_schemas.LOG, encode)
 
 
 @dataclass
@@ -812,6 +798,8 @@ class McapRunWriter:
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
         self._blocks: dict[str, _BlockStream] = {}  # column-block streams (column_blocks)
+        #: stream -> channel id and encoder of its ``/<stream>_status`` (StreamCodec.status)
+        self._status: dict[str, tuple[int, Callable[[Reading], Any]]] = {}
         #: samples written per stream (a block stream's samples, not its block messages)
         self.counts: dict[str, int] = {}
         self.flushes = 0
@@ -863,8 +851,30 @@ class McapRunWriter:
         self._codecs[stream] = codec.encode
         if codec.encode_frames is not None:
             self._frame_encoders[stream] = codec.encode_frames
+        if codec.status is not None:
+            self._add_status_channel(stream, description, codec.status)
         self.counts[stream] = 0
         return cid
+
+    def _add_status_channel(
+        self, stream: str, description: StreamDescription | None, codec: StreamCodec
+    ) -> None:
+        """``/<stream>_status``: one message per reading of ``stream`` (:attr:`StreamCodec.status`),
+        channel metadata ``status_of`` = ``/<stream>``."""
+        sid = self._writer.register_schema(
+            codec.schema_name,
+            "jsonschema",
+            json.dumps(codec.schema, separators=(",", ":")).encode(),
+        )
+        meta = {"stream": f"{stream}_status", "status_of": topic_of(stream)}
+        if description is not None:
+            meta["rate_hz"] = repr(float(description.rate_hz))
+            props = codec.schema.get("properties", {})
+            units = {k: f.unit for k, f in description.fields.items() if f.unit and k in props}
+            if units:
+                meta["units"] = json.dumps(units, separators=(",", ":"))
+        cid = self._writer.register_channel(topic_of(stream) + "_status", "json", sid, meta)
+        self._status[stream] = (cid, codec.encode)
 
     def _add_block_stream(
         self,
@@ -1058,6 +1068,7 @@ class McapRunWriter:
         counts = self.counts
         add = self._writer.add_message
         blocks = self._blocks
+        status = self._status
         n = 0
         for r in readings:
             stream = r.stream
@@ -1074,9 +1085,12 @@ class McapRunWriter:
                 n += 1
                 continue
             body = codecs[stream](r)
-            data = body if type(body) is bytes else encode_json(body)
             k = counts[stream]
-            add(cid, r.t_ns, data, r.t_ns, k)
+            if body is not None:  # None: no message on this channel (a frame without a pose)
+                add(cid, r.t_ns, body if type(body) is bytes else encode_json(body), r.t_ns, k)
+            if stream in status:  # /<stream>_status: every reading; sequence = the reading's
+                scid, encode_status = status[stream]
+                add(scid, r.t_ns, encode_json(encode_status(r)), r.t_ns, k)
             counts[stream] = k + 1
             n += 1
         return n

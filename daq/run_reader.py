@@ -257,6 +257,30 @@ class Run:
                 info.count, info.start_ns, info.stop_ns = self._block_extent(cid)
             else:
                 info.start_ns, info.stop_ns = self._time_range(cid)
+        self._pair_status_channels()
+
+    def _pair_status_channels(self) -> None:
+        """A stream written as two channels (a pose: ``/pose`` in Foxglove's ``PoseInFrame`` for
+        the frames with a pose, ``/pose_status`` with metadata ``status_of = /pose`` for every
+        frame) is one stream here: ``streams["/pose"]`` counts the frames and has the fields of
+        both, ``table("/pose")`` joins them (:func:`_join_status`)."""
+        self._status_topic: dict[str, str] = {}  # topic -> its status topic
+        for topic, info in list(self.streams.items()):
+            of = info.metadata.get("status_of", "")
+            main = self.streams.get(of)
+            if main is None or of == topic or of in self._status_topic:
+                continue
+            self._status_topic[of] = topic
+            self.streams[of] = StreamInfo(
+                of,
+                main.schema_name,
+                {**main.fields, **info.fields},
+                main.rate_hz or info.rate_hz,
+                info.count,
+                info.start_ns,
+                info.stop_ns,
+                {**main.metadata, "status_topic": topic},
+            )
 
     # -- opening ------------------------------------------------------------------------------
     def _footer_problem(self) -> str:
@@ -646,6 +670,7 @@ class Run:
     def times(self, topic: str) -> np.ndarray:
         """The log times (int64 ns, sorted) of every message of ``topic``, from the message indexes
         alone (no chunk is decompressed)."""
+        topic = self._status_topic.get(topic, topic)  # a pose stream: every frame
         cid = self._cid(topic)
         if cid in self._blocked:
             return self._block_columns(cid, None, None, ())["t_ns"]
@@ -662,7 +687,26 @@ class Run:
         stop_ns: int | None = None,
     ) -> Any:
         """The messages of ``topic`` with ``start_ns <= t_ns < stop_ns`` as a DataFrame sorted by
-        ``t_ns`` (``columns``: only these, after ``t_ns``; a column no message has is an error)."""
+        ``t_ns`` (``columns``: only these, after ``t_ns``; a column no message has is an error).
+        A pose stream written with its status channel (``/pose`` + ``/pose_status``) gives one row
+        per frame, with or without a pose (:func:`_join_status`)."""
+        status = self._status_topic.get(topic)
+        if status is not None:
+            df = _join_status(
+                self._channel_table(topic, None, start_ns, stop_ns),
+                self._channel_table(status, None, start_ns, stop_ns),
+            )
+            return self._finish_frame(topic, df, columns)
+        return self._channel_table(topic, columns, start_ns, stop_ns)
+
+    def _channel_table(
+        self,
+        topic: str,
+        columns: Sequence[str] | None,
+        start_ns: int | None,
+        stop_ns: int | None,
+    ) -> Any:
+        """:meth:`table` of one channel, as its messages are."""
         import pandas as pd
 
         cid = self._cid(topic)
@@ -732,6 +776,60 @@ class Run:
         return f"Run({str(self.path)!r}, {len(self.streams)} streams{extra})"
 
 
+#: the columns a pose message gives (:func:`_pose_frame`), in the reader's order
+_POSE_COLUMNS = ("x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
+
+
+def _rank_in_time(t: np.ndarray) -> np.ndarray:
+    """(n,) the position of each entry among the entries of equal time (``t`` sorted)."""
+    if not len(t):
+        return np.zeros(0, np.int64)
+    first = np.r_[0, np.flatnonzero(np.diff(t)) + 1]
+    return np.arange(len(t)) - np.repeat(first, np.diff(np.r_[first, len(t)]))
+
+
+def _join_status(pose: Any, status: Any) -> Any:
+    """One row per status message (every frame, sorted by time): ``t_ns``, the pose columns
+    (``x_m .. qz``; NaN, and ``frame_id`` None, for a frame without a pose), ``cov_*``,
+    ``frame_id``, then the other status columns, as the old one-channel layout gave them.  A
+    pose message belongs to the status message of the same log time (among several of one time,
+    in order, to those with ``has_pose`` = 1); one whose status message was lost (a damaged chunk
+    salvaged) is left out: the status channel is the list of frames."""
+    import pandas as pd
+
+    ts = status["t_ns"].to_numpy(np.int64)
+    has = (
+        np.nan_to_num(status["has_pose"].to_numpy(np.float64)) == 1
+        if "has_pose" in status
+        else np.ones(len(ts), bool)
+    )
+    rows = np.flatnonzero(has)
+    tp = pose["t_ns"].to_numpy(np.int64)
+    left = pd.DataFrame({"t": ts[rows], "r": _rank_in_time(ts[rows]), "i": rows})
+    right = pd.DataFrame({"t": tp, "r": _rank_in_time(tp), "j": np.arange(len(tp))})
+    pairs = left.merge(right, on=["t", "r"], how="inner")
+    i, j = pairs["i"].to_numpy(np.int64), pairs["j"].to_numpy(np.int64)
+    cols: dict[str, Any] = {"t_ns": ts}
+    for c in _POSE_COLUMNS:
+        col = np.full(len(ts), np.nan)
+        if c in pose:
+            col[i] = pose[c].to_numpy(np.float64)[j]
+        cols[c] = col
+    rest = [c for c in status.columns if c != "t_ns"]
+    for c in [c for c in rest if c.startswith("cov_")]:
+        cols[c] = status[c].to_numpy()
+    frame_id = np.full(len(ts), None, object)
+    if "frame_id" in pose:
+        frame_id[i] = pose["frame_id"].to_numpy(object)[j]
+    cols["frame_id"] = frame_id
+    for c in rest:
+        if c not in cols:
+            cols[c] = status[c].to_numpy()
+    df = pd.DataFrame(cols, copy=False)
+    df["frame_id"] = pd.Series(frame_id, dtype=object, index=df.index)
+    return df
+
+
 @dataclass
 class StreamSummary:
     """Counts and timing of one stream (``cdpr inspect``)."""
@@ -757,6 +855,8 @@ def summarize(run: Run) -> list[StreamSummary]:
     with its status in one pass); ``status`` is decoded window by window."""
     out = []
     for topic, info in run.streams.items():
+        if info.metadata.get("status_of") in run.streams:
+            continue  # a pose's status channel: its frames are counted under the pose stream
         blocked = info.metadata.get("storage") == column_blocks.STORAGE
         bad = 0
         if blocked:  # times and status in one pass over the blocks, a window at a time
