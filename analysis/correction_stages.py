@@ -320,11 +320,16 @@ def repeatability_stage(p: Points) -> Points:
     condition (the index of the point it repeats, or its own; -1 none).  Adds ``sd_repeat_<C>``
     (the pooled σ, on every wind-on point) and ``sd_propagated_<C>`` (RMS of the propagated σ over
     the repeat points); flag ``repeatability_disagrees`` on the repeat points when the two disagree
-    beyond their expected (chi-square) spread.  Without repeat points: NaN and a note."""
+    beyond their expected spread.  The repeat scatter is compared with the *random* part of σ
+    (``sd_random_<C>``, with its own degrees of freedom ``dof_random_<C>``: Fisher's F) when the
+    uncertainty stage ran, else with the total σ (chi-square).  Without repeat points: NaN and a
+    note."""
     s = p.n
     g = np.asarray(p.arrays.get("repeat_group", np.full(s, -1)), dtype=np.int64)
     C = np.stack([p[c] for c in COEFFICIENTS], axis=1)
-    sdC = np.stack([p[f"sd_{c}"] for c in COEFFICIENTS], axis=1)
+    random = all(f"sd_random_{c}" in p.arrays for c in COEFFICIENTS)
+    sdC = np.stack([p[f"sd_random_{c}" if random else f"sd_{c}"] for c in COEFFICIENTS], axis=1)
+    nuC = np.stack([p[f"dof_random_{c}"] for c in COEFFICIENTS], axis=1) if random else None
     on = (p["kind"] == "wind_on") & np.isfinite(C).all(axis=1) & (g >= 0)
     ids, counts = np.unique(g[on], return_counts=True)
     rep = on & np.isin(g, ids[counts >= 2])
@@ -333,7 +338,7 @@ def repeatability_stage(p: Points) -> Points:
     if not rep.any():
         rec = _not_applied("repeatability", "no repeated wind-on point in the run")
         return with_updates(p, arrays=out, meta={**_records(p, rec), "_note": "no repeat points"})
-    r = repeatability(g[rep], C[rep], sdC[rep])
+    r = repeatability(g[rep], C[rep], sdC[rep], dof_propagated=None if nuC is None else nuC[rep])
     windy = (p["kind"] == "wind_on") & np.isfinite(C).all(axis=1)
     for k, c in enumerate(COEFFICIENTS):
         out[f"sd_repeat_{c}"][windy] = r.sigma_repeat[k]

@@ -131,6 +131,7 @@ def points_from_samples(
         input_flags=_input_words(st, ps, nominal, short & (st.n_used >= 2), pose_sd_word),
         tension_sample_cov_N2=g0,
         n_used=st.n_used,
+        longrun_bandwidth=np.array([lr.bandwidth for lr in runs], dtype=np.int64),
         n_eff_min=min_n_eff,
         dwell_needed_s=np.where(
             short, (stop_ns - start_ns) * 1e-9 * MIN_N_EFF / np.maximum(min_n_eff, 1e-9), np.nan

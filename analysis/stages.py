@@ -374,12 +374,13 @@ def uncertainty_stage(p: Points, *, geometry: ModelGeometry | None, level: float
         p.arrays.get("tension_sample_cov_N2", p["tension_cov_N2"]),
         p.arrays.get("tension_cov_raw_N2", p["tension_cov_N2"]),
         p.arrays.get("n_used", np.full(s, 2)),
+        p.arrays.get("longrun_bandwidth"),
         level=level,
     )
     names = [*WRENCH_COLUMNS, *COEFFICIENTS]
     out: dict[str, NDArray[Any]] = {}
-    vals = (eu.u_random, eu.u_systematic, eu.dof, eu.U)
-    for prefix, v in zip(UNCERTAINTY_COLUMNS, vals, strict=True):
+    vals = (eu.u_random, eu.u_systematic, eu.dof, eu.U, eu.dof_random)
+    for prefix, v in zip((*UNCERTAINTY_COLUMNS, "dof_random"), vals, strict=True):
         for k, c in enumerate(names):
             out[f"{prefix}_{c}"] = np.where(np.isfinite(p[WRENCH]).all(axis=1), v[:, k], np.nan)
     return with_updates(p, arrays=out, meta={"_note": f"level {level:g}"})

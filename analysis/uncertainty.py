@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import as_float_array, check_trailing
 from .errors import InputError
 from .kinematics import structure_matrix
+from .longrun import dof_of_estimate
 from .rig import Rig
 from .rotations import rotation_from_euler
 from .wrench import recover_wrench
@@ -209,13 +210,15 @@ def coverage_factor(nu: ArrayLike, level: float = 0.95) -> FloatArray:
 class ExpandedUncertainty:
     """Per point and output quantity (s, p): the random and systematic standard uncertainties, the
     effective degrees of freedom of the total, its coverage factor and the expanded uncertainty
-    ``U = k u`` at the level asked."""
+    ``U = k u`` at the level asked; dof_random: the random part's own degrees of freedom (what a
+    comparison of repeat points with the random part needs)."""
 
     u_random: FloatArray
     u_systematic: FloatArray
     dof: FloatArray
     k: FloatArray
     U: FloatArray
+    dof_random: FloatArray
 
 
 def expanded_uncertainty(
@@ -226,6 +229,7 @@ def expanded_uncertainty(
     sample_cov_N2: ArrayLike,
     cov_of_mean_N2: ArrayLike,
     n_used: ArrayLike,
+    bandwidth: ArrayLike | None = None,
     extra_systematic_u2: ArrayLike | None = None,
     level: float = 0.95,
 ) -> ExpandedUncertainty:
@@ -237,8 +241,9 @@ def expanded_uncertainty(
     load_map (s, K, 6, m) and load_support (s, K): the load-cell part of each wrench as a map of raw
     point means (:func:`cdpr.analysis.tare.load_cell_maps`), whose sample covariances
     ``sample_cov_N2`` (S, m, m), covariances of the mean ``cov_of_mean_N2`` (S, m, m) and counts
-    ``n_used`` (S,) give each raw mean's degrees of freedom for each output (``n_eff / 2`` with
-    ``n_eff = c Gamma_0 c^T / c C c^T``, :mod:`cdpr.analysis.longrun`); the pose and the systematic
+    ``n_used`` (S,) with the estimate's Bartlett ``bandwidth`` (S,) give each raw mean's degrees of
+    freedom for each output (:func:`cdpr.analysis.longrun.dof_of_estimate` with
+    ``n_eff = c Gamma_0 c^T / c C c^T``); the pose and the systematic
     terms count with infinite degrees of freedom (calibrations and stated accuracies);
     extra_systematic_u2: (s, p) systematic variance not in the wrench (q and rho on the
     coefficients).  The total's degrees of freedom by Welch-Satterthwaite, ``k`` from Student's t.
@@ -264,16 +269,23 @@ def expanded_uncertainty(
     uk = np.where(used, np.einsum("skpm,skmn,skpn->skp", G, Cm, G), 0.0)
     gk = np.where(used, np.einsum("skpm,skmn,skpn->skp", G, G0, G), 0.0)
     nk = np.asarray(n_used, dtype=np.float64)[k_][..., None]
+    Lk = 1.0 if bandwidth is None else np.asarray(bandwidth, dtype=np.float64)[k_][..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        nu_k = np.clip(np.where(uk > 0, gk / uk, nk) / 2.0, 1.0, np.maximum(nk - 1.0, 1.0))
+        nu_k = dof_of_estimate(np.where(uk > 0, gk / uk, nk), Lk, nk)
     u_pose2 = u2.get("pose", zero)
     u_load2 = np.sum(uk, axis=1)
     nu_load = welch_satterthwaite(np.moveaxis(uk, 1, -1), np.moveaxis(nu_k, 1, -1))
     parts = np.stack([u_load2, u_pose2 + (u_rand2 - u_load2 - u_pose2), u_sys2], axis=-1)
     nus = np.stack([nu_load, np.full((s, p), np.inf), np.full((s, p), np.inf)], axis=-1)
     dof = welch_satterthwaite(np.clip(parts, 0.0, None), nus)
+    dof_random = welch_satterthwaite(np.clip(parts[..., :2], 0.0, None), nus[..., :2])
     k = coverage_factor(dof, level)
     u = np.sqrt(np.clip(u_rand2 + u_sys2, 0.0, None))
     return ExpandedUncertainty(
-        np.sqrt(np.clip(u_rand2, 0.0, None)), np.sqrt(np.clip(u_sys2, 0.0, None)), dof, k, k * u
+        np.sqrt(np.clip(u_rand2, 0.0, None)),
+        np.sqrt(np.clip(u_sys2, 0.0, None)),
+        dof,
+        k,
+        k * u,
+        dof_random,
     )
