@@ -76,12 +76,6 @@ def _check_file(path: str | os.PathLike[str]) -> Path:
     return p
 
 
-def iter_records(path: str | os.PathLike[str]) -> Iterator[Any]:
-    """Every record of an MCAP file in order (chunks expanded), stopping quietly at a truncation or
-    corruption; the reason is available from :func:`read_run` (``error``)."""
-    yield from _iter_records(Path(path), [])
-
-
 def _iter_records(p: Path, errors: list[str]) -> Iterator[Any]:
     from mcap.stream_reader import StreamReader
 

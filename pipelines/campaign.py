@@ -52,8 +52,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from cdpr.analysis.aero import ModelGeometry, attitude_from_flow_angles
 from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, WIND_OFF_KINDS
 from cdpr.analysis.conventions import POINT_KINDS as KINDS
@@ -689,11 +687,6 @@ def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
         segs.append(seg)
     out["segments"] = segs
     return out
-
-
-def total_duration_s(matrix: TestMatrix) -> float:
-    """Run time of the whole matrix (ramps included), s."""
-    return float(np.sum([p.transition_s + p.duration_s for p in matrix.points]))
 
 
 def schedule_from_matrix(
