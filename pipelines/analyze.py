@@ -293,6 +293,7 @@ def analyze_run(
             "fingerprint": fp,
             "rig": run.rig.name,
             "pose_source": run.pose_source,
+            "tension_clock": run.tension_clock,
             "options": options_json(opts),
             "balance_file": None
             if opts.balance_file is None
