@@ -51,6 +51,7 @@ from .loadcell import (
 )
 from .mcap_writer import register_stream_codec
 from .source import (
+    STATUS_BAD_FRAME,
     STATUS_GAP,
     STATUS_SATURATED,
     STATUS_SENSOR_FAULT,
@@ -123,10 +124,15 @@ class LoadCellDecoder:
                     entries.append((int(m.group(1)) - 1, m.group(2), sig.name))
             if entries:
                 self.channel_signals[msg.frame_id] = entries
-        found = sorted({e[0] for v in self.channel_signals.values() for e in v})
-        if found != list(range(n)):
-            missing = sorted(set(range(n)) - set(found))
-            raise ValueError(f"DBC has no Ch<k>_Counts for channels {[k + 1 for k in missing]}")
+        # every cable needs its counts (status bits alone would make it 0 N, status 0)
+        found = {e[0] for v in self.channel_signals.values() for e in v if e[1] == "Counts"}
+        missing = [k for k in range(n) if k not in found]
+        if missing:
+            k = missing[0]
+            raise ValueError(
+                f"no Ch{k + 1}_Counts signal for cable {self.cables[k]!r} (channel {k + 1} of "
+                f"{n})" + (f" nor for {len(missing) - 1} more" if len(missing) > 1 else "")
+            )
         self.frame_ids = sorted(self.channel_signals)
         bits = {
             "Counts": 0,
@@ -169,6 +175,7 @@ class LoadCellDecoder:
         self._pending_counter: int | None = None
         self._pending: dict[int, dict[str, Any]] = {}
         self._pending_t: tuple[int, int] = (0, 0)
+        self._bad_mark = False  # a bad frame since the last sample: flag the next one
 
     @property
     def frames_per_sample(self) -> int:
@@ -179,6 +186,7 @@ class LoadCellDecoder:
         counting, so the gap over the outage is counted as lost samples."""
         self._pending_counter = None
         self._pending = {}
+        self._bad_mark = False
 
     def decode(self, msg: can.Message, t_ns: int) -> list[Reading]:
         """Feed one frame; returns the completed (or flushed partial) samples, usually 0 or 1."""
@@ -194,9 +202,12 @@ class LoadCellDecoder:
         ):
             return []
         data = bytes(msg.data)
+        if len(data) != m.length:  # a frame of another length than the DBC's: a bad frame
+            self._bad_frame()
+            return []
         try:
             fast = self._fast.get(fid)
-            if fast is not None and len(data) == self._msgs[fid].length:
+            if fast is not None:
                 sig = self._unpack(fast, data)
                 if fid not in self._checked:
                     ref = self._msgs[fid].decode(data, decode_choices=False, scaling=False)
@@ -210,7 +221,7 @@ class LoadCellDecoder:
             else:
                 sig = self._msgs[fid].decode(data, decode_choices=False, scaling=False)
         except Exception:
-            self.bad += 1
+            self._bad_frame()
             return []
         counter = int(sig.get("Counter", 0))
         out: list[Reading] = []
@@ -221,7 +232,7 @@ class LoadCellDecoder:
             self._pending_t = (t_ns, int(round(msg.timestamp * 1e9)))
         if fid in self._pending:
             # the same frame twice for one counter value: keep the first, count it as bad
-            self.bad += 1
+            self._bad_frame()
             return out
         self._pending[fid] = sig
         if len(self._pending) == len(self.frame_ids):
@@ -238,6 +249,13 @@ class LoadCellDecoder:
                 v -= mask + 1
             out[name] = v
         return out
+
+    def _bad_frame(self) -> None:
+        """Count a load-cell frame that cannot be used (another length than the DBC's, not
+        decodable, a repeat within a sample) and flag the sample it falls in (the one pending,
+        else the next) :data:`STATUS_BAD_FRAME`."""
+        self.bad += 1
+        self._bad_mark = True
 
     def _pause(self, t_ns: int, duration_ns: int) -> None:
         self.n_pauses += 1
@@ -270,6 +288,7 @@ class LoadCellDecoder:
         cal = self.calibration
         if (
             self._pending_counter is not None
+            or self._bad_mark
             or n < nf
             or type(cal) is not Calibration
             or any(f not in self._fast for f in self.frame_ids)
@@ -418,6 +437,9 @@ class LoadCellDecoder:
         if len(self._pending) < len(self.frame_ids):
             status |= STATUS_GAP
             self.partial += 1
+        if self._bad_mark:
+            status |= STATUS_BAD_FRAME
+            self._bad_mark = False
         cal = self.calibration
         if type(cal) is Calibration:
             # T = (counts - offset) * gain in plain floats: the same IEEE operations as
@@ -623,8 +645,8 @@ def build_decoder(
     cal = calibration_from_settings(origin, prefix, len(cables), offset_counts, gain_N_per_count)
     try:
         dec = LoadCellDecoder(db, cables, cal, rate_hz)
-    except ValueError as exc:
-        raise ConfigError(origin, f"{prefix}.cables", f"{exc} ({dbc_path})") from None
+    except ValueError as exc:  # a cable without its counts in the DBC: name the DBC
+        raise ConfigError(origin, f"{prefix}.dbc", f"{dbc_path}: {exc}") from None
     return dec, str(dbc_path)
 
 

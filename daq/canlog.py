@@ -35,8 +35,9 @@ import numpy as np
 
 from cdpr.analysis.errors import ConfigError
 
-#: flag bits of :attr:`FrameColumns.flags`
-EXTENDED, ERROR, REMOTE, FD, BRS, ESI, RX = 1, 2, 4, 8, 16, 32, 64
+#: flag bits of :attr:`FrameColumns.flags`; ODD: a frame a classic bus cannot carry as the log
+#: gives it (an ASC line with a DLC past 15 or more than 8 bytes), read as python-can reads it
+EXTENDED, ERROR, REMOTE, FD, BRS, ESI, RX, ODD = 1, 2, 4, 8, 16, 32, 64, 128
 
 #: the largest timestamp (s) whose integer ns fits an int64 (the year 2262)
 T_MAX_S = 9.2e9
@@ -773,8 +774,9 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     bad(~ok, "bad CAN id")
     bad(ids > np.where(ext, 0x1FFFFFFF, 0x7FF), "CAN id out of range")
     dlc_raw, ok = _tok_value(buf, *tok(5, rows), 2, base)
-    bad(~ok | (dlc_raw > 15), "bad DLC")
-    dlc = _DLC2LEN[np.minimum(dlc_raw, 15)]
+    bad(~ok, "bad DLC")
+    # python-can: the length of the DLC (64 past 15), at most 8 bytes of a classic frame read
+    dlc = np.where(dlc_raw > 15, 64, _DLC2LEN[np.minimum(dlc_raw, 15)])
     nbytes = np.minimum(dlc, 8)
     bad(ntok[rows] < 6 + nbytes, "fewer data bytes than the DLC says")
     data = np.zeros((n, 8), np.uint8)
@@ -787,14 +789,19 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
             ok &= lk == 2
         bad(use & (~ok | (v > 255)), f"bad data byte {k + 1}")
         data[:, k] = np.where(use, v, 0)
+    # a DLC above 8 may carry up to its length in bytes: python-can keeps the first 8
+    extra = _extra_bytes(buf, tok, rows, dlc - nbytes, base)
+    used = nbytes + extra
     # after the bytes: nothing, or Vector's attributes ("Length = 244016 BitCount = 125 ...")
-    more = ntok[rows] > 6 + nbytes
-    i_eq = np.minimum(np.where(more, first_tok[rows] + 7 + nbytes, 0), len(tok_s) - 1)
-    eq_ok = (ntok[rows] > 7 + nbytes) & (tok_len[i_eq] == 1) & (buf[tok_s[i_eq]] == ord("="))
+    more = ntok[rows] > 6 + used
+    i_eq = np.minimum(np.where(more, first_tok[rows] + 7 + used, 0), len(tok_s) - 1)
+    eq_ok = (ntok[rows] > 7 + used) & (tok_len[i_eq] == 1) & (buf[tok_s[i_eq]] == ord("="))
     bad(more & ~eq_ok, "unexpected text after the data bytes")
     rx = c3[rows, 0] == ord("R")
+    # a frame no classic bus carries (a DLC past 15, bytes past the 8th): read, flagged ODD
+    odd = (dlc_raw > 15) | (extra > 0)
     fast = FrameColumns(
-        t_s, ids, (EXTENDED * ext | RX * rx).astype(np.uint8), dlc, data, nbytes,
+        t_s, ids, (EXTENDED * ext | RX * rx | ODD * odd).astype(np.uint8), dlc, data, nbytes,
         np.asarray(ch - 1, object), first_line + rows,
     )  # fmt: skip
 
@@ -815,6 +822,29 @@ def _asc_block(buf: np.ndarray, path: str, first_line: int, base: int) -> FrameC
     sc = FrameColumns.from_messages(slow)
     sc.line = np.array(slow_lines, np.int64)
     return _merge_by_line(fast, sc)
+
+
+def _extra_bytes(
+    buf: np.ndarray,
+    tok: Callable[[int, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    rows: np.ndarray,
+    room: np.ndarray,
+    base: int,
+) -> np.ndarray:
+    """How many data bytes follow the first 8 of each classic frame line (up to ``room``, what
+    its DLC's length leaves: a line of Vector's ``d 40`` with 64 bytes)."""
+    extra = np.zeros(len(rows), np.int64)
+    live = np.flatnonzero(room > 0)
+    k = 0
+    while len(live):
+        sk, lk = tok(14 + k, rows[live])
+        v, ok = _tok_value(buf, sk, lk, 2 if base == 16 else 3, base)
+        ok &= (lk == 2) if base == 16 else (v <= 255)
+        live = live[ok]
+        extra[live] += 1
+        k += 1
+        live = live[room[live] > k]
+    return extra
 
 
 def _asc_slow_line(text: str, base: int, path: str, line: int) -> Any:

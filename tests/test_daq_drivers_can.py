@@ -20,6 +20,7 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.daq.loadcell import can_frame_bits, frame_budget
 from cdpr.daq.slcan_emulator import SlcanEmulator
 from cdpr.daq.source import (
+    STATUS_BAD_FRAME,
     STATUS_GAP,
     STATUS_SATURATED,
     STATUS_SENSOR_FAULT,
@@ -157,6 +158,31 @@ def test_counter_gaps_and_partial_samples() -> None:
     assert part.status & STATUS_GAP
     assert math.isnan(part.values["T_k5_N"]) and math.isnan(part.values["T_k6_N"])
     assert part.values["T_k7_N"] == pytest.approx(700 * 1e-4)  # counts x gain
+
+
+def test_a_truncated_frame_is_bad_and_flags_its_sample() -> None:
+    """TPDO3 of sample 6 arrives with 3 bytes (the DBC says 8): counted bad, sample 6 flagged
+    gap + bad frame with channels 5 and 6 missing; the samples around it are clean."""
+    ch = _chan()
+    tx = can.Bus(interface="virtual", channel=ch, bitrate=1_000_000, receive_own_messages=False)
+    counts = [100 * (i + 1) for i in range(8)]
+    with _source(ch, offset_counts=0.0) as src:
+        for c in (5, 6, 7):
+            frames = _frames(c, counts)
+            if c == 6:
+                frames[2] = can.Message(
+                    arbitration_id=0x381, data=bytes(frames[2].data)[:3], is_extended_id=False
+                )
+            for m in frames:
+                tx.send(m)
+        rd = _read_all(src, 3)
+        stats = src.stats
+    tx.shutdown()
+    ten = [r for r in rd if r.stream == "tensions"]
+    assert [r.values["counter"] for r in ten] == [5, 6, 7]
+    assert [r.status for r in ten] == [0, STATUS_GAP | STATUS_BAD_FRAME, 0]
+    assert math.isnan(ten[1].values["T_k5_N"]) and math.isnan(ten[1].values["T_k6_N"])
+    assert stats.bad == 1 and stats.lost == 0
 
 
 def test_error_frames_counted() -> None:

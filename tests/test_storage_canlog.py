@@ -415,3 +415,53 @@ def test_import_of_a_generated_asc_keeps_every_frame_as_python_can_reads_it(
     log = _write_asc(tmp_path / "gen.asc", _asc_lines(np.random.default_rng(3), 500, 16))
     assert _import(log, tmp_path / "gen.mcap") == 0
     assert _same_as_python_can(tmp_path / "gen.mcap", log) > 400
+
+
+def test_a_classic_asc_frame_of_64_bytes_is_read_as_python_can_reads_it_and_flagged(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """python-can's real ``single_frame.asc``: a classic frame line ``d 40`` with 64 bytes (no
+    classic bus carries it).  python-can reads it (dlc 64, the first 8 bytes); so does the import,
+    which flags that frame bad (status 8) and says so, instead of refusing the file."""
+    log = DATA / "single_frame.asc"
+    out = tmp_path / "run.mcap"
+    assert _import(log, out) == 0
+    assert "1 frame(s) no classic CAN bus carries" in capsys.readouterr().out
+    assert _same_as_python_can(out, log) == 1
+    with open_run(out) as run:
+        raw = run.table("/can_raw")
+    assert raw["status"].tolist() == [8] and raw["dlc"].tolist() == [64]
+    assert raw["data"].iloc[0] == bytes(range(8))
+    # a normal frame of the same log layout is not flagged
+    normal = DATA / "single_frame_us_locale.asc"
+    assert _import(normal, tmp_path / "n.mcap") == 0
+    with open_run(tmp_path / "n.mcap") as run:
+        assert run.table("/can_raw")["status"].tolist() == [0]
+
+
+@pytest.mark.parametrize("base", [16, 10])
+def test_asc_classic_frames_with_a_long_dlc_match_python_can(tmp_path: Path, base: int) -> None:
+    """Classic frame lines with DLC 9..15 (8 bytes on the bus) and past 15, carrying from 8 up to
+    their DLC's length in bytes (as Vector's ``d 40`` line): the fields equal python-can's, and a
+    frame is flagged ODD exactly when its DLC is past 15 or it carries more than 8 bytes."""
+    from cdpr.daq.canlog import ODD
+
+    rng = np.random.default_rng(5)
+    lens = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
+    lines, want_odd = [], []
+    for i in range(300):
+        dlc = int(rng.integers(9, 16) if i % 2 else rng.integers(9, 100 if base == 10 else 256))
+        full = lens[dlc] if dlc <= 15 else 64
+        nb = 8 if i % 4 == 1 else int(rng.integers(8, full + 1))  # a quarter: 8 bytes, DLC 9..15
+        data = " ".join(f"{b:02X}" if base == 16 else str(b) for b in rng.integers(0, 256, nb))
+        d = f"{dlc:X}" if base == 16 else str(dlc)
+        tail = "  Length = 0 BitCount = 0" if i % 3 == 0 else ""
+        lines.append(f"{0.001 * (i + 1):11.6f} 1  181             Rx   d {d} {data}{tail}")
+        want_odd.append(dlc > 15 or nb > 8)
+    log = _write_asc(tmp_path / "long.asc", lines, "hex" if base == 16 else "dec")
+    want = [_fields(m) for m in _python_can(log)]
+    assert len(want) == 300
+    cols = list(read_asc(log, block_bytes=2048))
+    assert [_fields(m) for c in cols for m in c.messages()] == want
+    got_odd = np.concatenate([(c.flags & ODD) != 0 for c in cols])
+    assert got_odd.tolist() == want_odd and 0 < sum(want_odd) < 300

@@ -114,9 +114,12 @@ def run(args: argparse.Namespace) -> int:
         key = exc.key.rsplit(".", 1)[-1]
         if args.calibration and key in ("offset_counts", "gain_N_per_count"):
             raise ConfigError(args.calibration, key, exc.problem) from None
-        if key == "dbc":
-            raise ConfigError(args.dbc, "", exc.problem) from None
-        if key == "cables":  # the rig's cables against the DBC's channels
+        if key == "dbc":  # unreadable, or a cable of the rig without its counts in the DBC
+            problem = exc.problem.removeprefix(f"{args.dbc}: ")
+            if "Counts signal for cable" in problem:
+                problem += f" (the cables of {args.rig})"
+            raise ConfigError(args.dbc, "", problem) from None
+        if key == "cables":
             raise ConfigError(args.rig, "cables", exc.problem) from None
         raise
     tmp = out.with_name(f".{out.name}.part")
@@ -241,6 +244,17 @@ def run(args: argparse.Namespace) -> int:
         tmp.unlink(missing_ok=True)
         raise
     print(f"wrote {out}: " + ", ".join(f"{k} {v}" for k, v in counts.items() if v))
+    if can_stats.get("bad_frames"):
+        print(
+            f"note: {can_stats['bad_frames']} load-cell frame(s) of the wrong length or repeated "
+            "in a sample: counted (bad), their samples flagged bad frame (status 8)"
+        )
+    if can_stats["odd_frames"]:
+        print(
+            f"note: {can_stats['odd_frames']} frame(s) no classic CAN bus carries as logged (a DLC "
+            "past 15 or more than 8 bytes): kept as python-can reads them, flagged bad frame "
+            "(status 8) in /can_raw"
+        )
     dropped = can_stats["partial_samples_dropped"]
     if dropped:
         print(
@@ -263,13 +277,14 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
     import numpy as np
 
     from cdpr.daq import can_raw
-    from cdpr.daq.canlog import BRS, ERROR, ESI, EXTENDED, FD, REMOTE, RX, read_log
+    from cdpr.daq.canlog import BRS, ERROR, ESI, EXTENDED, FD, ODD, REMOTE, RX, read_log
     from cdpr.daq.replay import _RELATIVE_LIMIT_S
     from cdpr.daq.source import STATUS_BAD_FRAME, STATUS_GAP
 
     dec = src.decoder
     fids = np.array(dec.frame_ids if dec is not None else [], np.int64)
-    stats = {"frames": 0, "samples": 0, "partial_samples_dropped": 0}
+    flen = np.array([dec._msgs[f].length for f in dec.frame_ids] if dec is not None else [])
+    stats = {"frames": 0, "samples": 0, "partial_samples_dropped": 0, "odd_frames": 0}
     first_ns: int | None = None
     log_t0: float | None = None
     progress = _Progress(Path(path).stat().st_size)
@@ -298,23 +313,32 @@ def _write_can_log(w: Any, src: Any, path: str, start_ns: int) -> tuple[int | No
             "is_extended": fl & EXTENDED, "is_remote": fl & REMOTE, "is_error_frame": fl & ERROR,
             "is_fd": fl & FD, "bitrate_switch": fl & BRS, "error_state_indicator": fl & ESI,
         }  # fmt: skip
+        # flagged bad: error frames, odd frames (read as python-can reads them) and load-cell
+        # frames of another length than the DBC's
+        bad = (fl & (ERROR | ODD)) != 0
+        stats["odd_frames"] += int(np.count_nonzero(fl & ODD))
+        if dec is not None:
+            lc = np.flatnonzero(
+                np.isin(cols.arbitration_id, fids) & ((fl & (ERROR | REMOTE | EXTENDED)) == 0)
+            )
+            k = np.searchsorted(fids, cols.arbitration_id[lc])
+            bad[lc[cols.length[lc] != flen[k]]] = True
         w.write_columns(
             "can_raw",
             t_ns,
             can_raw.block_columns(
                 cols.arbitration_id, bits, cols.dlc, cols.data, cols.length, codes, fl & RX, t_bus
             ),
-            np.where(fl & ERROR, STATUS_BAD_FRAME, 0),
+            np.where(bad, STATUS_BAD_FRAME, 0),
             {"channel": table},
         )
         if dec is not None:
-            lc = np.flatnonzero(
-                np.isin(cols.arbitration_id, fids) & ((fl & (ERROR | REMOTE | EXTENDED)) == 0)
-            )
             _decode_frames(w, dec, src, cols, lc, t_ns, t_bus, emit, stats)
         stats["frames"] += n
     if dec is not None:
         emit(dec.flush(), at_end=True)
+        src.stats.bad = stats["bad_frames"] = dec.bad
+    src.stats.read = stats["frames"]
     progress.done()
     return first_ns, stats
 
