@@ -44,7 +44,7 @@ from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.analysis.errors import CdprError, ConfigError
 from cdpr.analysis.reduction import points_from_samples
 from cdpr.analysis.rig import Rig
-from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix, rotation_from_euler
+from cdpr.analysis.rotations import euler_from_quaternion, pose_cov_to_euler, rotation_from_euler
 from cdpr.daq.schema import rig_from_mapping
 
 from . import __version__
@@ -396,11 +396,9 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             if np.isfinite(C).any(axis=(1, 2)).all():
                 # the camera reports [position, rotation vector in {O}]; Euler angles:
                 # dpsi = H^-1 dtheta
-                Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-                J = np.zeros((len(tp), 6, 6))
-                J[:, :3, :3] = np.eye(3)
-                J[:, 3:, 3:] = Hinv
-                pose_cov = J @ C @ np.swapaxes(J, 1, 2)
+                full = np.isfinite(C).all(axis=(1, 2))
+                pose_cov = np.full_like(C, np.nan)
+                pose_cov[full] = pose_cov_to_euler(np.nan_to_num(eul[full]), C[full])
                 bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")

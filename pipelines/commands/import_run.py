@@ -3,8 +3,11 @@
 The CAN log is anything python-can reads (candump ``.log``, ``.asc``, ``.blf``, ...); its frames are
 kept (``/can_raw``) and decoded with the DBC into ``/tensions`` exactly as the live CAN driver does.
 The optional pose CSV has a time column, ``t_ns`` (ns since the Unix epoch) or ``t_s`` (seconds
-from the first CAN frame), and the pose columns ``x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad``;
-each row becomes a ``/pose`` message (``foxglove.PoseInFrame``, platform {P} in the tunnel frame {O}).
+from the first CAN frame), the pose columns ``x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad`` and
+optionally their covariance ``cov_00 .. cov_55`` (:mod:`cdpr.pipelines.import_tables`); each row
+becomes a ``/pose`` message (``foxglove.PoseInFrame``, platform {P} in the tunnel frame {O}) with
+the covariance in the camera's parametrisation.  ``--pose-sd`` states a per-frame standard deviation
+for a CSV without covariance columns; where the covariance came from is in the run's metadata.
 The rig, DBC, calibration and pose files are attached.  The output is written to a temporary file
 and appears under its name only when complete; an existing file is never overwritten.
 """
@@ -24,7 +27,19 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--can-log", required=True, help="CAN log (.log candump, .asc, .blf, ...)")
     p.add_argument("--dbc", required=True, help="DBC of the load-cell amplifier")
-    p.add_argument("--poses", help="pose CSV (t_ns or t_s, x_m, y_m, z_m, roll_rad, ...)")
+    p.add_argument(
+        "--poses",
+        help="pose CSV (t_ns or t_s, x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad, optionally the "
+        "covariance cov_00 .. cov_55)",
+    )
+    p.add_argument(
+        "--pose-sd",
+        nargs=6,
+        type=float,
+        metavar=("X_M", "Y_M", "Z_M", "ROLL_RAD", "PITCH_RAD", "YAW_RAD"),
+        help="the camera's stated per-frame standard deviation of each pose coordinate, for a pose "
+        "CSV without covariance columns (recorded in the run's metadata)",
+    )
     p.add_argument("--rig", required=True, help="rig file (TOML); cable names come from it")
     p.add_argument(
         "--calibration",
@@ -57,17 +72,15 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from cdpr.analysis.conventions import POSE_COLUMNS
     from cdpr.analysis.errors import ConfigError, InputError
-    from cdpr.analysis.rotations import quaternion_from_euler
     from cdpr.daq.mcap_writer import McapRunWriter
     from cdpr.daq.recorder import Attachment
     from cdpr.daq.replay import CanReplaySource
     from cdpr.daq.runs import run_metadata
-    from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
     from .. import __version__
-    from ..config import file_sha256, load_rig, read_table
+    from ..config import file_sha256, load_rig
+    from ..import_tables import pose_stream, read_pose_csv
 
     out = Path(args.out)
     if out.exists():
@@ -84,17 +97,8 @@ def run(args: argparse.Namespace) -> int:
         from cdpr.daq.loadcell import read_calibration_file
 
         cal = dict(read_calibration_file(args.calibration).settings(rig.cable_names))
-    poses = None
-    if args.poses:
-        df = read_table(args.poses, POSE_COLUMNS, "pose table")
-        if "t_ns" in df.columns:
-            tcol = "t_ns"
-        elif "t_s" in df.columns:
-            tcol = "t_s"
-        else:
-            raise ConfigError(args.poses, "column t_ns", "missing: need a t_ns or t_s column")
-        tv = _pose_times(args.poses, df, tcol)
-        poses = (tcol, tv, df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64))
+    poses = read_pose_csv(args.poses) if args.poses else None
+    pose_cov_source = _pose_cov_source(args, poses)
 
     side = _read_side_tables(args)
 
@@ -154,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
                     "can_log_sha256": file_sha256(args.can_log),
                     "poses": Path(args.poses).name if args.poses else "",
                     "poses_sha256": file_sha256(args.poses) if args.poses else "",
+                    "pose_covariance": pose_cov_source,
                     **_side_provenance(args),
                 },
             )
@@ -187,41 +192,9 @@ def run(args: argparse.Namespace) -> int:
                     f"{args.can_log}: the DBC's message ids match no frame of the log",
                 )
             if poses is not None:
-                tcol, tv, q6 = poses
-                if tcol == "t_s":
-                    if first_ns is None:
-                        raise ConfigError(
-                            args.poses, "column t_s", "relative times need CAN frames in the log"
-                        )
-                    t_ns = first_ns + np.round(tv.astype(np.float64) * 1e9).astype(np.int64)
-                else:
-                    t_ns = tv.astype(np.int64)
-                w.add_stream(
-                    "pose",
-                    StreamDescription(
-                        {
-                            "position_O_m": FieldDescription("m", shape=(3,)),
-                            "quaternion_xyzw": FieldDescription("", shape=(4,)),
-                            "euler_rad": FieldDescription("rad", shape=(3,)),
-                        },
-                        0.0,
-                        "Imported platform pose, P in {O}.",
-                    ),
-                )
-                q_wxyz = quaternion_from_euler(q6[:, 3:6])
-                for k in range(len(t_ns)):
-                    w.write(
-                        Reading(
-                            "pose",
-                            int(t_ns[k]),
-                            {
-                                "position_O_m": q6[k, :3].tolist(),
-                                "quaternion_xyzw": [*q_wxyz[k, 1:].tolist(), float(q_wxyz[k, 0])],
-                                "euler_rad": q6[k, 3:].tolist(),
-                                "frame_id": "O",
-                            },
-                        )
-                    )
+                desc, readings = pose_stream(poses, first_ns, args.pose_sd)
+                w.add_stream("pose", desc)
+                w.write_many(readings)
             _write_side_tables(w, args, side, first_ns)
             counts = dict(w.counts)
             w.add_metadata(
@@ -254,6 +227,11 @@ def run(args: argparse.Namespace) -> int:
             f"note: {can_stats['odd_frames']} frame(s) no classic CAN bus carries as logged (a DLC "
             "past 15 or more than 8 bytes): kept as python-can reads them, flagged bad frame "
             "(status 8) in /can_raw"
+        )
+    if pose_cov_source.startswith("none"):
+        print(
+            f"note: {args.poses} has no covariance columns (cov_00 .. cov_55) and no --pose-sd was "
+            "given: /pose carries no covariance (the analysis flags pose_cov_nominal)"
         )
     dropped = can_stats["partial_samples_dropped"]
     if dropped:
@@ -457,11 +435,32 @@ def _check_can_log(path: str) -> None:
             reader.stop()
 
 
-def _pose_times(path: str, df: Any, tcol: str) -> Any:
-    """The pose time column: finite numbers that never decrease; ``t_ns`` must be integers."""
-    from ..import_tables import table_times
+def _pose_cov_source(args: argparse.Namespace, poses: Any) -> str:
+    """Where the imported poses' covariance comes from (recorded in the run's metadata); a
+    ``--pose-sd`` that cannot be used is bad input."""
+    import numpy as np
 
-    return table_times(path, df)[1]
+    from cdpr.analysis.errors import InputError
+
+    sd = args.pose_sd
+    if sd is not None:
+        if poses is None:
+            raise InputError("--pose-sd: needs --poses (the poses it is the precision of)")
+        if "covariance_euler" in poses.columns:
+            raise InputError(
+                f"--pose-sd: {args.poses} carries its own covariance (cov_00 .. cov_55); give one "
+                "or the other"
+            )
+        if not all(np.isfinite(x) and x > 0 for x in sd):
+            raise InputError(f"--pose-sd: expected six finite standard deviations > 0, got {sd}")
+        return "stated per frame by --pose-sd (x, y, z m; roll, pitch, yaw rad): " + " ".join(
+            f"{x:g}" for x in sd
+        )
+    if poses is None:
+        return ""
+    if "covariance_euler" in poses.columns:
+        return f"{Path(args.poses).name} columns cov_00 .. cov_55 (x, y, z, roll, pitch, yaw)"
+    return "none (the analysis uses its nominal value and flags pose_cov_nominal)"
 
 
 def _read_side_tables(args: argparse.Namespace) -> dict[str, Any]:
