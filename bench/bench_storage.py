@@ -139,7 +139,7 @@ def run() -> dict[str, dict]:
     out: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        from cdpr.daq.canlog import read_candump
+        from cdpr.daq.canlog_candump import read_candump
 
         def import_log(log: Path, out: Path) -> float:
             t = time.perf_counter()
@@ -182,7 +182,7 @@ def run() -> dict[str, dict]:
                    "--out", str(tmp / "imp_asc.mcap")])  # fmt: skip
         imp_s = time.perf_counter() - t
         assert rc == 0
-        from cdpr.daq.canlog import read_asc
+        from cdpr.daq.canlog_asc import read_asc
 
         t = time.perf_counter()
         assert sum(len(c) for c in read_asc(asc)) == n_frames

@@ -119,9 +119,10 @@ class StreamCodec:
     schema: JSON schema (dict).
     encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes).
     encode_frames: optional batch encoder of raw CAN frames (``can.Message`` objects, see
-        :class:`cdpr.daq.can_source.CanFrameBatch`) -> :class:`FrameRecords`.
-    block_layout: the ``layout`` of the stream stored as column blocks when it is added with
-        ``blocks=True`` (its columns written with :meth:`McapRunWriter.write_columns`; no view),
+        :class:`cdpr.daq.can_raw.CanFrameBatch`) -> :class:`FrameRecords`.
+    block_layout: the ``layout`` of the stream stored as column blocks when it is added with a
+        description and not ``blocks=False`` (its columns written with
+        :meth:`McapRunWriter.write_columns`, or by a frame batch's ``frame_block()``; no view),
         e.g. ``can_frames`` (:mod:`cdpr.daq.can_raw`); None: no block layout.
     """
 
@@ -330,14 +331,14 @@ class FrameRecords:
 
 
 #: batch types whose frames the writer hands to the stream codec's ``encode_frames`` at once
-#: (registered by the drivers, e.g. :class:`cdpr.daq.can_source.CanFrameBatch`)
+#: (registered by the drivers, e.g. :class:`cdpr.daq.can_raw.CanFrameBatch`)
 _FRAME_BATCH_TYPES: set[type] = set()
 
 
 def register_frame_batch_type(batch_type: type) -> None:
     """Have :meth:`McapRunWriter.write_many` treat ``batch_type`` as a batch of frames: it has
-    ``stream``, ``messages``, ``t_ns``, ``others`` and ``frame_reading(i)`` (see
-    :class:`cdpr.daq.can_source.CanFrameBatch`)."""
+    ``stream``, ``messages``, ``t_ns`` (one per frame), ``others``, ``frame_reading(i)`` and, for
+    a block stream, ``frame_block()`` (see :class:`cdpr.daq.can_raw.CanFrameBatch`)."""
     _FRAME_BATCH_TYPES.add(batch_type)
 
 
@@ -838,7 +839,7 @@ class McapRunWriter:
         if stream in self._channels:
             return self._channels[stream]
         codec = codec_for(stream, description)
-        if blocks and description is not None and codec.block_layout is not None:
+        if blocks is not False and description is not None and codec.block_layout is not None:
             return self._add_block_stream(stream, description, codec, codec.block_layout)
         if (
             blocks is not False
@@ -1047,10 +1048,10 @@ class McapRunWriter:
     def write_many(self, readings: Iterable[Reading]) -> int:
         """Write readings in order (the recorder's hot loop); returns how many.
 
-        A registered batch type (:func:`register_frame_batch_type`: the CAN driver's
-        :class:`~cdpr.daq.can_source.CanFrameBatch`) has its frames formatted at once by its stream
-        codec's ``encode_frames`` (:func:`cdpr.daq.can_raw.encode_can_frames`); its other readings
-        (decoded tensions) follow."""
+        A registered batch type (:func:`register_frame_batch_type`: the CAN sources'
+        :class:`~cdpr.daq.can_raw.CanFrameBatch`) has its frames written at once: as a frame
+        block (its ``frame_block()``) on a block stream, else by its stream codec's
+        ``encode_frames``; its other readings (decoded tensions) follow."""
         if is_frame_batch(readings):
             return self._write_frame_batch(readings)
         channels = self._channels
@@ -1084,14 +1085,17 @@ class McapRunWriter:
     def _write_frame_batch(self, batch: Any) -> int:
         stream = batch.stream
         msgs = batch.messages
-        n = len(msgs)
+        n = len(batch.t_ns)
         if n:
             if stream not in self._channels:
                 self.add_stream(stream, None)
-            encode_frames = self._frame_encoders.get(stream)
-            if encode_frames is None:  # another codec for this stream: one reading at a time
-                return self.write_many(list(batch))
-            self.write_records(stream, batch.t_ns[:n], encode_frames(msgs), batch.frame_reading)
+            if stream in self._blocks:  # a layout's block stream: the batch gives its columns
+                self.write_columns(stream, *batch.frame_block())
+            else:
+                encode_frames = self._frame_encoders.get(stream)
+                if encode_frames is None:  # another codec for this stream: reading by reading
+                    return self.write_many(list(batch))
+                self.write_records(stream, batch.t_ns[:n], encode_frames(msgs), batch.frame_reading)
         others = batch.others
         if others:
             self.write_many([r for _, r in others])

@@ -188,7 +188,7 @@ def test_import_dbc_error_names_the_dbc(tmp_path: Path, can_log, capsys) -> None
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("t_s,x_m,y_m,z_m\n0.0,1,2,3\n", "first frame"),  # a CSV, not a CAN log
+        ("t_s,x_m,y_m,z_m\n0.0,1,2,3\n", "line 1: not a candump -L line"),  # not a CAN log
         ("", "no CAN frames"),
     ],
 )

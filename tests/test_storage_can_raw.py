@@ -13,7 +13,7 @@ import can
 import numpy as np
 
 import cdpr.daq.drivers  # noqa: F401  (registers the drivers)
-from cdpr.daq.can_source import CanFrameBatch, raw_reading
+from cdpr.daq.can_raw import CanFrameBatch, raw_reading
 from cdpr.daq.mcap_io import McapRunWriter
 from cdpr.daq.run_reader import open_run
 from cdpr.daq.source import create_source
@@ -126,7 +126,7 @@ def test_recorded_frames_from_a_virtual_bus_read_back_identical(tmp_path: Path) 
             got_frames += len(batch.messages)
             received += batch.messages
             w.write_many(batch)
-        for r in src.decoder.flush():
+        for r in src.decoder.flush().readings():
             w.write(r)
     w.finish()
     assert got_frames == len(sent)

@@ -13,7 +13,8 @@ import pytest
 from _block_reader import samples
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.daq.canlog import read_asc, read_candump
+from cdpr.daq.canlog_asc import read_asc
+from cdpr.daq.canlog_candump import read_candump
 from cdpr.daq.run_reader import open_run
 from cdpr.pipelines.cli import main
 
@@ -189,14 +190,14 @@ def test_import_of_a_malformed_log_names_the_line_and_writes_nothing(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.log"]
 
 
-def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
-    """The import's whole-sample decoding (numpy) against the driver's frame-by-frame decoder on
-    the same frames: counter wraps, lost samples (a gap), a sample missing a frame in the middle,
-    status bits set: the /tensions messages are byte for byte the same."""
+def test_imported_samples_equal_the_frame_by_frame_rules(tmp_path: Path) -> None:
+    """The import's decoding (whole blocks with numpy) against the separately written
+    frame-by-frame reference of the rules (``tests/_can_reference.py``) on the frames python-can
+    reads from the same log: counter wraps, lost samples (a gap), a sample missing a frame in the
+    middle, status bits: every /tensions field equal."""
+    from _can_reference import Frame, Reference
     from mcap.reader import make_reader
 
-    from cdpr.daq.can_source import build_decoder
-    from cdpr.daq.mcap_io import McapRunWriter
     from cdpr.pipelines.config import load_rig
 
     lines: list[str] = []
@@ -214,25 +215,24 @@ def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
     out = tmp_path / "blocks.mcap"
     assert _import(log, out) == 0
 
-    cables = list(load_rig(RIG).cable_names)
-    dec, _ = build_decoder("<test>", "sources.can", str(DBC), cables, None, None)
-    ref = tmp_path / "ref.mcap"
-    w = McapRunWriter(ref)
-    w.add_stream("tensions", dec.describe(0.0), blocks=True)
+    ref = Reference([0.0] * 8, [5e-5] * 8)  # the import's default calibration
     for m in _python_can(log):
-        for r in dec.decode(m, round(m.timestamp * 1e9)):
-            w.write(r)
-    w.finish()
+        t = round(m.timestamp * 1e9)
+        ref.feed(Frame(t, t, m.arbitration_id, bytes(m.data), m.is_extended_id))
+    ref.flush()
+    want = ref.samples[:-1] if ref.samples[-1]["status"] & 16 else ref.samples  # cut at the end
 
-    def columns(p: Path) -> dict[str, np.ndarray]:
-        with p.open("rb") as fh:
-            rows = samples(make_reader(fh), "/tensions")
-        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
-
-    got, want = columns(out), columns(ref)
-    assert len(want["t_ns"]) == 690 and list(got) == list(want)
-    for k in want:
-        assert np.array_equal(got[k], want[k], equal_nan=True), k
+    with out.open("rb") as fh:
+        rows = samples(make_reader(fh), "/tensions")
+    cables = list(load_rig(RIG).cable_names)
+    assert len(rows) == len(want) == 690
+    for r, w in zip(rows, want, strict=True):
+        assert r["t_ns"] == w["t_ns"] and r["status"] == w["status"]
+        assert [r[f"raw_{c}_counts"] for c in cables] == w["raw"]
+        assert [r[f"status_{c}"] for c in cables] == w["ch_status"]
+        assert (r["counter"], r["seq"], r["t_bus_ns"]) == (w["counter"], w["seq"], w["t_bus_ns"])
+        got_T = [np.nan if r[f"T_{c}_N"] is None else r[f"T_{c}_N"] for c in cables]
+        assert np.array_equal(got_T, w["T"], equal_nan=True)
     with open_run(out) as run:
         ten = run.table("/tensions")
     assert ten["status"].astype(bool).sum() > 10  # status bits and the gap sample are there
@@ -444,7 +444,7 @@ def test_asc_classic_frames_with_a_long_dlc_match_python_can(tmp_path: Path, bas
     """Classic frame lines with DLC 9..15 (8 bytes on the bus) and past 15, carrying from 8 up to
     their DLC's length in bytes (as Vector's ``d 40`` line): the fields equal python-can's, and a
     frame is flagged ODD exactly when its DLC is past 15 or it carries more than 8 bytes."""
-    from cdpr.daq.canlog import ODD
+    from cdpr.daq.can_frames import ODD
 
     rng = np.random.default_rng(5)
     lens = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
