@@ -276,7 +276,8 @@ class LoadCellDecoder:
         bad[lc[bad_len]] = True
         bad[cand[undecodable]] = True
         good = cand[~undecodable]
-        sig = {key: v[~undecodable] for key, v in sig.items()}
+        if undecodable.any():
+            sig = {key: v[~undecodable] for key, v in sig.items()}
         self.bad += int(bad.sum())
         # the open sample's frames first (positions -n_open .. -1), then the block's good ones
         n_open = len(self._open)
@@ -356,9 +357,9 @@ class LoadCellDecoder:
         index) as arrays (a signal a frame does not carry: 0), with ``_fid`` and ``_counter``; and
         which frames cantools could not decode."""
         m = len(frames)
-        out: dict[str, np.ndarray] = {"_fid": k.astype(np.int64)}
+        out: dict[str, np.ndarray] = {"_fid": k.astype(np.int64), "Counter": np.zeros(m, np.int64)}
         for name in self._signal_names:
-            out[name] = np.zeros(m, np.int64)
+            out[name] = out.get(name, np.zeros(0, np.int64))
         undecodable = np.zeros(m, bool)
         for j, fid in enumerate(self.frame_ids):
             sel = np.flatnonzero(k == j)
@@ -370,8 +371,13 @@ class LoadCellDecoder:
                 values, failed = self._unpack_cantools(fid, data, frames.length[sel])
                 undecodable[sel[failed]] = True
             for name, v in values.items():
+                if len(out[name]) != m:  # a signal of one frame id: 0 for the others
+                    out[name] = np.zeros(m, np.int64)
                 out[name][sel] = v
-        out["_counter"] = out.pop("Counter", np.zeros(m, np.int64))
+        for name in self._signal_names:
+            if len(out[name]) != m:
+                out[name] = np.zeros(m, np.int64)
+        out["_counter"] = out.pop("Counter")
         return out, undecodable
 
     def _unpack_fast(self, fid: int, data: np.ndarray, length: np.ndarray) -> Any:
@@ -529,11 +535,14 @@ class LoadCellDecoder:
         if k:
             # each frame's sample; the first of equal (sample, id) pairs is the one used
             owner = np.searchsorted(starts, np.arange(len(fid)), side="right") - 1
-            idx = np.flatnonzero((owner >= 0) & (owner < k))
-            order = idx[np.lexsort((idx, fid[idx], owner[idx]))]
-            keep = np.ones(len(order), bool)
-            keep[1:] = (owner[order][1:] != owner[order][:-1]) | (fid[order][1:] != fid[order][:-1])
-            use = order[keep]
+            use = np.flatnonzero((owner >= 0) & (owner < k))
+            if bool(marks.any()):  # a repeated frame marks its sample: keep the first of each id
+                order = use[np.lexsort((use, fid[use], owner[use]))]
+                keep = np.ones(len(order), bool)
+                keep[1:] = (owner[order][1:] != owner[order][:-1]) | (
+                    fid[order][1:] != fid[order][:-1]
+                )
+                use = order[keep]
             for j, entries in enumerate(self._entries):
                 sel = use[fid[use] == j]
                 rows = owner[sel]

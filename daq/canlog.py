@@ -28,6 +28,8 @@ READERS = {
     ".log": "canlog_candump:read_candump",
     ".asc": "canlog_asc:read_asc",
     ".blf": "canlog_blf:read_blf",
+    ".trc": "canlog_trc:read_trc",
+    ".csv": "canlog_csv:read_csv",
 }
 
 Progress = Callable[[int], None]

@@ -181,10 +181,7 @@ def _objects(b: np.ndarray, name: str, at: int) -> tuple[np.ndarray, int]:
     if not complete.all():
         k = int(np.argmin(complete))
         return pos[:k], int(pos[k])
-    last_end = int(end[chain][-1])
-    if n - last_end >= 8:  # a further object starts but its header is cut: keep it
-        return pos, last_end
-    return pos, n
+    return pos, int(end[chain][-1])  # what follows (padding, a cut object) waits for more
 
 
 def _u(b: np.ndarray, at: np.ndarray, dtype: str) -> np.ndarray:

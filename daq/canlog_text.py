@@ -50,9 +50,21 @@ def gather(buf: np.ndarray, start: np.ndarray, length: np.ndarray, width: int) -
         out = np.lib.stride_tricks.as_strided(
             buf[int(start[0]) :], shape=(n, width), strides=(step, 1), writeable=False
         ).copy()
+    elif n and len(buf) >= width:
+        # any starts: rows of the buffer's sliding windows (a row copied at a time); the few
+        # that would run past its end byte by byte
+        win = np.lib.stride_tricks.sliding_window_view(buf, width)
+        inside = start <= len(buf) - width
+        if bool(inside.all()):
+            out = win[start]
+        else:
+            out = np.empty((n, width), np.uint8)
+            out[inside] = win[start[inside]]
+            idx = start[~inside, None] + np.arange(width)
+            out[~inside] = buf[np.minimum(idx, len(buf) - 1)]
     else:
         idx = start[:, None] + np.arange(width)
-        out = buf[np.minimum(idx, len(buf) - 1)]
+        out = buf[np.minimum(idx, max(len(buf) - 1, 0))]
     if not bool(np.all(length == width)):
         out[np.arange(width) >= length[:, None]] = 0
     return out
@@ -129,9 +141,12 @@ def fixed_timestamps(ipairs: np.ndarray, fpairs: np.ndarray, ni: int, k: int) ->
 def check_control_bytes(buf: np.ndarray, path: str, first_line: int) -> None:
     """A ConfigError naming the first line of ``buf`` that holds a control byte (a carriage return
     is one unless a newline follows it)."""
-    cr = np.flatnonzero(buf == 13)
-    lone_cr = cr[buf[np.minimum(cr + 1, len(buf) - 1)] != 10]  # a carriage return only before \n
-    at = np.union1d(np.flatnonzero(CTRL[buf]), lone_cr)
+    ctrl = CTRL[buf]
+    cr = buf == 13
+    lone = cr[:-1] & (buf[1:] != 10)  # a carriage return only before a newline
+    if not (ctrl.any() or lone.any() or (len(buf) and cr[-1])):
+        return
+    at = np.union1d(np.flatnonzero(ctrl), np.flatnonzero(np.append(lone, cr[-1:])))
     if len(at):
         line = first_line + int(np.count_nonzero(buf[: at[0]] == 10))
         raise ConfigError(path, f"line {line}", f"control byte 0x{int(buf[at[0]]):02x} in the line")
@@ -207,6 +222,8 @@ def check_utf8(text: bytes, path: str, first_line: int) -> None:
 #: token separators of a line: tab, carriage return, space (other control bytes are errors)
 WS = np.zeros(256, bool)
 WS[[9, 13, 32]] = True
+_SEP = WS.copy()
+_SEP[10] = True  # and the newline
 
 
 @dataclass
@@ -234,22 +251,35 @@ class LineTokens:
         if len(nl) == 0:
             return None
         line_start = np.concatenate([[0], nl[:-1] + 1])
-        sep = WS[buf] | (buf == 10)
-        edge = np.diff(sep.view(np.int8), prepend=np.int8(1), append=np.int8(1))
-        tok_s = np.flatnonzero(edge[:-1] == -1).astype(np.int64)  # separator -> token
-        tok_e = np.flatnonzero(edge[1:] == 1).astype(np.int64) + 1  # token -> separator
-        if len(tok_s) == 0:
+        sep = _SEP[buf]
+        # the edges alternate, separator -> token (a start), token -> separator (an end)
+        edge = np.flatnonzero(np.diff(sep.view(np.int8), prepend=np.int8(1), append=np.int8(1)))
+        if len(edge) == 0:
             return None
-        tok_line = np.searchsorted(nl, tok_s)
-        first_tok = np.searchsorted(tok_line, np.arange(len(nl)))
-        ntok = np.bincount(tok_line, minlength=len(nl))
+        tok_s, tok_e = edge[0::2].astype(np.int64), edge[1::2].astype(np.int64)
+        # tokens never cross a newline: a line's tokens run from its first to the next line's
+        first_tok = np.searchsorted(tok_s, line_start)
+        ntok = np.diff(first_tok, append=len(tok_s))
         return cls(buf, nl, line_start, tok_s, tok_e - tok_s, first_tok, ntok)
 
     def tok(self, k: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Start and length of token ``k`` of lines ``rows`` (length 0 when missing)."""
         have = self.ntok[rows] > k
+        if bool(have.all()):
+            i = self.first_tok[rows] + k
+            return self.tok_s[i], self.tok_len[i]
         i = np.where(have, self.first_tok[rows] + k, 0)
         return np.where(have, self.tok_s[i], 0), np.where(have, self.tok_len[i], 0)
+
+    def matrix(self, rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Start and length (n, k) of the first ``k`` tokens of lines ``rows`` (length 0 where a
+        line has fewer): one gather for every field a parser reads."""
+        have = self.ntok[rows, None] > np.arange(k)
+        i = self.first_tok[rows, None] + np.arange(k)
+        if not bool(have.all()):
+            i = np.where(have, i, 0)
+            return np.where(have, self.tok_s[i], 0), np.where(have, self.tok_len[i], 0)
+        return self.tok_s[i], self.tok_len[i]
 
     def text(self, r: int) -> str:
         """Line ``r`` as text (stripped)."""

@@ -238,24 +238,46 @@ def test_imported_samples_equal_the_frame_by_frame_rules(tmp_path: Path) -> None
     assert ten["status"].astype(bool).sum() > 10  # status bits and the gap sample are there
 
 
-def test_a_real_log_damaged_midway_is_an_error_naming_the_frame(
+def test_a_real_log_damaged_midway_is_an_error_naming_the_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """python-can's reader raising on a damaged frame of a TRC log: one error line naming the file
-    and the frame, exit 2, no output (never a silent stop with the frames read so far)."""
+    """A frame line of a real TRC log damaged (python-can's reader raises there): one error line
+    naming the file and the line, exit 2, no output (never a silent stop with the frames read so
+    far)."""
     src = (DATA / "test_CanMessage_V2_1.trc").read_text().splitlines()
     body = [k for k, line in enumerate(src) if line.strip() and not line.lstrip().startswith(";")]
     src[body[3]] = "     4      17.000 DT 1 0FF Rx - 8 zz zz"
     log = tmp_path / "bad.trc"
     log.write_text("\n".join(src) + "\n")
-    good = 0  # the frames python-can reads before it raises
     with pytest.raises(ValueError):
+        list(can.LogReader(str(log)))
+    assert _import(log, tmp_path / "bad.mcap") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"bad.trc: line {body[3] + 1}: bad data" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]
+
+
+def test_a_log_python_can_reads_for_us_damaged_midway_names_the_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A format read through python-can (its SQLite log, ``.db``) with a row its reader cannot
+    make a frame of: the frame named, exit 2, no output."""
+    import sqlite3
+
+    log = tmp_path / "bad.db"
+    with can.SqliteWriter(str(log)) as w:
+        for m in _python_can(DATA / "test_CanMessage_V2_1.trc"):
+            w.on_message_received(m)
+    with sqlite3.connect(log) as db:  # the fourth frame's data: text, not bytes
+        db.execute("UPDATE messages SET data = 'zz' WHERE rowid = 4")
+    good = 0
+    with pytest.raises(Exception):  # noqa: B017 - whatever python-can's reader raises
         for _ in can.LogReader(str(log)):
             good += 1
     assert _import(log, tmp_path / "bad.mcap") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"bad.trc: frame {good + 1}: python-can cannot read it" in err[0]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]
+    assert len(err) == 1 and f"bad.db: frame {good + 1}: python-can cannot read it" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.db"]
 
 
 # --- Vector ASC: the numpy parser (read_asc) against python-can's ASCReader ----------------------
