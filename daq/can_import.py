@@ -7,8 +7,10 @@ format) -> :meth:`cdpr.daq.can_decoder.LoadCellDecoder.decode_frames` -> the wri
 from __future__ import annotations
 
 import os
+import queue
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,7 +20,7 @@ import numpy as np
 from cdpr.analysis.errors import ConfigError
 
 from .can_decoder import LoadCellDecoder, Samples
-from .can_frames import ODD
+from .can_frames import ODD, FrameColumns
 from .can_raw import frame_block
 from .canlog import read_log
 from .replay import log_times
@@ -61,7 +63,7 @@ def import_can_log(
     stats = CanLogStats()
     first_ns: int | None = None
     log_t0 = 0.0
-    for frames in read_log(path, progress=progress):
+    for frames in _ahead(read_log(path, progress=progress)):
         if first_ns is None:
             log_t0 = float(frames.t_s[0])
         t_ns = log_times(frames.t_s, log_t0, start_ns)
@@ -85,6 +87,50 @@ def import_can_log(
         stats.pauses = decoder.n_pauses
         stats.pause_s = [round(d * 1e-9, 3) for _, d in decoder.pauses]
     return first_ns, stats
+
+
+def _ahead(blocks: Iterator[FrameColumns], depth: int = 2) -> Iterator[FrameColumns]:
+    """The blocks of ``blocks``, read in a thread up to ``depth`` blocks ahead (the parser's numpy
+    work overlaps the decoding and writing of the block before; bounded memory); an error of the
+    reader is raised here, where the block would have come."""
+    q: queue.Queue[Any] = queue.Queue(depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(item: Any) -> bool:
+        while not stop.is_set():  # the consumer may have stopped: never block for good
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def run() -> None:
+        try:
+            for b in blocks:
+                if not put(b):
+                    return
+            put(end)
+        except BaseException as exc:  # handed to the consumer
+            put(exc)
+
+    t = threading.Thread(target=run, name="canlog-reader", daemon=True)
+    t.start()
+    try:
+        while True:
+            item = q.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        t.join()
+        close = getattr(blocks, "close", None)
+        if close is not None:
+            close()
 
 
 def _write_samples(writer: Any, samples: Samples, stats: CanLogStats, at_end: bool) -> None:

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from _can_reference import IDS, Frame, Reference
 
-from cdpr.daq.can_decoder import DEFAULT_DBC, LoadCellDecoder, load_dbc
+from cdpr.daq.can_dbc import DEFAULT_DBC, load_dbc
+from cdpr.daq.can_decoder import LoadCellDecoder
 from cdpr.daq.can_frames import ERROR, EXTENDED, REMOTE, RX, FrameColumns
 from cdpr.daq.loadcell import Calibration
 

@@ -494,13 +494,14 @@ def test_fast_unpack_agrees_with_cantools() -> None:
     payloads (the samples' raw counts and status bits against cantools' signals)."""
     import random
 
-    from cdpr.daq.can_decoder import DEFAULT_DBC, LoadCellDecoder, load_dbc
+    from cdpr.daq.can_dbc import DEFAULT_DBC, load_dbc
+    from cdpr.daq.can_decoder import LoadCellDecoder
     from cdpr.daq.can_frames import FrameColumns
     from cdpr.daq.loadcell import Calibration
 
     db = load_dbc(DEFAULT_DBC)
     dec = LoadCellDecoder(db, CABLES, Calibration(np.zeros(8), np.ones(8)))
-    assert sorted(dec._fast) == [0x181, 0x281, 0x381, 0x481]
+    assert sorted(dec.dbc._fast) == [0x181, 0x281, 0x381, 0x481]  # the numpy unpacking
     rnd = random.Random(5)
     msgs = []
     for k in range(500):  # a complete sample of random payloads per counter value

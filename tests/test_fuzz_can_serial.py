@@ -15,7 +15,8 @@ from _fuzz_contract import FUZZ, check_cli, mutated
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdpr.daq.can_decoder import DEFAULT_DBC, LoadCellDecoder, load_dbc
+from cdpr.daq.can_dbc import DEFAULT_DBC, load_dbc
+from cdpr.daq.can_decoder import LoadCellDecoder
 from cdpr.daq.can_frames import FrameColumns
 from cdpr.daq.loadcell import Calibration
 from cdpr.daq.schema import load_rig
