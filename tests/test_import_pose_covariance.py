@@ -12,10 +12,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import can
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
+from test_humidity_flow import MATRIX, _can_log  # the same CAN log and test matrix
 
 from cdpr.analysis.rotations import pose_cov_from_euler, pose_cov_to_euler
 from cdpr.daq.run_reader import open_run
@@ -70,36 +70,6 @@ def test_euler_covariance_to_rotation_vector_matches_a_numerical_jacobian() -> N
         np.testing.assert_allclose(pose_cov_to_euler(psi, got), C, rtol=1e-10, atol=1e-20)
 
 
-def _can_log(path: Path, n_samples: int) -> None:
-    """A candump log at 100 Hz: the DBC's four frames per sample, steady counts, the counter."""
-    logger = can.Logger(str(path))
-    for k in range(n_samples):
-        for j, fid in enumerate((385, 641, 897, 1153)):
-            c1, c2 = (2_000_000 + 37 * ((k * (3 + 2 * j + i)) % 11) for i in (0, 1))
-            data = c1.to_bytes(3, "little") + c2.to_bytes(3, "little") + bytes([0, k % 256])
-            logger.on_message_received(
-                can.Message(arbitration_id=fid, data=data, is_extended_id=False,
-                            timestamp=(T_LOG0_NS + k * 10_000_000 + j * 100_000) * 1e-9, channel=0)
-            )  # fmt: skip
-    logger.stop()
-
-
-MATRIX = f"""
-[campaign]
-name = "posecov"
-rig = "{RIG}"
-
-[model]
-name = "SDM"
-area_m2 = 0.0199
-span_m = 0.2441
-chord_m = 0.0815
-mrp_P_m = [0.0, 0.0, 0.0]
-
-[[points]]
-label = "t0"
-kind = "tare"
-"""
 EVENTS = """t_s,point,phase,kind,target_aoa_deg,target_sideslip_deg,target_airspeed_mps,repeat_of
 0.05,t0,start,tare,0,0,0,
 0.25,t0,end,tare,0,0,0,
