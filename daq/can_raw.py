@@ -302,11 +302,53 @@ def frame_rows(cols: dict[str, np.ndarray]) -> list[tuple[int, dict[str, Any]]]:
     return [(t[i], {k: lists[k][i] for k in names}) for i in range(len(t))]
 
 
+def frame_block_of_readings(
+    readings: Sequence[Reading],
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+    """:func:`frame_block` of ``can_raw`` readings (a source that gives readings, not batches;
+    their own status kept)."""
+    n = len(readings)
+    v = [r.values for r in readings]
+    datas = [bytes(x.get("data", b"")) for x in v]
+    w = max([8, *map(len, datas)])
+    flags = np.array(
+        [sum(bit * bool(x.get(name, 0)) for name, bit in _FLAG_BITS) | RX * bool(x.get("is_rx", 1))
+         for x in v], np.uint8,
+    )  # fmt: skip
+    ch = np.empty(n, object)
+    ch[:] = [x.get("channel") for x in v]
+    frames = FrameColumns(
+        np.array([x.get("t_bus_ns", r.t_ns) * 1e-9 for x, r in zip(v, readings, strict=True)]),
+        np.array([x.get("arbitration_id", 0) for x in v], np.int64),
+        flags,
+        np.array([x.get("dlc", len(d)) for x, d in zip(v, datas, strict=True)], np.int64),
+        np.frombuffer(b"".join(d.ljust(w, b"\0") for d in datas), np.uint8).reshape(n, w).copy(),
+        np.array(list(map(len, datas)), np.int64),
+        ch,
+        np.zeros(n, np.int64),
+    )
+    t, cols, _, values = frame_block(frames, [r.t_ns for r in readings])
+    cols["t_bus_ns"] = np.array([x.get("t_bus_ns", r.t_ns) for x, r in zip(v, readings, strict=True)],
+                                np.int64)  # exact, not through a float  # fmt: skip
+    return t, cols, np.array([r.status for r in readings], np.int64), values
+
+
+_FLAG_BITS = tuple(zip(FLAG_FIELDS, (EXTENDED, REMOTE, ERROR, FD, BRS, ESI), strict=True))
+
+
 def codec(stream: str, description: StreamDescription | None) -> Any:
     """The ``can_raw`` stream codec (registered by :func:`register`): frame blocks (``layout``
-    :data:`BLOCK_LAYOUT`) for a stream added with its description (every run cdpr writes), else
-    one JSON message per reading (:func:`encode`)."""
-    return StreamCodec(f"cdpr.{stream}", schema(stream), encode, block_layout=BLOCK_LAYOUT)
+    :data:`BLOCK_LAYOUT`) for a stream added with the frame description (every run cdpr writes;
+    frame batches and single readings alike), else one JSON message per reading (:func:`encode`:
+    a stream added without a description, or with other fields)."""
+    frames = description is not None and set(description.fields) == set(FIELDS)
+    return StreamCodec(
+        f"cdpr.{stream}",
+        schema(stream),
+        encode,
+        block_layout=BLOCK_LAYOUT if frames else None,
+        block_rows=frame_block_of_readings if frames else None,
+    )
 
 
 def register(register_codec: Callable[..., None]) -> None:

@@ -276,12 +276,13 @@ class CanLoadCellSource(Source):
 
     def _batch(self, msgs: list[can.Message], times: list[int]) -> CanFrameBatch:
         """The frames of a read (when ``raw``) and the samples they close (when ``decode``)."""
-        out = CanFrameBatch(messages=msgs, t_ns=times) if self.emit_raw else CanFrameBatch()
-        if self.emit_decoded and msgs:
-            frames = FrameColumns.from_messages(msgs)
+        frames = FrameColumns.from_messages(msgs) if self.emit_decoded and msgs else None
+        if self.emit_raw:  # the columns made for decoding serve the writer too
+            out = CanFrameBatch(messages=msgs, t_ns=times, frames=frames)
+        else:
+            out = CanFrameBatch()
+        if frames is not None:
             samples = self.decoder.decode_frames(frames, np.array(times, np.int64))
-            if self.emit_raw:
-                out = CanFrameBatch(messages=msgs, t_ns=times, frames=frames)
             add_samples(out, self.decoder, samples, self.stats, self.emit_raw)
         return out
 

@@ -21,7 +21,15 @@ import numpy as np
 from cdpr.analysis.errors import ConfigError
 
 from .can_frames import ERROR, EXTENDED, REMOTE, RX, T_MAX_S, T_PROBLEM, FrameColumns, empty_frames
-from .canlog_text import check_control_bytes, check_utf8, gather, line_blocks, tok_value
+from .canlog_text import (
+    bad_time_text,
+    check_control_bytes,
+    check_utf8,
+    gather,
+    line_blocks,
+    timestamps,
+    tok_value,
+)
 
 _B64 = np.full(256, 255, np.uint8)
 for _i, _c in enumerate(b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/"):
@@ -85,8 +93,12 @@ def _block(buf: np.ndarray, path: str, first_line: int) -> FrameColumns:
     ttext = gather(buf, f_start[:, 0], tl, tw)
     inside = np.arange(tw) < tl[:, None]
     bad((tl == 0) | (inside & ~_FLOAT_CHARS[ttext]).any(axis=1), "bad timestamp")
+    # <digits>.<digits> of at most 15 digits (the usual repr): exactly as float(), with numpy;
+    # any other float text through numpy's conversion, which is float()'s too
+    t_s = None if bad_time_text(ttext, tl).any() else timestamps(ttext, tl)
     try:
-        t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
+        if t_s is None:
+            t_s = ttext.view(f"S{tw}").ravel().astype(np.float64)
     except ValueError:
         t_s = np.array([_float(x) for x in ttext.view(f"S{tw}").ravel().tolist()])
         bad(np.isnan(t_s) & (ttext[:, 0] != ord("n")), "bad timestamp")

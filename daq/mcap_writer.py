@@ -29,7 +29,7 @@ import os
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -131,6 +131,8 @@ class StreamCodec:
     encode: Callable[[Reading], Any]
     encode_frames: Callable[[Any], FrameRecords] | None = None
     block_layout: str | None = None
+    #: with a block layout: readings -> ``(t_ns, columns, status, values)`` for write_columns
+    block_rows: Callable[[Sequence[Reading]], Any] | None = None
 
 
 #: a float that may be missing: NaN is written as JSON ``null`` (strict JSON has no NaN)
@@ -813,6 +815,7 @@ class McapRunWriter:
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
         self._blocks: dict[str, _BlockStream] = {}  # column-block streams (column_blocks)
+        self._block_rows: dict[str, Callable[[Sequence[Reading]], Any]] = {}  # layouts' readings
         #: samples written per stream (a block stream's samples, not its block messages)
         self.counts: dict[str, int] = {}
         self.flushes = 0
@@ -897,6 +900,8 @@ class McapRunWriter:
         self._codecs[stream] = codec.encode
         self.counts[stream] = 0
         if layout is not None:
+            if codec.block_rows is not None:
+                self._block_rows[stream] = codec.block_rows
             self._blocks[stream] = _BlockStream(
                 column_blocks.BlockBuffer(column_blocks.MAX_BLOCK_SAMPLES), None, set()
             )
@@ -1066,6 +1071,10 @@ class McapRunWriter:
             if cid is None:
                 cid = self.add_stream(stream, None)
             bs = blocks.get(stream)
+            if bs is not None and stream in self._block_rows:  # a layout's reading: its columns
+                self.write_columns(stream, *self._block_rows[stream]([r]))
+                n += 1
+                continue
             if bs is not None:
                 buf = bs.buf
                 buf.add_reading(r.t_ns, r.values, r.status)

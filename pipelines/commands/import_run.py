@@ -10,9 +10,11 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "import",
-        help="turn a CAN log (candump/ASC/BLF) plus a pose CSV into a normal MCAP run",
+        help="turn a CAN log (candump/ASC/BLF/TRC/CSV) plus a pose CSV into a normal MCAP run",
     )
-    p.add_argument("--can-log", required=True, help="CAN log (.log candump, .asc, .blf, ...)")
+    p.add_argument(
+        "--can-log", required=True, help="CAN log (.log candump, .asc, .blf, .trc, .csv, ...)"
+    )
     p.add_argument("--dbc", required=True, help="DBC of the load-cell amplifier")
     p.add_argument(
         "--poses",
