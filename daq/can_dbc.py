@@ -152,34 +152,28 @@ class LoadCellDbc:
         return lc, k, frames.length[lc] != self._flen[k]
 
     def signals(
-        self, frames: FrameColumns, k: np.ndarray
-    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """The raw signal values of load-cell frames of the DBC's lengths (``k``: their frame-id
-        index) as arrays (a signal a frame does not carry: 0), with ``_fid`` and ``_counter``; and
-        which frames cantools could not decode."""
-        m = len(frames)
-        out: dict[str, np.ndarray] = {"_fid": k.astype(np.int64), "Counter": np.zeros(m, np.int64)}
-        for name in self._signal_names:
-            out[name] = out.get(name, np.zeros(0, np.int64))
+        self, data: np.ndarray, length: np.ndarray, k: np.ndarray
+    ) -> tuple[np.ndarray, list[tuple[np.ndarray, dict[str, np.ndarray]]], np.ndarray]:
+        """The signals of load-cell frames of the DBC's lengths (``data`` (m, w), ``length``,
+        ``k``: their frame-id index): the counters (m,), per frame id ``j`` the indexes of its
+        frames and their raw signal values, and which frames cantools could not decode."""
+        m = len(k)
+        counter = np.zeros(m, np.int64)
+        groups: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
         undecodable = np.zeros(m, bool)
         for j, fid in enumerate(self.frame_ids):
             sel = np.flatnonzero(k == j)
-            if not len(sel):
-                continue
-            data = frames.data[sel]
-            values = self._unpack_fast(fid, data, frames.length[sel])
-            if values is None:
-                values, failed = self._unpack_cantools(fid, data, frames.length[sel])
-                undecodable[sel[failed]] = True
-            for name, v in values.items():
-                if len(out[name]) != m:  # a signal of one frame id: 0 for the others
-                    out[name] = np.zeros(m, np.int64)
-                out[name][sel] = v
-        for name in self._signal_names:
-            if len(out[name]) != m:
-                out[name] = np.zeros(m, np.int64)
-        out["_counter"] = out.pop("Counter")
-        return out, undecodable
+            if len(sel):
+                values = self._unpack_fast(fid, data[sel], length[sel])
+                if values is None:
+                    values, failed = self._unpack_cantools(fid, data[sel], length[sel])
+                    undecodable[sel[failed]] = True
+                if "Counter" in values:
+                    counter[sel] = values["Counter"]
+            else:
+                values = {}
+            groups.append((sel, values))
+        return counter, groups, undecodable
 
     def _unpack_fast(self, fid: int, data: np.ndarray, length: np.ndarray) -> Any:
         fast = self._fast.get(fid)

@@ -205,47 +205,49 @@ class LoadCellDecoder:
         n = len(frames)
         t_ns = np.asarray(t_ns, np.int64)
         lc, k, bad_len = self.dbc.load_cell_frames(frames)
-        cand = lc[~bad_len]
-        sig, undecodable = self.dbc.signals(frames.take(cand), k[~bad_len])
         bad = np.zeros(n, bool)
         bad[lc[bad_len]] = True
-        bad[cand[undecodable]] = True
-        good = cand[~undecodable]
-        if undecodable.any():
-            sig = {key: v[~undecodable] for key, v in sig.items()}
+        good, k = lc[~bad_len], k[~bad_len]
+        # the open sample's frames first (positions -n_open .. -1), then the block's
+        op = self._open
+        n_open = len(op)
+        w = max(op.data.shape[1], frames.data.shape[1])
+        data = np.zeros((n_open + len(good), w), np.uint8)
+        data[:n_open, : op.data.shape[1]] = op.data
+        data[n_open:, : frames.data.shape[1]] = frames.data[good]
+        length = np.concatenate([op.length, frames.length[good]])
+        k = np.concatenate([self.dbc.fid_index(op.arbitration_id), k])
+        counter, groups, undecodable = self.dbc.signals(data, length, k)
+        if undecodable.any():  # cantools could not: bad frames, and the rest again
+            bad[good[undecodable[n_open:]]] = True
+            keep = ~undecodable
+            good, data, length, k = good[keep[n_open:]], data[keep], length[keep], k[keep]
+            counter, groups, _ = self.dbc.signals(data, length, k)
         self.bad += int(bad.sum())
-        # the open sample's frames first (positions -n_open .. -1), then the block's good ones
-        n_open = len(self._open)
-        if n_open:
-            osig, _ = self.dbc.signals(self._open, self.dbc.fid_index(self._open.arbitration_id))
-            sig = {key: np.concatenate([osig[key], sig[key]]) for key in sig}
         pos = np.concatenate([np.arange(-n_open, 0), good]).astype(np.int64)
         t_all = np.concatenate([self._open_t, t_ns[good]])
-        tb_all = np.concatenate([self._open.t_bus_ns, frames.t_bus_ns[good]])
+        tb_all = np.concatenate([op.t_bus_ns, frames.t_bus_ns[good]])
         bad_pos = np.flatnonzero(bad).astype(np.float64)
         if self._bad_mark:  # left by the previous block: after the open frames, before the block
             bad_pos = np.concatenate([[-0.5], bad_pos])
-        first, last, complete, dup = self._group(sig["_fid"], sig["_counter"])
+        first, last, complete, dup = self._group(k, counter)
         s = len(first)
         is_open = s > 0 and not bool(complete[-1])  # the last sample waits for more frames
         k_closed = s - int(is_open)
         nxt = np.append(pos[first[1:]], np.iinfo(np.int64).max)
         close = np.where(complete, pos[last], nxt)
         marks = self._marks(pos[first].astype(np.float64), close.astype(np.float64), bad_pos, dup)
-        done_at = close[:k_closed]
         out = self._samples(
-            sig, first, k_closed, complete[:k_closed], marks[:k_closed], t_all, tb_all, done_at,
-            bad,
+            counter, k, groups, first, k_closed, complete[:k_closed], marks[:k_closed], t_all,
+            tb_all, close[:k_closed], bad,
         )  # fmt: skip
         if is_open:  # keep its frames (the first of each id) and its mark for the next block
             i0 = int(first[-1])
-            _, keep = np.unique(sig["_fid"][i0:], return_index=True)
-            rows = pos[i0 + np.sort(keep)]
+            _, keep_i = np.unique(k[i0:], return_index=True)
+            rows = pos[i0 + np.sort(keep_i)]
             old = rows < 0
-            self._open = concat_frames(
-                [self._open.take(rows[old] + n_open), frames.take(rows[~old])]
-            )
-            self._open_t = t_all[i0 + np.sort(keep)]
+            self._open = concat_frames([op.take(rows[old] + n_open), frames.take(rows[~old])])
+            self._open_t = t_all[i0 + np.sort(keep_i)]
             self._bad_mark = bool(marks[s - 1])
         else:
             self._open = empty_frames()
@@ -256,12 +258,14 @@ class LoadCellDecoder:
     def flush(self, n_frames: int = 0) -> Samples:
         """Close the open sample at the end of the data (a partial sample, ``done_at`` =
         ``n_frames``), if there is one."""
-        m = len(self._open)
-        sig, _ = self.dbc.signals(self._open, self.dbc.fid_index(self._open.arbitration_id))
-        one = np.zeros(int(m > 0), np.int64)
+        op = self._open
+        k = self.dbc.fid_index(op.arbitration_id)
+        counter, groups, _ = self.dbc.signals(op.data, op.length, k)
+        one = np.zeros(int(len(op) > 0), np.int64)
         out = self._samples(
-            sig, one, len(one), one.astype(bool), np.full(len(one), self._bad_mark),
-            self._open_t, self._open.t_bus_ns, one + n_frames, np.zeros(n_frames, bool),
+            counter, k, groups, one, len(one), one.astype(bool),
+            np.full(len(one), self._bad_mark), self._open_t, op.t_bus_ns, one + n_frames,
+            np.zeros(n_frames, bool),
         )  # fmt: skip
         self.reset()
         return out
@@ -357,7 +361,9 @@ class LoadCellDecoder:
 
     def _samples(
         self,
-        sig: dict[str, np.ndarray],
+        counter: np.ndarray,
+        fid: np.ndarray,
+        groups: list[tuple[np.ndarray, dict[str, np.ndarray]]],
         starts: np.ndarray,
         k: int,
         complete: np.ndarray,
@@ -374,24 +380,26 @@ class LoadCellDecoder:
         counts = np.full((k, n_ch), RAW_MISSING_COUNTS, np.int64)
         have = np.zeros((k, n_ch), bool)
         ch_status = np.zeros((k, n_ch), np.int64)
-        counter = sig["_counter"]
-        fid = sig["_fid"]
         if k:
             # each frame's sample; the first of equal (sample, id) pairs is the one used
             owner = np.searchsorted(starts, np.arange(len(fid)), side="right") - 1
-            use = np.flatnonzero((owner >= 0) & (owner < k))
+            used = owner < k
             if bool(marks.any()):  # a repeated frame marks its sample: keep the first of each id
-                order = use[np.lexsort((use, fid[use], owner[use]))]
-                keep = np.ones(len(order), bool)
-                keep[1:] = (owner[order][1:] != owner[order][:-1]) | (
+                idx = np.flatnonzero(used)
+                order = idx[np.lexsort((idx, fid[idx], owner[idx]))]
+                first_of = np.ones(len(order), bool)
+                first_of[1:] = (owner[order][1:] != owner[order][:-1]) | (
                     fid[order][1:] != fid[order][:-1]
                 )
-                use = order[keep]
-            for j, entries in enumerate(self._entries):
-                sel = use[fid[use] == j]
-                rows = owner[sel]
+                used = np.zeros(len(fid), bool)
+                used[order[first_of]] = True
+            for (sel, values), entries in zip(groups, self._entries, strict=True):
+                if not len(sel):
+                    continue
+                u = used[sel]
+                rows = owner[sel[u]]
                 for ch, bit, sname in entries:
-                    v = sig[sname][sel]
+                    v = values[sname][u]
                     if not bit:
                         counts[rows, ch] = v
                         have[rows, ch] = True
