@@ -454,7 +454,9 @@ class CanFrameBatch(Sequence[Reading]):
         t_ns = np.concatenate([np.asarray(b.t_ns, np.int64) for b in batches]) if batches else []
         if all(len(b.messages) == b.n_frames for b in batches):  # a live bus: messages
             msgs = [m for b in batches for m in b.messages]
-            return cls(batches[0].stream, msgs, list(t_ns), others, None, bad)
+            cached = [b._frames for b in batches]  # the columns made for decoding, if all have
+            frames = concat_frames(cached) if all(f is not None for f in cached) else None  # type: ignore[arg-type]
+            return cls(batches[0].stream, msgs, list(t_ns), others, frames, bad)
         frames = concat_frames([b.frames() for b in batches])
         return cls(batches[0].stream, [], t_ns, others, frames, bad)
 
