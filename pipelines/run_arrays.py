@@ -25,7 +25,7 @@ from cdpr.analysis.conventions import status_from_channel_bits
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.flow import air_density
 from cdpr.analysis.rig import Rig
-from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix
+from cdpr.analysis.rotations import euler_from_quaternion, pose_cov_to_euler
 from cdpr.daq.schema import rig_from_mapping
 
 
@@ -372,10 +372,7 @@ def _pose_covariance(pose_df: pd.DataFrame, eul: np.ndarray, bad: np.ndarray) ->
     C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
     if not np.isfinite(C[~bad]).any(axis=(1, 2)).all():
         return None
-    J = np.zeros((len(C), 6, 6))
-    J[:, :3, :3] = np.eye(3)
-    J[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-    return J @ C @ np.swapaxes(J, 1, 2)
+    return pose_cov_to_euler(np.nan_to_num(eul), C)
 
 
 def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:
