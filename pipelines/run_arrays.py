@@ -54,6 +54,8 @@ class RunData:
     message has none); None when no tunnel message carries one."""
     recalibration: dict[str, Any] | None = None
     tension_clock: str = ""
+    sample_counter: np.ndarray | None = None
+    """(n,) the tension samples' counter (``seq``), None when the stream has none."""
     """Where the tension samples' times come from: the sample counter (the sampling instants, the
     lower envelope of the reception times: :func:`cdpr.analysis.clock.sample_clock`), or the
     reception times when the stream has no counter."""
@@ -343,7 +345,7 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity, recal, clock,
+                pressure_temperature, humidity, recal, clock, seq,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -351,13 +353,13 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity, recal, clock,
+            events, truth, False, pressure_temperature, humidity, recal, clock, seq,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity, recal, clock,
+        pressure_temperature, humidity, recal, clock, seq,
     )  # fmt: skip
 
 
