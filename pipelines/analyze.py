@@ -50,6 +50,7 @@ from cdpr.daq.schema import rig_from_mapping
 from . import __version__
 from .config import file_sha256
 from .freshness import fingerprint, is_current
+from .online_compare import compare_online
 from .reduce import (
     ReduceSettings,
     correction_stages,
@@ -927,6 +928,8 @@ def _report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
     lines += _corrections_section(df, red)
+    if summary.get("online"):
+        lines += ["", "## On-line against final values", "", *(f"- {x}" for x in summary["online"])]
     lines += ["", "Stages of the reduction:", ""]
     for st in red["stages"]:
         note = f": {st['note']}" if st["note"] else ""
@@ -1058,6 +1061,7 @@ def analyze_run(
             lc_file = read_calibration_file(opts.loadcell_calibration_file)
         run = load_run(path, lc_file)
         df, red = analyze_arrays(run, opts)
+        df, online = compare_online(path, df)  # the on-line results kept in the run
         lc = loadcell_provenance(run, opts)
         df.insert(int(df.columns.get_loc("source")) + 1, "tensions_from", lc["tensions_from"])
     except ConfigError:
@@ -1086,6 +1090,7 @@ def analyze_run(
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
             "reduction": {k: v for k, v in red.items() if k != "_spectra"},
+            "online": online,
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:

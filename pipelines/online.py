@@ -1,0 +1,487 @@
+"""The on-line reduction: ``cdpr analyze``'s reduction core on the samples of the session so far.
+
+While a test point is open and steady, :class:`OnlineReduction` gives the point's wrench and
+coefficients with σ at least once a second (the live server drives it: ``/online``, the terminal
+view); when the point has ended (and a sample past its end has arrived), its result over exactly
+the point's window is marked ``final`` and the live server records it as an ``online_result``
+event on ``/events``, which ``cdpr analyze`` compares with its final values
+(:mod:`cdpr.pipelines.online_compare`).
+
+The session's samples (tensions with their status and counter, the camera's poses with their
+covariance, the tunnel conditions, the test-point events) are kept inside the test points (and
+the last few seconds), in bounded buffers; every update builds the same :class:`RunData` that
+``cdpr analyze`` reads from a run file and calls :func:`reduce_session`, the ONE function that runs
+the reduction core.  So the on-line values are the core's with what is known so far: weight tares
+and the weight model from the wind-off points already recorded, windage from the windage points
+already recorded (else the model), zero drift held from the last zero (flag
+``no_closing_zero``), q from the tunnel stream, body and wind axes at the model's moment reference
+point.  What the live session cannot know is said by flags, never filled in: no spectra (the
+spectrum check needs the whole run), no virtual-rig truth file (a run without a camera is reduced
+at the rig's reference pose, flag ``no_pose_stream``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cdpr.analysis.aero import air_density
+from cdpr.analysis.balance import interpolate_at, sample_mask
+from cdpr.analysis.conventions import WRENCH_COLUMNS
+from cdpr.analysis.reduction import (
+    COEFFICIENTS,
+    flags_from_masks,
+    points_from_samples,
+    with_updates,
+)
+from cdpr.analysis.rig import Rig
+from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix
+
+from .analyze import (
+    AnalyzeOptions,
+    RunData,
+    _correction_inputs,
+    plan_points,
+    read_balance_calibration,
+)
+from .reduce import correction_stages, points_table, reduce_points, reduction_stages
+
+ONLINE_VALUE_COLUMNS: tuple[str, ...] = (
+    "airspeed_mps", "density_kgpm3", "q_Pa", "aoa_rad", "sideslip_rad",
+    *WRENCH_COLUMNS, *(f"sd_{c}" for c in WRENCH_COLUMNS),
+    "fx_B_N", "fy_B_N", "fz_B_N", "mx_B_Nm", "my_B_Nm", "mz_B_Nm", "drag_N", "side_N", "lift_N",
+    *COEFFICIENTS, *(f"sd_{c}" for c in COEFFICIENTS),
+)  # fmt: skip
+"""The per-point values an on-line result carries (the names of ``points.csv``)."""
+
+LIVE_PATH = Path("<live session>")
+"""What the on-line reduction's RunData names as its file."""
+SPECTRUM_FLAGS = frozenset({"too_few_periods", "spectrum_peak_near_mode", "no_modes"})
+
+
+def reduce_session(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
+    """The per-point table of ``run`` through the reduction core, as ``cdpr analyze`` runs it
+    (``analyze_arrays``): points from the test-point events, ``points_from_samples``, the run's
+    flags, the correction inputs, ``reduction_stages`` (with the correction stages when
+    ``opts.corrections``), ``reduce_points``, ``points_table``.  The one call into the core of the
+    on-line reduction; the spectrum check (which needs the whole run) is left out."""
+    rig = run.rig
+    plan = plan_points(run, opts.rule)
+    fallback = None if run.pose_cov is not None else np.array(opts.pose_sd_fallback)
+    airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
+    pts, extra = points_from_samples(
+        kind=plan.kind,
+        ranges=plan.ranges,
+        t_ns=run.t_ns,
+        tensions_N=run.tensions_N,
+        mask_bits=run.mask_bits,
+        airspeed_mps=airspeed,
+        density_kgpm3=density,
+        pose_t_ns=run.pose_t_ns,
+        poses=run.poses,
+        pose_cov=run.pose_cov,
+        pose_sd_fallback=fallback,
+        pose_bad=run.pose_bad,
+    )
+    words = [] if run.camera else ["no_pose_stream"]
+    if run.tunnel is None:
+        words.append("no_airspeed")
+    pts = flags_from_masks(pts, words=[";".join(filter(None, [f, *words])) for f in plan.flags])
+    K, second = read_balance_calibration(opts.balance_file)
+    corr = None
+    if opts.corrections:
+        pts = with_updates(pts, arrays=_correction_inputs(run, plan))
+        corr = correction_stages(
+            rig, opts.geometry, opts.tunnel, wind_off_mps=opts.reduce.wind_off_mps
+        )
+    stages = reduction_stages(
+        rig, opts.geometry, opts.reduce, interaction=K, second_order=second, extra=corr
+    )
+    out = reduce_points(pts, stages)
+    on = np.isin(out["kind"], ("wind_on", "unknown"))
+    if opts.geometry is None:
+        out = flags_from_masks(out, words=["no_geometry" if o else "" for o in on])
+    if not opts.corrections:
+        out = flags_from_masks(out, words=["uncorrected" if o else "" for o in on])
+    after = {
+        "start_ns": extra["start_ns"],
+        "stop_ns": extra["stop_ns"],
+        "n_samples": extra["n_samples"],
+        "n_masked": extra["n_masked"],
+    }
+    return points_table(out, rig, plan.labels, None, after)
+
+
+class _Columns:
+    """Rows of fixed width appended to preallocated arrays (doubling), kept in time order."""
+
+    def __init__(self, widths: Mapping[str, tuple[int, Any]]) -> None:
+        self.widths = dict(widths)
+        self.n = 0
+        self.cols = {k: np.empty((64, w), dt) for k, (w, dt) in self.widths.items()}
+
+    def extend(self, rows: Mapping[str, list[Any]]) -> None:
+        k = len(rows["t"])
+        if not k:
+            return
+        cap = len(self.cols["t"])
+        if self.n + k > cap:
+            new = max(2 * cap, self.n + k)
+            for name, a in self.cols.items():
+                b = np.empty((new, a.shape[1]), a.dtype)
+                b[: self.n] = a[: self.n]
+                self.cols[name] = b
+        for name, vals in rows.items():
+            self.cols[name][self.n : self.n + k] = np.asarray(vals, self.cols[name].dtype).reshape(
+                k, -1
+            )
+        self.n += k
+
+    def view(self, name: str) -> Any:
+        return self.cols[name][: self.n]
+
+    def keep(self, mask: Any) -> None:
+        idx = np.flatnonzero(mask)
+        for a in self.cols.values():
+            a[: len(idx)] = a[idx]
+        self.n = len(idx)
+
+
+class OnlineReduction:
+    """The on-line reduction of a recording session (see the module docstring); the live server
+    calls :meth:`feed` with every written batch and :meth:`update` at least once a second.
+
+    rig: the run's rig; opts: the analysis options (geometry, corrections and the test section
+    from the test matrix, as ``cdpr analyze --matrix`` takes them); steady_window_s, steady_sd_N:
+    the live view's steadiness rule (largest σ over the cables of the last window below the
+    limit); keep_s: samples outside the test points kept this long; max_samples: the most tension
+    samples kept (the oldest dropped beyond, flag ``online_samples_capped``); wait_after_end_s: an
+    ended point waits this long (at most) for a sample past its end before it is reduced.
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        opts: AnalyzeOptions,
+        *,
+        steady_window_s: float = 1.0,
+        steady_sd_N: float = 0.5,
+        keep_s: float = 5.0,
+        max_samples: int = 2_000_000,
+        wait_after_end_s: float = 2.0,
+    ) -> None:
+        self.rig = rig
+        self.opts = opts
+        self.cables = list(rig.cable_names)
+        m = len(self.cables)
+        self.steady_window_ns = int(steady_window_s * 1e9)
+        self.steady_sd_N = float(steady_sd_N)
+        self.keep_ns = int(keep_s * 1e9)
+        self.max_samples = int(max_samples)
+        self.wait_after_end_s = float(wait_after_end_s)
+        self._lock = threading.Lock()
+        self._rows: dict[str, list[Any]] = {"t": [], "T": [], "st": [], "seq": []}
+        self._seq_ok = True
+        self._tens = _Columns({"t": (1, np.int64), "T": (m, np.float64), "st": (1, np.int64),
+                               "seq": (1, np.int64)})  # fmt: skip
+        self._tun_rows: list[list[Any]] = []
+        self._pose_rows: list[list[Any]] = []
+        self._tun = _Columns({"t": (1, np.int64), "v": (5, np.float64)})
+        self._pose = _Columns({"t": (1, np.int64), "v": (3 + 4 + 36 + 2, np.float64)})
+        self._events: list[tuple[int, dict[str, Any]]] = []
+        self._open: tuple[str, int] | None = None
+        self._ended: list[tuple[str, int, int, float]] = []
+        self._capped_before_ns: int | None = None
+        self._cols_T = [f"T_{c}_N" for c in self.cables]
+        self._cols_st = [f"status_{c}" for c in self.cables] + ["status"]
+
+    # feed (publisher thread) -----------------------------------------------------------------
+    def feed(self, readings: Sequence[Any]) -> None:
+        rows = self._rows
+        cT, cst = self._cols_T, self._cols_st
+        for r in readings:
+            base = r.stream.rsplit("/", 1)[-1]
+            v = r.values
+            if base == "tensions":
+                T = [v.get(c) for c in cT]
+                rows["T"].append([math.nan if x is None else float(x) for x in T])
+                st = int(r.status or 0)
+                for c in cst:
+                    x = v.get(c)
+                    if isinstance(x, int | float) and x == x:
+                        st |= int(x)
+                rows["st"].append(st)
+                rows["t"].append(r.t_ns)
+                s = v.get("seq")
+                if s is None:
+                    self._seq_ok = False
+                    s = 0
+                rows["seq"].append(int(s))
+            elif base == "pose":
+                p, q, c = v.get("position_O_m"), v.get("quaternion_wxyz"), v.get("covariance")
+                row: list[Any] = [r.t_ns]
+                row += [_num(x) for x in p] if p is not None and len(p) == 3 else [math.nan] * 3
+                row += [_num(x) for x in q] if q is not None and len(q) == 4 else [math.nan] * 4
+                has = c is not None and len(c) == 36
+                row += [_num(x) for x in c] if has else [math.nan] * 36
+                row += [1.0 if has else 0.0, float(r.status or 0)]
+                self._pose_rows.append(row)
+            elif base == "tunnel":
+                self._tun_rows.append(
+                    [r.t_ns, *(_num(v.get(k)) for k in ("airspeed_mps", "density_kgpm3",
+                     "static_pressure_Pa", "temperature_K", "relative_humidity"))]
+                )  # fmt: skip
+            elif base.startswith("event") and v.get("name") == "test_point":
+                self._on_event(r.t_ns, dict(v))
+
+    def _on_event(self, t_ns: int, fields: dict[str, Any]) -> None:
+        with self._lock:
+            self._events.append((t_ns, fields))
+            label = str(fields.get("point", ""))
+            if fields.get("phase") == "start":
+                if self._open is not None:  # a point never ended: reduced up to here
+                    self._ended.append((self._open[0], self._open[1], t_ns - 1, time.monotonic()))
+                self._open = (label, t_ns)
+            elif fields.get("phase") == "end" and self._open is not None and self._open[0] == label:
+                self._ended.append((label, self._open[1], t_ns, time.monotonic()))
+                self._open = None
+
+    def pending(self) -> int:
+        return len(self._ended)
+
+    # update (on-line thread) -----------------------------------------------------------------
+    def _flush_rows(self) -> None:
+        rows = self._rows
+        self._rows = {"t": [], "T": [], "st": [], "seq": []}
+        self._tens.extend(rows)
+        for rows_, buf in ((self._pose_rows, self._pose), (self._tun_rows, self._tun)):
+            if rows_:
+                buf.extend({"t": [r[0] for r in rows_], "v": [r[1:] for r in rows_]})
+                rows_.clear()
+
+    def _compact(self) -> None:
+        """Keep the samples inside the test points (and the last ``keep_s``), at most
+        ``max_samples``."""
+        starts = [e[0] for e in self._events if e[1].get("phase") == "start"]
+        ends = [e[0] for e in self._events if e[1].get("phase") == "end"]
+        for buf, cap, slack in ((self._tens, self.max_samples, 1), (self._pose, None, 1),
+                                (self._tun, None, 1)):  # fmt: skip
+            if buf.n < 4096:
+                continue
+            t = buf.view("t")[:, 0]
+            keep = t >= t[-1] - self.keep_ns
+            for a in starts:
+                # a slower stream keeps its sample before and after the point (interpolation)
+                b = min((e for e in ends if e >= a), default=t[-1])
+                i, j = np.searchsorted(t, [a, b], side="left")
+                keep[max(i - slack, 0) : j + slack + 1] = True
+            if cap is not None and keep.sum() > cap:
+                cut = np.flatnonzero(keep)[-cap]
+                self._capped_before_ns = int(t[cut])
+                keep[:cut] = False
+            if not keep.all():
+                buf.keep(keep)
+
+    def _run_data(self) -> RunData:
+        tb = self._tens
+        t = tb.view("t")[:, 0].copy()
+        T = tb.view("T").copy()
+        st = tb.view("st")[:, 0].copy()
+        seq = tb.view("seq")[:, 0].copy() if self._seq_ok else None
+        if len(t) > 1 and not np.all(np.diff(t) > 0):  # as cdpr analyze: sorted, first of a time
+            order = np.argsort(t, kind="stable")
+            t, T, st = t[order], T[order], st[order]
+            keep = np.concatenate([[True], np.diff(t) > 0])
+            t, T, st = t[keep], T[keep], st[keep]
+            if seq is not None:
+                seq = seq[order][keep]
+        bits = sample_mask(T, status=st, counter=seq, counter_modulus=2**62)
+        tunnel, pT, rh = _tunnel_on(t, self._tun.view("t")[:, 0], self._tun.view("v"))
+        rig = self.rig
+        events = sorted(self._events, key=lambda e: e[0])
+        pose = _poses(self._pose.view("t")[:, 0], self._pose.view("v"))
+        if pose is not None:
+            tp, q6, cov, bad = pose
+            src = "camera (/pose stream)" + ("" if cov is not None else ", no covariance")
+            return RunData(
+                LIVE_PATH, rig, t, T, bits, tunnel, tp, q6, cov, bad, src, events, None, True, pT, rh,
+            )  # fmt: skip
+        ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
+        return RunData(
+            LIVE_PATH, rig, t, T, bits, tunnel, t.copy(), np.tile(ref, (len(t), 1)), None,
+            np.zeros(len(t), bool), "rig reference pose (no pose stream)", events, None, False,
+            pT, rh,
+        )  # fmt: skip
+
+    def _steadiness(self) -> tuple[bool, float]:
+        tb = self._tens
+        if tb.n < 2:
+            return False, math.nan
+        t = tb.view("t")[:, 0]
+        win = tb.view("T")[t >= t[-1] - self.steady_window_ns]
+        win = win[np.isfinite(win).all(axis=1)]
+        if len(win) < 2:
+            return False, math.nan
+        sd = float(np.max(np.std(win, axis=0)))
+        return sd < self.steady_sd_N, sd
+
+    def update(
+        self, final: bool = False
+    ) -> tuple[Mapping[str, Any] | None, list[Mapping[str, Any]]]:
+        with self._lock:
+            self._flush_rows()
+            self._compact()
+            if self._tens.n < 3:
+                return None, []
+            t_last = int(self._tens.view("t")[-1, 0])
+            now = time.monotonic()
+            ready = [
+                e for e in self._ended
+                if final or t_last > e[2] or now - e[3] > self.wait_after_end_s
+            ]  # fmt: skip
+            for e in ready:
+                self._ended.remove(e)
+            open_ = self._open
+            steady, sd = self._steadiness()
+            if not ready and open_ is None:
+                return None, []
+            if not ready and not steady:
+                assert open_ is not None
+                return {
+                    "point": open_[0], "t_ns": t_last, "steady": False, "max_sd_N": sd,
+                    "final": False, "n_samples": 0,
+                }, []  # fmt: skip
+            run = self._run_data()
+            capped = self._capped_before_ns
+        df = reduce_session(run, self.opts)
+        results = [self._result(df, label, t0, run, True, t1) for label, t0, t1, _ in ready]
+        msg = None
+        if open_ is not None and steady:
+            msg = self._result(df, open_[0], open_[1], run, False, t_last)
+            msg["max_sd_N"] = sd
+        for res in [*results, *([msg] if msg else [])]:
+            if capped is not None and res["start_ns"] < capped:
+                res["flags"] = ";".join(filter(None, [res["flags"], "online_samples_capped"]))
+        return msg, results
+
+    def _result(
+        self, df: pd.DataFrame, label: str, t0: int, run: RunData, final: bool, t_ns: int
+    ) -> dict[str, Any]:
+        rows = df[df["point"] == label]
+        if len(rows) > 1:  # the same label twice: the one that started nearest t0
+            rows = rows.iloc[[int(np.argmin(np.abs(rows["start_ns"].to_numpy() - t0)))]]
+        r = rows.iloc[0]
+        flags = [w for w in str(r["flags"]).split(";") if w and w not in SPECTRUM_FLAGS]
+        if not final:
+            flags = [w for w in flags if w != "no_end_event"]
+        out: dict[str, Any] = {
+            "point": label,
+            "kind": str(r["kind"]),
+            "t_ns": int(t_ns),
+            "start_ns": int(r["start_ns"]),
+            "stop_ns": int(r["stop_ns"]),
+            "n_samples": int(r["n_samples"]),
+            "n_masked": int(r["n_masked"]),
+            "steady": True,
+            "final": final,
+            "corrections": "as cdpr analyze --matrix (zero drift held from the last zero)"
+            if self.opts.corrections
+            else "none (balance values, as cdpr analyze without --matrix)",
+            "pose_source": run.pose_source,
+            "flags": ";".join(flags),
+        }
+        for c in ONLINE_VALUE_COLUMNS:
+            if c in r:
+                v = float(r[c])
+                out[c] = v if math.isfinite(v) else None
+        return out
+
+
+def _num(x: Any) -> float:
+    return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else math.nan
+
+
+def _tunnel_on(
+    t_ns: np.ndarray, tt: np.ndarray, rows: np.ndarray
+) -> tuple[Any, Any, np.ndarray | None]:
+    """(airspeed, density) on the tension times, (pressure, temperature), the held humidity — as
+    ``cdpr analyze`` derives them from a run's tunnel stream (rows at ``tt``: V, rho, p, T, RH)."""
+    if not len(rows) or not len(t_ns):
+        return None, None, None
+    v, rho, ps, tk, rh = (rows[:, k].copy() for k in range(5))
+    need = ~np.isfinite(rho)
+    ok = need & (ps > 0) & (tk > 0)
+    rho[ok] = air_density(ps[ok], tk[ok])
+    tunnel = None
+    good = np.isfinite(v)
+    if good.any():
+        rg = np.isfinite(rho)
+        ri = interpolate_at(t_ns, tt[rg], rho[rg]) if rg.any() else np.full(len(t_ns), np.nan)
+        tunnel = (interpolate_at(t_ns, tt[good], v[good]), ri)
+    pT = None
+    if np.isfinite(ps).any() and np.isfinite(tk).any():
+        pT = tuple(interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in (ps, tk))
+    hum = None
+    if np.isfinite(rh).any():
+        j = np.clip(np.searchsorted(tt, t_ns, side="right") - 1, 0, len(tt) - 1)
+        hum = rh[j]
+    return tunnel, pT, hum
+
+
+def _poses(tp: np.ndarray, rows: np.ndarray) -> tuple[Any, Any, Any, Any] | None:
+    """(times, poses (k, 6) [position, Euler], covariance in those coordinates or None, bad) of
+    the camera's pose readings (rows: position 3, quaternion wxyz 4, covariance 36 as reported,
+    has-covariance, status), as ``cdpr analyze`` reads them from ``/pose``; None without two
+    usable frames."""
+    k = len(rows)
+    if not k:
+        return None
+    pos, quat = rows[:, :3], rows[:, 3:7]
+    C = rows[:, 7:43].reshape(k, 6, 6)
+    has_cov = bool(np.all(rows[:, 43] > 0))
+    status = rows[:, 44]
+    bad = ~(np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)) | (status != 0)
+    eul = np.full((k, 3), np.nan)
+    if (~bad).any():
+        eul[~bad] = euler_from_quaternion(quat[~bad])
+    cov = None
+    if has_cov and np.isfinite(C).any(axis=(1, 2)).all():
+        Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
+        J = np.zeros((k, 6, 6))
+        J[:, :3, :3] = np.eye(3)
+        J[:, 3:, 3:] = Hinv
+        cov = J @ C @ np.swapaxes(J, 1, 2)
+        bad |= ~np.isfinite(cov).all(axis=(1, 2))
+    if (~bad).sum() < 2:
+        return None
+    return tp, np.concatenate([pos, eul], axis=1), cov, bad
+
+
+def online_options(matrix_file: str | None) -> AnalyzeOptions:
+    """The on-line reduction's options: with a test matrix, as ``cdpr analyze --matrix`` takes
+    them (geometry, corrections, the test section); without one, the balance values (no
+    geometry: no coefficients)."""
+    if matrix_file is None:
+        return AnalyzeOptions()
+    from cdpr.analysis.aero import ModelGeometry
+
+    from .campaign import load_test_matrix
+
+    m = load_test_matrix(matrix_file)
+    geometry = ModelGeometry(
+        area_m2=m.model.area_m2,
+        span_m=m.model.span_m,
+        chord_m=m.model.chord_m,
+        mrp_P_m=m.model.mrp_P_m,
+        source="test matrix",
+    )
+    return AnalyzeOptions(
+        geometry=geometry, corrections=True, tunnel=m.tunnel, matrix_file=str(matrix_file)
+    )
