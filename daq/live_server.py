@@ -186,6 +186,10 @@ class LiveServer:
         self._pose: tuple[int, Any, Any] | None = None
         self._airspeed: float | None = None
         self.latest_online: Mapping[str, Any] | None = None
+        #: the scene's aerodynamic force arrow (3,) N in {O} when set (``cdpr play``'s analysis
+        #: overlay); else the open point's on-line result
+        self.force_O_N: Sequence[float] | None = None
+        self._extra_channels: dict[str, Any] = {}
         self.results: list[Mapping[str, Any]] = []
         # counters (the publisher's; read by tests and the bench)
         self.batches_in = 0
@@ -267,7 +271,7 @@ class LiveServer:
         if self.online is None:
             return
         end = time.monotonic() + timeout_s
-        while self.batches_done + self.dropped_batches < self.batches_in:
+        while not self.idle():
             if time.monotonic() > end or not self._threads:
                 break
             self._wake.set()
@@ -353,6 +357,31 @@ class LiveServer:
             else None
         )
         self._online_ch = self._json_channel("/online", "cdpr.online", ONLINE_SCHEMA, {})
+
+    def publish_json(
+        self, topic: str, schema: Mapping[str, Any], body: Mapping[str, Any], t_ns: int
+    ) -> None:
+        """Publish ``body`` on a live-only JSON ``topic`` (declared on first use with ``schema``,
+        whose ``title`` is the schema name), e.g. ``cdpr play``'s ``/analysis`` overlay."""
+        if self._ctx is None:
+            return
+        ch = self._extra_channels.get(topic)
+        if ch is None:
+            ch = self._extra_channels[topic] = self._json_channel(
+                topic, str(schema["title"]), dict(schema), {}
+            )
+        ch.log(encode_json(body), log_time=int(t_ns))
+        self.published += 1
+
+    def new_session(self) -> None:
+        """Tell the clients to reset (a replay that starts again from the beginning)."""
+        self._last_bin.clear()
+        if self._server is not None:
+            self._server.clear_session()
+
+    def idle(self) -> bool:
+        """Every batch handed in has been published (or dropped)."""
+        return self.batches_done + self.dropped_batches >= self.batches_in
 
     # publishing ------------------------------------------------------------------------------
     def _publish(self, out: _Out, r: Reading) -> None:
@@ -478,10 +507,11 @@ class LiveServer:
         if got is None:
             return
         t_ns, T, p, R = got
-        force = None
+        force = self.force_O_N
         on = self.latest_online
         if (
-            on is not None
+            force is None
+            and on is not None
             and not on.get("final")
             and all(isinstance(on.get(k), int | float) for k in ("fx_N", "fy_N", "fz_N"))
         ):

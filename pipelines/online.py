@@ -341,10 +341,13 @@ class OnlineReduction:
             if self._tens.n < 3:
                 return None, []
             t_last = int(self._tens.view("t")[-1, 0])
+            # an ended point waits for a sample past its end in every stream it interpolates
+            # (tensions, tunnel, pose), as the final analysis has them, or for the time limit
+            seen = min(int(b.view("t")[-1, 0]) for b in (self._tens, self._tun, self._pose) if b.n)
             now = time.monotonic()
             ready = [
                 e for e in self._ended
-                if final or t_last > e[2] or now - e[3] > self.wait_after_end_s
+                if final or seen > e[2] or now - e[3] > self.wait_after_end_s
             ]  # fmt: skip
             for e in ready:
                 self._ended.remove(e)

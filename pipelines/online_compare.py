@@ -4,10 +4,11 @@ analyze``'s final values of the same points.
 
 :func:`compare_online` adds per point ``online_<value>``, ``online_minus_final_<value>`` (for the
 wrench and the coefficients), ``online_flags`` and ``online_agrees`` (``yes``, ``no``, empty
-without an on-line result) to the per-point table, and returns one line per point plus a
-summary.  The two should agree to the σ of the point's steady
-window (the final ``sd_<value>``); where they do not, the line says so and names what the live
-session could not know (a closing zero, later tares, dropped live batches, corrections the
+without an on-line result and for the wind-off points, whose wrench is a residual against the
+weight model that later wind-off points refine) to the per-point table, and returns one line
+per point plus a summary.  The two should agree to the σ of the point's steady window (the final
+``sd_<value>``); where they do not, the line says so and names what the live session could not
+know (a closing zero, later tares, dropped live batches, corrections the
 on-line reduction did not run).  :func:`online_section` is the report's table of them.
 """
 
@@ -21,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from cdpr.analysis.conventions import WRENCH_COLUMNS
-from cdpr.analysis.reduction import COEFFICIENTS
+from cdpr.analysis.reduction import COEFFICIENTS, WIND_OFF_KINDS
 
 COMPARED: tuple[str, ...] = (*WRENCH_COLUMNS, *COEFFICIENTS)
 """The values compared (names of ``points.csv``)."""
@@ -105,6 +106,14 @@ def compare_online(
             agrees[i] = ""
             lines.append(f"{row.point}: on-line result without values to compare ({flags[i]})")
             continue
+        if str(row.kind) in WIND_OFF_KINDS:
+            # a wind-off point's wrench is its residual against the weight model, which every
+            # later wind-off point refines: shown, not judged
+            lines.append(
+                f"{row.point}: on-line - final {', '.join(parts)} (wind-off: its residual "
+                "against the weight model, which later wind-off points refine; not judged)"
+            )
+            continue
         ok = worst <= K_SIGMA
         agrees[i] = "yes" if ok else "no"
         verdict = "agree" if ok else f"DIFFER by up to {worst:.1f} σ"
@@ -130,7 +139,8 @@ def compare_online(
     n_cmp = sum(1 for a in agrees if a != "")
     head = (
         f"on-line against final: {n_cmp - len(bad)} of {n_cmp} point(s) agree within "
-        f"{K_SIGMA:g} σ" + (f"; differ: {', '.join(bad)}" if bad else "")
+        f"{K_SIGMA:g} σ (wind-off points shown, not judged)"
+        + (f"; differ: {', '.join(bad)}" if bad else "")
     )
     return df, [head, *lines]
 

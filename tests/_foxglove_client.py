@@ -67,6 +67,7 @@ class FoxgloveClient:
         self.received: list[Received] = []
         self.transcript: list[str] = []
         self.error: BaseException | None = None
+        self.closed = False
         self.subprotocol: str | None = None
         self.subscribed = threading.Event()
         self._stop = threading.Event()
@@ -102,8 +103,12 @@ class FoxgloveClient:
         return bool(pred(self))
 
     def _run(self) -> None:
+        import websockets
+
         try:
             asyncio.run(self._main())
+        except websockets.ConnectionClosed:  # the server went away (the run ended)
+            self.closed = True
         except BaseException as exc:  # reported to the test
             self.error = exc
 
