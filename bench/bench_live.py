@@ -242,9 +242,7 @@ def run() -> dict[str, dict]:
             "live_dropped_batches": sum(r["live_dropped_batches"] for r in probes["on"]),
             "client_messages": sum(r["client_messages"] for r in probes["on"]),
             "client_topics": probes["on"][0]["client_topics"],
-            "probes_frames_per_s": {
-                k: [round(r["rate"], 1) for r in v] for k, v in probes.items()
-            },
+            "probes_frames_per_s": {k: [round(r["rate"], 1) for r in v] for k, v in probes.items()},
             "latency_at_capacity_p99_ms": round(_pct(probe_lat, 99), 2),
             "context": "recorder child pinned to one CPU (the SDK's server threads in it too), "
             "capacity probes at full speed (bus held back at 20k queued frames) off/on/off/on, "

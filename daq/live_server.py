@@ -564,11 +564,7 @@ class LiveServer:
                             f"on-line result of point {res.get('point', '')}",
                             level="info",
                             name="online_result",
-                            **{
-                                k: v
-                                for k, v in res.items()
-                                if k not in _NOT_EVENT_FIELDS
-                            },
+                            **{k: v for k, v in res.items() if k not in _NOT_EVENT_FIELDS},
                         )
                 self.latest_online = res
                 if self._ctx is not None:
