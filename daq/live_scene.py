@@ -227,34 +227,31 @@ def scene_update(
         metadata=[KeyValuePair(key=f"state_{n}", value=s)
                   for n, s in zip(cable_names, g.states, strict=True)],
     )  # fmt: skip
-    arrows = []
-    for k, rgba in enumerate(((0.9, 0.1, 0.1, 1.0), (0.1, 0.8, 0.1, 1.0), (0.1, 0.3, 0.95, 1.0))):
-        arrows.append(
-            ArrowPrimitive(
-                pose=pose(g.axes_origin, _arrow_rotation(g.axes[k])),
-                shaft_length=AXIS_LENGTH_M * 0.8, shaft_diameter=0.004,
-                head_length=AXIS_LENGTH_M * 0.2, head_diameter=0.01, color=colour(rgba),
-            )
+
+    def arrow(at: Any, direction: Any, length: float, width: float, rgba: Sequence[float]) -> Any:
+        """An arrow of ``length`` from ``at`` along ``direction`` (80 % shaft, 20 % head)."""
+        return ArrowPrimitive(
+            pose=pose(at, _arrow_rotation(np.asarray(direction, dtype=np.float64))),
+            shaft_length=0.8 * length, shaft_diameter=width, head_length=0.2 * length,
+            head_diameter=3 * width, color=colour(rgba),
         )  # fmt: skip
+
+    axis_rgba = ((0.9, 0.1, 0.1, 1.0), (0.1, 0.8, 0.1, 1.0), (0.1, 0.3, 0.95, 1.0))
+    arrows = [arrow(g.axes_origin, g.axes[k], AXIS_LENGTH_M, 0.004, axis_rgba[k]) for k in range(3)]
     if g.wind is not None:
         start, d, length = g.wind
-        arrows.append(
-            ArrowPrimitive(
-                pose=pose(start, _arrow_rotation(d)), shaft_length=0.8 * length,
-                shaft_diameter=0.01, head_length=0.2 * length, head_diameter=0.03,
-                color=Color(r=0.3, g=0.75, b=1.0, a=0.8),
-            )
-        )  # fmt: skip
+        arrows.append(arrow(start, d, length, 0.01, (0.3, 0.75, 1.0, 0.8)))
     if g.force is not None and np.linalg.norm(g.force[1]) > 1e-9:
         start, F = g.force
-        length = float(np.linalg.norm(F)) * FORCE_SCALE_M_PER_N
         arrows.append(
-            ArrowPrimitive(
-                pose=pose(start, _arrow_rotation(F)), shaft_length=0.8 * length,
-                shaft_diameter=0.006, head_length=0.2 * length, head_diameter=0.018,
-                color=Color(r=1.0, g=0.85, b=0.0, a=1.0),
+            arrow(
+                start,
+                F,
+                float(np.linalg.norm(F)) * FORCE_SCALE_M_PER_N,
+                0.006,
+                (1.0, 0.85, 0.0, 1.0),
             )
-        )  # fmt: skip
+        )
     model = SceneEntity(timestamp=ts, frame_id=frame_id, id="model", arrows=arrows)
     return SceneUpdate(entities=[rig_entity, model])
 

@@ -197,6 +197,9 @@ class LiveServer:
         self.dropped_batches = 0
         self.published = 0
         self.online_costs_s: list[float] = []
+        #: (log time, time handed to the SDK) of the last published ``/tensions/view`` messages,
+        #: ns: the recorder's share of the latency (the bench)
+        self.view_lag: deque[tuple[int, int]] = deque(maxlen=100_000)
         self.error: str | None = None
 
     # lifecycle -------------------------------------------------------------------------------
@@ -423,6 +426,8 @@ class LiveServer:
                     self._airspeed = float(v)
             if out is not None:
                 self._publish(out, r)
+                if base == "tensions":
+                    self.view_lag.append((r.t_ns, time.time_ns()))
 
     def _pose_from(self, r: Reading) -> None:
         v = r.values

@@ -703,7 +703,10 @@ class Recorder:
                     f"{name}_reopened": c.reopened,
                 }
             )
-        w.write(Reading("recorder", now_ns(), values, 1 if self.dropped else 0))
+        r = Reading("recorder", now_ns(), values, 1 if self.dropped else 0)
+        w.write(r)
+        if self._taps:
+            self._tap([r])
 
     def _end_metadata(self, stop_ns: int) -> dict[str, Any]:
         st = self.status()

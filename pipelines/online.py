@@ -23,6 +23,7 @@ at the rig's reference pose, flag ``no_pose_stream``).
 from __future__ import annotations
 
 import math
+import operator
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -187,12 +188,11 @@ class OnlineReduction:
         self.max_samples = int(max_samples)
         self.wait_after_end_s = float(wait_after_end_s)
         self._lock = threading.Lock()
-        self._rows: dict[str, list[Any]] = {"t": [], "T": [], "st": [], "seq": []}
+        self._feed_lock = threading.Lock()
+        self._chunks: list[tuple[Any, ...]] = []
         self._seq_ok = True
         self._tens = _Columns({"t": (1, np.int64), "T": (m, np.float64), "st": (1, np.int64),
                                "seq": (1, np.int64)})  # fmt: skip
-        self._tun_rows: list[list[Any]] = []
-        self._pose_rows: list[list[Any]] = []
         self._tun = _Columns({"t": (1, np.int64), "v": (5, np.float64)})
         self._pose = _Columns({"t": (1, np.int64), "v": (3 + 4 + 36 + 2, np.float64)})
         self._events: list[tuple[int, dict[str, Any]]] = []
@@ -200,31 +200,37 @@ class OnlineReduction:
         self._ended: list[tuple[str, int, int, float]] = []
         self._capped_before_ns: int | None = None
         self._cols_T = [f"T_{c}_N" for c in self.cables]
-        self._cols_st = [f"status_{c}" for c in self.cables] + ["status"]
+        self._cols_st = [f"status_{c}" for c in self.cables]
+        self._get_T = operator.itemgetter(*self._cols_T)
+        self._get_S = operator.itemgetter(*self._cols_st)
 
     # feed (publisher thread) -----------------------------------------------------------------
     def feed(self, readings: Sequence[Any]) -> None:
-        rows = self._rows
-        cT, cst = self._cols_T, self._cols_st
+        """Keep what the reduction needs of a written batch (called by the live server's
+        publisher thread for every batch: a few dict look-ups per reading, the arrays are made by
+        :meth:`update`)."""
+        t: list[int] = []
+        st: list[int] = []
+        T: list[Any] = []
+        S: list[Any] = []
+        seq: list[Any] = []
+        pose: list[list[Any]] = []
+        tun: list[list[Any]] = []
+        get_T, get_S = self._get_T, self._get_S
         for r in readings:
-            base = r.stream.rsplit("/", 1)[-1]
+            stream = r.stream
             v = r.values
-            if base == "tensions":
-                T = [v.get(c) for c in cT]
-                rows["T"].append([math.nan if x is None else float(x) for x in T])
-                st = int(r.status or 0)
-                for c in cst:
-                    x = v.get(c)
-                    if isinstance(x, int | float) and x == x:
-                        st |= int(x)
-                rows["st"].append(st)
-                rows["t"].append(r.t_ns)
-                s = v.get("seq")
-                if s is None:
-                    self._seq_ok = False
-                    s = 0
-                rows["seq"].append(int(s))
-            elif base == "pose":
+            if stream == "tensions" or stream.endswith("/tensions"):
+                try:
+                    T.append(get_T(v))
+                    S.append(get_S(v))
+                except KeyError:  # a sample without some field: NaN / no status there
+                    T.append(tuple(v.get(c) for c in self._cols_T))
+                    S.append(tuple(v.get(c) for c in self._cols_st))
+                t.append(r.t_ns)
+                st.append(r.status)
+                seq.append(v.get("seq"))
+            elif stream == "pose" or stream.endswith("/pose"):
                 p, q, c = v.get("position_O_m"), v.get("quaternion_wxyz"), v.get("covariance")
                 row: list[Any] = [r.t_ns]
                 row += [_num(x) for x in p] if p is not None and len(p) == 3 else [math.nan] * 3
@@ -232,14 +238,17 @@ class OnlineReduction:
                 has = c is not None and len(c) == 36
                 row += [_num(x) for x in c] if has else [math.nan] * 36
                 row += [1.0 if has else 0.0, float(r.status or 0)]
-                self._pose_rows.append(row)
-            elif base == "tunnel":
-                self._tun_rows.append(
+                pose.append(row)
+            elif stream == "tunnel" or stream.endswith("/tunnel"):
+                tun.append(
                     [r.t_ns, *(_num(v.get(k)) for k in ("airspeed_mps", "density_kgpm3",
                      "static_pressure_Pa", "temperature_K", "relative_humidity"))]
                 )  # fmt: skip
-            elif base.startswith("event") and v.get("name") == "test_point":
+            elif v.get("name") == "test_point" and stream.rsplit("/", 1)[-1].startswith("event"):
                 self._on_event(r.t_ns, dict(v))
+        if t or pose or tun:
+            with self._feed_lock:  # one append per batch; update() takes the chunks under it
+                self._chunks.append((t, st, T, S, seq, pose, tun))
 
     def _on_event(self, t_ns: int, fields: dict[str, Any]) -> None:
         with self._lock:
@@ -258,13 +267,22 @@ class OnlineReduction:
 
     # update (on-line thread) -----------------------------------------------------------------
     def _flush_rows(self) -> None:
-        rows = self._rows
-        self._rows = {"t": [], "T": [], "st": [], "seq": []}
-        self._tens.extend(rows)
-        for rows_, buf in ((self._pose_rows, self._pose), (self._tun_rows, self._tun)):
-            if rows_:
-                buf.extend({"t": [r[0] for r in rows_], "v": [r[1:] for r in rows_]})
-                rows_.clear()
+        """The chunks :meth:`feed` kept, into the arrays (the tensions' status words OR-ed over
+        the cables and the reading, as ``cdpr analyze`` reads them)."""
+        with self._feed_lock:
+            chunks, self._chunks = self._chunks, []
+        for t, st, T, S, seq, pose, tun in chunks:
+            if t:
+                Ta = np.array(T, dtype=np.float64).reshape(len(t), -1)
+                Sa = np.nan_to_num(np.array(S, dtype=np.float64).reshape(len(t), -1))
+                words = np.bitwise_or.reduce(Sa.astype(np.int64), axis=1) | np.array(st, np.int64)
+                if any(q is None for q in seq):
+                    self._seq_ok = False
+                seq_a = [0 if q is None else int(q) for q in seq]
+                self._tens.extend({"t": t, "T": Ta, "st": words, "seq": seq_a})
+            for rows_, buf in ((pose, self._pose), (tun, self._tun)):
+                if rows_:
+                    buf.extend({"t": [r[0] for r in rows_], "v": [r[1:] for r in rows_]})
 
     def _compact(self) -> None:
         """Keep the samples inside the test points (and the last ``keep_s``), at most
@@ -364,11 +382,13 @@ class OnlineReduction:
             run = self._run_data()
             capped = self._capped_before_ns
         df = reduce_session(run, self.opts)
-        results = [self._result(df, label, t0, run, True, t1) for label, t0, t1, _ in ready]
+        got = [self._result(df, label, t0, run, True, t1) for label, t0, t1, _ in ready]
+        results = [r for r in got if r is not None]
         msg = None
         if open_ is not None and steady:
             msg = self._result(df, open_[0], open_[1], run, False, t_last)
-            msg["max_sd_N"] = sd
+            if msg is not None:
+                msg["max_sd_N"] = sd
         for res in [*results, *([msg] if msg else [])]:
             if capped is not None and res["start_ns"] < capped:
                 res["flags"] = ";".join(filter(None, [res["flags"], "online_samples_capped"]))
@@ -376,8 +396,10 @@ class OnlineReduction:
 
     def _result(
         self, df: pd.DataFrame, label: str, t0: int, run: RunData, final: bool, t_ns: int
-    ) -> dict[str, Any]:
+    ) -> dict[str, Any] | None:
         rows = df[df["point"] == label]
+        if rows.empty:  # no samples of the point were kept: nothing to say
+            return None
         if len(rows) > 1:  # the same label twice: the one that started nearest t0
             rows = rows.iloc[[int(np.argmin(np.abs(rows["start_ns"].to_numpy() - t0)))]]
         r = rows.iloc[0]

@@ -463,17 +463,19 @@ def test_terminal_view_shows_the_online_result(tmp_path: Path) -> None:
     matrix = tmp_path / "m.toml"
     matrix.write_text(MATRIX.format(data=DATA.as_posix()))
     session = f"cdpr-online-{time.monotonic_ns()}"
+    tmux = ["tmux", "-L", session]  # a server of its own: no other tmux user can end it
     # the pane's size, not a COLUMNS/LINES the test runner may export
     cmd = " ".join(["env -u COLUMNS -u LINES", *CLI, "simulate", "--campaign", str(matrix),
                     "--out", str(tmp_path / "r"), "; sleep 60"])  # fmt: skip
-    subprocess.run(["tmux", "new-session", "-d", "-s", session, "-x", "220", "-y", "70", cmd],
+    subprocess.run([*tmux, "new-session", "-d", "-s", session, "-x", "220", "-y", "70", cmd],
                    check=True)  # fmt: skip
     try:
-        end = time.monotonic() + 180
-        seen = ""
+        end = time.monotonic() + 240
+        seen = screen = ""
         while time.monotonic() < end:
-            screen = subprocess.run(["tmux", "capture-pane", "-p", "-t", session],
-                                    capture_output=True, text=True).stdout  # fmt: skip
+            cap = subprocess.run([*tmux, "capture-pane", "-p", "-t", session],
+                                 capture_output=True, text=True)  # fmt: skip
+            screen = cap.stdout or cap.stderr
             m = re.search(r"on-line  alpha-a\d-b0-v[\d.]+ \((steady|final), \d+ samples\).*CL "
                           r"-?\d\.\d{4} ± \d\.\d{4}", screen)  # fmt: skip
             if m:
@@ -482,4 +484,4 @@ def test_terminal_view_shows_the_online_result(tmp_path: Path) -> None:
             time.sleep(0.2)
         assert seen, screen
     finally:
-        subprocess.run(["tmux", "kill-session", "-t", session], capture_output=True)
+        subprocess.run([*tmux, "kill-server"], capture_output=True)
