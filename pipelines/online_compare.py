@@ -146,19 +146,28 @@ def compare_online(
 
 
 def online_section(df: pd.DataFrame) -> tuple[str, pd.DataFrame] | None:
-    """The report's table: per point with an on-line result, the final and on-line value of
-    CL, CD, Cm, Fx, Fz, their difference and σ, and whether they agree; None without any."""
+    """The report's table: per wind-on point with an on-line result, the final and on-line value
+    of CL, CD, Cm, their difference and σ, the largest difference in σ over the wrench and the
+    coefficients, and whether they agree; None without any."""
     if "online_agrees" not in df.columns:
         return None
     d = df[df["online_agrees"].isin(("yes", "no"))]
     if d.empty:
         return None
     cols: dict[str, Any] = {"run": d["run"], "point": d["point"]}
-    for c in ("CL", "CD", "Cm", "fx_N", "fz_N"):
+    for c in ("CL", "CD", "Cm"):
         cols[f"{c} final"] = d[c]
         cols[f"{c} on-line"] = d[f"online_{c}"]
         cols[f"Δ{c}"] = d[f"online_minus_final_{c}"]
         cols[f"σ {c}"] = d[f"sd_{c}"]
+    ratio = np.column_stack(
+        [np.abs(d[f"online_minus_final_{c}"].to_numpy(np.float64)) / d[f"sd_{c}"].to_numpy(np.float64)
+         for c in COMPARED]
+    )  # fmt: skip
+    ratio[~np.isfinite(ratio)] = np.nan
+    cols["max |Δ|/σ (wrench, coefficients)"] = (
+        np.nanmax(np.where(np.isnan(ratio), -np.inf, ratio), axis=1) if ratio.size else np.zeros(0)
+    )
     cols["agree (1σ)"] = d["online_agrees"]
     cols["on-line flags"] = d["online_flags"].fillna("")
     return "On-line against final values", pd.DataFrame(cols).reset_index(drop=True)

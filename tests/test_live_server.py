@@ -333,6 +333,7 @@ def test_online_results_agree_with_analyze_and_the_report(session: dict[str, Any
     (page,) = rep.glob("run_*.html")
     html = page.read_text()
     assert "On-line against final values" in html and "agree (1σ)" in html
+    assert "max |Δ|/σ" in html
     for p in wind_on:
         assert p in html
     png = tmp / "run_page.png"
@@ -346,7 +347,7 @@ def _screenshot(page: Path, png: Path) -> None:
     assert exe, "chromium is not installed (make install installs it: Debian package chromium)"
     subprocess.run(
         [exe, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-         "--hide-scrollbars", f"--screenshot={png}", "--window-size=1400,2600", page.as_uri()],
+         "--hide-scrollbars", f"--screenshot={png}", "--window-size=1600,2600", page.as_uri()],
         capture_output=True, timeout=120, check=True,
     )  # fmt: skip
 
