@@ -13,7 +13,7 @@
 The writer only appends a batch reference to a deque (:meth:`LiveServer.__call__`): it never waits
 for the publisher, and the file keeps every sample whatever a client does.  What the publisher
 falls behind on is dropped oldest first and counted (:attr:`LiveServer.dropped_batches`); an
-on-line result computed while batches were dropped is flagged ``live_dropped_batches``.
+on-line result computed after the live path dropped batches is flagged ``live_dropped_batches``.
 
 Topics and schema names are those of the run file (docs/recording.md): every declared stream
 ``/<stream>``, with Foxglove's well-known types as the SDK sends them (protobuf):

@@ -481,7 +481,7 @@ class Recorder:
         stream such as the virtual rig's ``events``; e.g. the live view's ``test_point`` events
         on ``/events``, the topic ``cdpr analyze`` reads) with the current time; never dropped."""
         declared = stream in self._extra_streams or (
-            stream in self._declared and stream not in ("recorder",)
+            stream in self._declared and stream.rsplit("/", 1)[-1].startswith("event")
         )
         if stream != "event" and not declared:
             raise InputError(f"stream_event: {stream!r} is not declared in extra_streams")

@@ -124,15 +124,21 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
         "first": FoxgloveClient(url).start(),
         "stalled": FoxgloveClient(url, stall_after=40).start(),
     }
-    # the second client connects mid-run: once the first has seen a test point's on-line result
-    clients["first"].wait_for(lambda c: len(c.of("/online")) >= 2, 180)
+    # the second client connects mid-run: once the recording runs and the first client has its
+    # first tensions (the schedule has about 14 s to go)
+    second = proc.stdout.readline()
+    assert second.startswith("recording "), second
+    clients["first"].wait_for(
+        lambda c: bool(c.of("/tensions/view")) or proc.poll() is not None, 180
+    )
+    assert proc.poll() is None, "the run ended before the second client could join"
     clients["mid"] = FoxgloveClient(url).start()
     out, err = proc.communicate(timeout=300)
     for c in clients.values():
         c.stop()
     assert proc.returncode == 0, err
     (run,) = runs.glob("*.mcap")
-    return {"url": url, "run": run, "matrix": matrix, "tmp": tmp, "stdout": first + out,
+    return {"url": url, "run": run, "matrix": matrix, "tmp": tmp, "stdout": first + second + out,
             "stderr": err, "clients": clients}  # fmt: skip
 
 
@@ -441,13 +447,18 @@ def test_the_writers_tap_never_waits_for_a_stuck_publisher() -> None:
     live.start()
     live.streams({})
     try:
-        worst = 0.0
+        calls = []
+        t_all = time.perf_counter()
         for k in range(5000):
             batch = [Reading("tensions", k, {"T_a_N": 1.0})]
             t0 = time.perf_counter()
             live(batch)
-            worst = max(worst, time.perf_counter() - t0)
-        assert worst < 0.01, worst  # never waits (a deque append)
+            calls.append(time.perf_counter() - t0)
+        t_all = time.perf_counter() - t_all
+        # never waits for the publisher (stuck for 30 s): all 5000 calls in a fraction of that,
+        # a call a few microseconds (a deque append; a loaded machine may preempt a few)
+        assert not release.is_set() and t_all < 10.0, t_all
+        assert float(np.median(calls)) < 1e-3, np.median(calls)
         assert live.batches_in == 5000
         assert live.dropped_batches >= 5000 - 8 - 1  # the publisher holds one, the deque 8
     finally:

@@ -3,7 +3,8 @@
 The run is read through ``open_run`` a few seconds at a time (bounded memory) and fed, paced at
 ``--rate`` times real time, into the same live server as a recording (:mod:`cdpr.daq.live_server`):
 the same topics and schema names, the high-rate streams decimated for display, the 3D scene.  With
-``--analysis DIR`` (``cdpr analyze --out``) the analysis of the run is overlaid: during each test
+``--analysis DIR`` (``cdpr analyze --out``; by default an ``analysis/`` folder here or beside the
+run's folder when it holds this run) the analysis of the run is overlaid: during each test
 point, its final values (wrench, coefficients, σ, flags) on ``/analysis`` and its aerodynamic force
 in the scene.  ``--loop`` starts again at the end (the clients are told to reset).  Not replayed:
 ``/can_raw`` (the decoded tensions are) and the per-sample views (the server makes its own).
@@ -43,7 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--loop", action="store_true", help="start again at the end")
     p.add_argument(
         "--analysis",
-        help="cdpr analyze's output folder (--out): the run's points.csv is overlaid",
+        help="cdpr analyze's output folder (--out): the run's points.csv is overlaid (default: "
+        "analysis/ here or beside the run's folder, when it holds this run)",
     )
     from .record import add_live_argument
 
@@ -104,15 +106,24 @@ def _readings(run: Any, topic: str, a: int, b: int) -> list[Any]:
 
 
 def _overlay(analysis: str | None, path: Path) -> Any:
-    """The run's per-point table from ``cdpr analyze``'s folder, or None (said on stdout)."""
-    if analysis is None:
-        print("no analysis overlay (give --analysis, the folder of cdpr analyze --out)")
-        return None
+    """The run's per-point table from ``cdpr analyze``'s folder (``--analysis``; without it an
+    ``analysis/`` folder here or beside the run's folder when it holds this run), or None (said
+    on stdout)."""
     import pandas as pd
 
     from cdpr.analysis.errors import ConfigError
 
     from ..analyze import result_folder
+
+    if analysis is None:
+        for guess in (Path("analysis"), path.resolve().parent.parent / "analysis"):
+            if (result_folder(str(path), str(guess)) / "points.csv").is_file():
+                analysis = str(guess)
+                break
+        else:
+            print("no analysis overlay (no analysis/ folder with this run; give --analysis, the "
+                  "folder of cdpr analyze --out)")  # fmt: skip
+            return None
 
     f = result_folder(str(path), analysis) / "points.csv"
     if not f.is_file():
