@@ -35,26 +35,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
+from .conventions import COEFFICIENTS
 from .errors import InputError
 
 FloatArray = NDArray[np.float64]
 
 SPECIFIC_GAS_CONSTANT_AIR_JPKGK: float = 287.05287
 """Specific gas constant of dry air, J/(kg K) (ISA value)."""
-
-
-def air_density(static_pressure_Pa: ArrayLike, temperature_K: ArrayLike) -> FloatArray:
-    """Dry-air density (kg/m^3) from static pressure (Pa) and temperature (K), ideal gas.
-
-    ``rho = p / (R T)`` with ``R`` = :data:`SPECIFIC_GAS_CONSTANT_AIR_JPKGK`; broadcast.
-    """
-    p = as_float_array(static_pressure_Pa, "static_pressure_Pa")
-    t = as_float_array(temperature_K, "temperature_K")
-    if np.any(~np.isfinite(p)) or np.any(p <= 0):
-        raise InputError("static_pressure_Pa: expected finite values > 0 Pa")
-    if np.any(~np.isfinite(t)) or np.any(t <= 0):
-        raise InputError("temperature_K: expected finite values > 0 K")
-    return np.asarray(p / (SPECIFIC_GAS_CONSTANT_AIR_JPKGK * t), dtype=np.float64)
 
 
 def dynamic_pressure(density_kgpm3: ArrayLike, airspeed_mps: ArrayLike) -> FloatArray:
@@ -98,7 +85,7 @@ def body_from_tunnel(
 
     ``R_B_O = (R_O_P R_P_B)^T``; apply as ``v_B = R_B_O @ v_O``.
     """
-    R = check_trailing(R_O_P, "R_O_P", (3, 3))
+    R = check_trailing(R_O_P, "R_O_P", (3, 3), allow_nan=True)
     R_O_B = R @ body_axes_in_platform(nose_P, up_P)
     return np.swapaxes(R_O_B, -1, -2)
 
@@ -109,7 +96,9 @@ class ModelGeometry:
     options with ``source = "options"``, which the reduction flags).
 
     area_m2, span_m, chord_m: reference area S, span b, chord c (> 0); mrp_P_m: (3,) moment
-    reference point in {P} (m); nose_P, up_P: the mounting (see :func:`body_axes_in_platform`).
+    reference point in {P} (m); nose_P, up_P: the mounting (see :func:`body_axes_in_platform`);
+    name: the model's name; volume_m3: its volume (the wall corrections' solid blockage; None: not
+    given); source: where it came from (``"test matrix"`` or ``"options"``).
     """
 
     area_m2: float
@@ -119,6 +108,8 @@ class ModelGeometry:
     nose_P: tuple[float, float, float] = (-1.0, 0.0, 0.0)
     up_P: tuple[float, float, float] = (0.0, 0.0, 1.0)
     source: str = "test matrix"
+    name: str = "model"
+    volume_m3: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("area_m2", "span_m", "chord_m"):
@@ -165,30 +156,40 @@ def wind_from_body(aoa_rad: ArrayLike, sideslip_rad: ArrayLike) -> FloatArray:
 
 
 def transfer_moment(wrench: ArrayLike, offset_O_m: ArrayLike) -> FloatArray:
-    """Move a wrench's moment to another point: ``[F; M - r x F]`` (..., 6).
+    """Move a wrench's moment to another point: ``[F; M - r x F]`` (..., 6) (NaN rows stay NaN).
 
     wrench: (..., 6) ``[F; M]`` with M about the old point (N, N m); offset_O_m: (..., 3) vector r
     from the old point to the new one, in the same axes as the wrench (m).
     """
-    w = check_trailing(wrench, "wrench", (6,))
-    r = check_trailing(offset_O_m, "offset_O_m", (3,))
+    w = check_trailing(wrench, "wrench", (6,), allow_nan=True)
+    r = check_trailing(offset_O_m, "offset_O_m", (3,), allow_nan=True)
     F = w[..., :3]
     M = w[..., 3:] - np.cross(r, F)
     return np.concatenate([np.broadcast_to(F, M.shape), M], axis=-1)
 
 
-@dataclass(frozen=True)
-class AeroResult:
-    """Aerodynamic angles, loads and coefficients over a batch of samples (each field (...,) or more).
+def _skew(r: FloatArray) -> FloatArray:
+    """``[r]x`` (..., 3, 3) with ``[r]x v = r x v``."""
+    rx = np.zeros(r.shape[:-1] + (3, 3))
+    rx[..., 0, 1], rx[..., 0, 2] = -r[..., 2], r[..., 1]
+    rx[..., 1, 0], rx[..., 1, 2] = r[..., 2], -r[..., 0]
+    rx[..., 2, 0], rx[..., 2, 1] = -r[..., 1], r[..., 0]
+    return rx
 
-    aoa_rad, sideslip_rad: angle of attack and sideslip, rad (flow angles, not the pose's
-    roll/pitch/yaw).
-    force_B_N, moment_B_Nm: (..., 3) force and moment about the MRP in AIAA body axes.
-    drag_N, side_N, lift_N: wind-axis forces ``F_W = (-D, Y, -L)``, N.
-    CD, CY, CL: force coefficients (divided by q S); Cl, Cm, Cn: body-axis moment coefficients about
-    the MRP (roll and yaw divided by q S b, pitch by q S c).
+
+@dataclass(frozen=True)
+class AeroAxes:
+    """The aerodynamic wrench in the axes a lab reports it in (each field (...,) or more).
+
+    wrench_mrp_O_N_Nm: (..., 6) the wrench with its moment about the MRP, {O} axes;
+    wrench_mrp_cov: (..., 6, 6) its covariance (None when none was given);
+    aoa_rad, sideslip_rad: angle of attack and sideslip (flow angles, not the pose's
+    roll/pitch/yaw); force_B_N, moment_B_Nm: (..., 3) force and moment about the MRP in AIAA body
+    axes; drag_N, side_N, lift_N: wind-axis forces ``F_W = (-D, Y, -L)``.
     """
 
+    wrench_mrp_O_N_Nm: FloatArray
+    wrench_mrp_cov: FloatArray | None
     aoa_rad: FloatArray
     sideslip_rad: FloatArray
     force_B_N: FloatArray
@@ -196,12 +197,77 @@ class AeroResult:
     drag_N: FloatArray
     side_N: FloatArray
     lift_N: FloatArray
-    CD: FloatArray
-    CY: FloatArray
-    CL: FloatArray
-    Cl: FloatArray
-    Cm: FloatArray
-    Cn: FloatArray
+
+
+def aero_axes(
+    wrench_O: ArrayLike,
+    R_O_P: ArrayLike,
+    mrp_P_m: ArrayLike = (0.0, 0.0, 0.0),
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+    wrench_cov: ArrayLike | None = None,
+) -> AeroAxes:
+    """The wrench at the moment reference point and in body and wind axes, with its covariance.
+
+    wrench_O: (..., 6) aerodynamic wrench on the model at P in {O} axes (N, N m); R_O_P:
+    (..., 3, 3) platform attitude; mrp_P_m: (3,) moment reference point in {P} (m); nose_P, up_P:
+    the mounting (:func:`body_axes_in_platform`); wrench_cov: (..., 6, 6) covariance of
+    ``wrench_O``, carried to the MRP as ``X C X^T`` with ``X = [[I, 0], [-[r]x, I]]``.  A NaN in
+    a wrench or an attitude gives NaN in that row, never a value at a default attitude.
+    """
+    w = check_trailing(wrench_O, "wrench_O", (6,), allow_nan=True)
+    R = check_trailing(R_O_P, "R_O_P", (3, 3), allow_nan=True)
+    r_O = np.einsum("...ij,j->...i", R, check_trailing(mrp_P_m, "mrp_P_m", (3,)))
+    W_mrp = transfer_moment(w, r_O)
+    R_B_O = body_from_tunnel(R, nose_P, up_P)
+    aoa, sideslip = flow_angles(R, nose_P, up_P)
+    F_B = np.einsum("...ij,...j->...i", R_B_O, W_mrp[..., :3])
+    M_B = np.einsum("...ij,...j->...i", R_B_O, W_mrp[..., 3:])
+    F_W = np.einsum("...ij,...j->...i", wind_from_body(aoa, sideslip), F_B)
+    cov = None
+    if wrench_cov is not None:
+        C = check_trailing(wrench_cov, "wrench_cov", (6, 6), allow_nan=True)
+        transfer = np.broadcast_to(np.eye(6), r_O.shape[:-1] + (6, 6)).copy()
+        transfer[..., 3:, :3] = -_skew(r_O)  # M - r x F
+        cov = np.asarray(transfer @ C @ np.swapaxes(transfer, -1, -2), dtype=np.float64)
+    return AeroAxes(
+        wrench_mrp_O_N_Nm=W_mrp,
+        wrench_mrp_cov=cov,
+        aoa_rad=aoa,
+        sideslip_rad=sideslip,
+        force_B_N=F_B,
+        moment_B_Nm=M_B,
+        drag_N=-F_W[..., 0],
+        side_N=F_W[..., 1],
+        lift_N=-F_W[..., 2],
+    )
+
+
+COEFFICIENT_NAMES: tuple[str, ...] = COEFFICIENTS
+"""Order of the coefficients returned by :func:`coefficient_matrix` (the project's one list,
+:data:`cdpr.analysis.conventions.COEFFICIENTS`)."""
+
+
+@dataclass(frozen=True)
+class AeroResult:
+    """Aerodynamic angles, loads and coefficients over a batch of samples (each field (...,) or more).
+
+    axes: the angles and loads (:class:`AeroAxes`); coefficients: (..., 6) ``CD, CY, CL, Cl, Cm,
+    Cn`` (:data:`COEFFICIENT_NAMES`): wind-axis forces on ``q S``, body-axis moments about the MRP
+    on ``q S b`` (roll, yaw) and ``q S c`` (pitch); cov: (..., 6, 6) their covariance from the
+    wrench's (None when none was given; the attitude's and q's own errors are not in it).
+    """
+
+    axes: AeroAxes
+    coefficients: FloatArray
+    cov: FloatArray | None
+
+    def __getattr__(self, name: str) -> FloatArray:
+        if name in COEFFICIENT_NAMES:
+            return self.coefficients[..., COEFFICIENT_NAMES.index(name)]
+        if name in AeroAxes.__dataclass_fields__:
+            return getattr(self.axes, name)  # type: ignore[no-any-return]
+        raise AttributeError(name)
 
 
 def _check_reference(
@@ -223,55 +289,6 @@ def _check_reference(
             raise InputError(f"{name}: expected a finite value > 0, got {v}")
     mrp = check_trailing(mrp_P_m, "mrp_P_m", (3,))
     return R, q, np.einsum("...ij,...j->...i", R, mrp)
-
-
-def aero_coefficients(
-    wrench_O: ArrayLike,
-    R_O_P: ArrayLike,
-    dynamic_pressure_Pa: ArrayLike,
-    area_m2: float,
-    span_m: float,
-    chord_m: float,
-    mrp_P_m: ArrayLike = (0.0, 0.0, 0.0),
-    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
-    up_P: ArrayLike = (0.0, 0.0, 1.0),
-) -> AeroResult:
-    """Angles, wind-axis forces and the six coefficients from the aerodynamic wrench.
-
-    wrench_O: (..., 6) aerodynamic wrench on the model at P in {O} axes (N, N m), e.g. ``W_ext``.
-    R_O_P: (..., 3, 3) platform attitude; dynamic_pressure_Pa: (...,) or scalar, > 0;
-    area_m2, span_m, chord_m: reference area, span and chord (> 0); mrp_P_m: (3,) moment reference
-    point in {P} (m); nose_P, up_P: the model's mounting (see :func:`body_axes_in_platform`).
-    """
-    w = check_trailing(wrench_O, "wrench_O", (6,))
-    R, q, r_O = _check_reference(R_O_P, dynamic_pressure_Pa, area_m2, span_m, chord_m, mrp_P_m)
-    w_mrp = transfer_moment(w, r_O)
-    R_B_O = body_from_tunnel(R, nose_P, up_P)
-    F_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., :3])
-    M_B = np.einsum("...ij,...j->...i", R_B_O, w_mrp[..., 3:])
-    aoa, sideslip = flow_angles(R, nose_P, up_P)
-    F_W = np.einsum("...ij,...j->...i", wind_from_body(aoa, sideslip), F_B)
-    drag, side, lift = -F_W[..., 0], F_W[..., 1], -F_W[..., 2]
-    qS = q * float(area_m2)
-    return AeroResult(
-        aoa_rad=aoa,
-        sideslip_rad=sideslip,
-        force_B_N=F_B,
-        moment_B_Nm=M_B,
-        drag_N=drag,
-        side_N=side,
-        lift_N=lift,
-        CD=drag / qS,
-        CY=side / qS,
-        CL=lift / qS,
-        Cl=M_B[..., 0] / (qS * float(span_m)),
-        Cm=M_B[..., 1] / (qS * float(chord_m)),
-        Cn=M_B[..., 2] / (qS * float(span_m)),
-    )
-
-
-COEFFICIENT_NAMES: tuple[str, ...] = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
-"""Order of the coefficients returned by :func:`coefficient_matrix`."""
 
 
 def coefficient_matrix(
@@ -296,11 +313,8 @@ def coefficient_matrix(
     aoa, sideslip = flow_angles(R, nose_P, up_P)
     sign = np.array([-1.0, 1.0, -1.0])[:, None]
     Fmap = sign * (wind_from_body(aoa, sideslip) @ R_B_O)  # (..., 3, 3): (D, Y, L) from F_O
-    # moment about the MRP: M - r x F = M + skew(F) r = M - skew(r) F
-    rx = np.zeros(r.shape[:-1] + (3, 3))
-    rx[..., 0, 1], rx[..., 0, 2] = -r[..., 2], r[..., 1]
-    rx[..., 1, 0], rx[..., 1, 2] = r[..., 2], -r[..., 0]
-    rx[..., 2, 0], rx[..., 2, 1] = -r[..., 1], r[..., 0]
+    # moment about the MRP: M - r x F = M - skew(r) F
+    rx = _skew(r)
     shape = np.broadcast_shapes(Fmap.shape[:-2], R_B_O.shape[:-2], np.shape(q))
     K = np.zeros(shape + (6, 6))
     K[..., :3, :3] = Fmap
@@ -309,6 +323,40 @@ def coefficient_matrix(
     qS = (q * float(area_m2))[..., None, None]
     scale = np.array([1.0, 1.0, 1.0, 1 / float(span_m), 1 / float(chord_m), 1 / float(span_m)])
     return np.asarray(K * scale[:, None] / qS, dtype=np.float64)
+
+
+def aero_coefficients(
+    wrench_O: ArrayLike,
+    R_O_P: ArrayLike,
+    dynamic_pressure_Pa: ArrayLike,
+    area_m2: float,
+    span_m: float,
+    chord_m: float,
+    mrp_P_m: ArrayLike = (0.0, 0.0, 0.0),
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+    wrench_cov: ArrayLike | None = None,
+) -> AeroResult:
+    """Angles, wind-axis forces and the six coefficients from the aerodynamic wrench.
+
+    wrench_O: (..., 6) aerodynamic wrench on the model at P in {O} axes (N, N m), e.g. ``W_ext``.
+    R_O_P: (..., 3, 3) platform attitude; dynamic_pressure_Pa: (...,) or scalar, > 0;
+    area_m2, span_m, chord_m: reference area, span and chord (> 0); mrp_P_m: (3,) moment reference
+    point in {P} (m); nose_P, up_P: the model's mounting (see :func:`body_axes_in_platform`);
+    wrench_cov: (..., 6, 6) the wrench's covariance, carried to the coefficients as
+    ``K C K^T`` (:func:`coefficient_matrix`).
+    """
+    w = check_trailing(wrench_O, "wrench_O", (6,))
+    K = coefficient_matrix(
+        R_O_P, dynamic_pressure_Pa, area_m2, span_m, chord_m, mrp_P_m, nose_P, up_P
+    )
+    C = np.einsum("...ij,...j->...i", K, w)
+    cov = None
+    if wrench_cov is not None:
+        S = check_trailing(wrench_cov, "wrench_cov", (6, 6))
+        cov = np.asarray(K @ S @ np.swapaxes(K, -1, -2), dtype=np.float64)
+    axes = aero_axes(w, check_trailing(R_O_P, "R_O_P", (3, 3)), mrp_P_m, nose_P, up_P)
+    return AeroResult(axes=axes, coefficients=C, cov=cov)
 
 
 def attitude_from_flow_angles(

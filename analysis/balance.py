@@ -23,33 +23,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import check_trailing
+from .conventions import (
+    MASK_COUNTER_GAP,
+    MASK_NAMES,
+    MASK_NAN,
+    MASK_POSE,
+    STATUS_ALL,
+)
 from .errors import InputError
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-# Status bits a load-cell reading carries (the recorder's convention) ...
-STATUS_SATURATED = 1
-STATUS_SLACK = 2
-STATUS_STALE = 4
-STATUS_BAD_FRAME = 8
-STATUS_GAP = 16
-# ... and the bits the analysis adds.
-MASK_NAN = 32
-MASK_COUNTER_GAP = 64
-MASK_POSE = 128
-
-MASK_NAMES: dict[int, str] = {
-    STATUS_SATURATED: "saturated",
-    STATUS_SLACK: "slack",
-    STATUS_STALE: "stale",
-    STATUS_BAD_FRAME: "bad_frame",
-    STATUS_GAP: "gap",
-    MASK_NAN: "nan",
-    MASK_COUNTER_GAP: "counter_gap",
-    MASK_POSE: "pose_flagged",
-}
-"""Name of every mask bit (the flag words of the per-point table)."""
 
 
 def mask_words(bits: int) -> list[str]:
@@ -67,9 +51,10 @@ def sample_mask(
     """Per-sample mask bits (n,): 0 for a usable sample.
 
     values: (n,) or (n, c) readings (a NaN or inf anywhere in a row sets :data:`MASK_NAN`);
-    status: (n,) or (n, c) integer status words (bits 1 saturated, 2 slack, 4 stale, 8 bad frame,
-    16 gap; OR-ed over the channels); counter: (n,) sample counter counting up by one modulo
-    ``counter_modulus``: a jump marks the sample after it with :data:`MASK_COUNTER_GAP`;
+    status: (n,) or (n, c) integer status words (:data:`cdpr.analysis.conventions.STATUS_NAMES`:
+    saturated, slack, stale, bad frame, gap, sensor fault; OR-ed over the channels); counter:
+    (n,) sample counter counting up by one modulo ``counter_modulus``: a jump marks the sample
+    after it with :data:`MASK_COUNTER_GAP`;
     pose_bad: (n,) bool, a flagged pose (e.g. too few markers, large reprojection error).
     """
     v = np.asarray(values, dtype=np.float64)
@@ -85,7 +70,7 @@ def sample_mask(
         s = s.astype(np.int64)
         if s.ndim == 2:
             s = np.bitwise_or.reduce(s, axis=1)
-        bits |= s & (STATUS_SATURATED | STATUS_SLACK | STATUS_STALE | STATUS_BAD_FRAME | STATUS_GAP)
+        bits |= s & STATUS_ALL  # every status bit makes a sample unusable
     if counter is not None:
         c = np.asarray(counter)
         if c.shape != (n,) or c.dtype.kind not in "iu":

@@ -5,7 +5,7 @@ where the check loads support it (in the spirit of AIAA R-091, the balance calib
 :func:`quadratic_terms`).  The second-order terms are fitted only when the check-load set can carry
 them: at least ``min_rows_per_term`` rows per unknown of a component (27), a full-rank scaled design,
 and an F-test showing that the 21 extra terms lower the residual more than noise would
-(``p < alpha``).  Otherwise :func:`fit_second_order` says why and the first-order matrix stays the
+(``p < significance``).  Otherwise :func:`fit_second_order` says why and the first-order matrix stays the
 model.  Pure numpy/scipy: arrays in, arrays out.
 """
 
@@ -57,7 +57,7 @@ def fit_second_order(
     recovered: ArrayLike,
     applied: ArrayLike,
     min_rows_per_term: float = 2.0,
-    alpha: float = 0.01,
+    significance: float = 0.01,
 ) -> tuple[SecondOrderFit | None, str]:
     """Fit the second-order model from check loads (k, 6) each, or return None and the reason."""
     R = check_trailing(recovered, "recovered", (6,))
@@ -86,7 +86,7 @@ def fit_second_order(
     from scipy import stats  # here: importing scipy.stats costs ~2 s at every CLI start
 
     p = np.where(np.isfinite(F), stats.f.sf(F, N_QUADRATIC, dof2), 0.0)
-    if float(p.min()) >= alpha:
+    if float(p.min()) >= significance:
         return None, f"the second-order terms are not significant (smallest p = {p.min():.3g})"
     # back to unscaled wrenches: Rs = R / s, q(Rs) = q(R) / (s_i s_j)
     K1 = (B2[:6] / scale[:, None]).T

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array
+from .conventions import COEFFICIENTS
 from .errors import InputError
 from .records import CorrectionRecord
 
@@ -147,7 +148,7 @@ class WallParameters:
     wing_volume_m3, wing_K1: the wing's volume and its shape factor K1 (0 volume to lump it into the
       body).
     reference_area_m2: S, the coefficients' reference area.
-    lift_slope_per_rad: a = dCL/dalpha of the model, for the streamline-curvature lift correction.
+    lift_slope_per_rad: a = dCL/daoa of the model, for the streamline-curvature lift correction.
     """
 
     kind: SectionKind
@@ -240,11 +241,11 @@ def wall_corrections(
 
     - blockage (BRP ch. 10): ``eps_t = eps_sb + eps_wb``; ``q = q_u (1 + eps_t)^2``, every
       coefficient divided by ``(1 + eps_t)^2``;
-    - lift interference / downwash (BRP ch. 10): ``d_alpha_w = delta (S/C) CL`` (rad) and
+    - lift interference / downwash (BRP ch. 10): ``d_aoa_w = delta (S/C) CL`` (rad) and
       ``dCD_i = delta (S/C) CL^2``;
-    - streamline curvature (BRP ch. 10): ``d_alpha_sc = tau2 delta (S/C) CL``,
-      ``dCL_sc = -d_alpha_sc a``, ``dCm_sc = -0.25 dCL_sc`` (about the quarter chord);
-    - corrected: ``alpha = alpha_u + d_alpha_w + d_alpha_sc``, ``CL = CL_q + dCL_sc``,
+    - streamline curvature (BRP ch. 10): ``d_aoa_sc = tau2 delta (S/C) CL``,
+      ``dCL_sc = -d_aoa_sc a``, ``dCm_sc = -0.25 dCL_sc`` (about the quarter chord);
+    - corrected: ``aoa = aoa_u + d_aoa_w + d_aoa_sc``, ``CL = CL_q + dCL_sc``,
       ``CD = CD_q + dCD_i``, ``Cm = Cm_q + dCm_sc`` (``_q``: divided by the q ratio).
 
     Not applied (and said in the record): horizontal buoyancy (needs the section's static-pressure
@@ -262,15 +263,15 @@ def wall_corrections(
     eps_wb = wake_blockage(p, cd)
     q_ratio = (1.0 + eps_sb + eps_wb) ** 2
     s_c = p.reference_area_m2 / p.area_m2
-    d_alpha_w = p.delta * s_c * cl
+    d_aoa_w = p.delta * s_c * cl
     d_cdi = p.delta * s_c * cl * cl
-    d_alpha_sc = p.tau2 * p.delta * s_c * cl
-    d_cl_sc = -d_alpha_sc * p.lift_slope_per_rad
+    d_aoa_sc = p.tau2 * p.delta * s_c * cl
+    d_cl_sc = -d_aoa_sc * p.lift_slope_per_rad
     d_cm_sc = -0.25 * d_cl_sc
     out_cl = cl / q_ratio + d_cl_sc
     out_cd = cd / q_ratio + d_cdi
     out_cm = cm / q_ratio + d_cm_sc
-    d_alpha = d_alpha_w + d_alpha_sc
+    d_aoa = d_aoa_w + d_aoa_sc
     rec = CorrectionRecord(
         name="wall_corrections",
         source="Barlow, Rae & Pope 3rd ed. ch. 10 (Thom's solid and wake blockage, lift "
@@ -283,7 +284,7 @@ def wall_corrections(
             "tau2": p.tau2,
             "eps_solid": float(eps_sb.flat[0]) if eps_sb.size else 0.0,
             "eps_wake_max": float(np.max(np.abs(eps_wb))) if eps_wb.size else 0.0,
-            "delta_aoa_rad_max": float(np.max(np.abs(d_alpha))) if d_alpha.size else 0.0,
+            "delta_aoa_rad_max": float(np.max(np.abs(d_aoa))) if d_aoa.size else 0.0,
             "delta_cd_induced_max": float(np.max(np.abs(d_cdi))) if d_cdi.size else 0.0,
             "not_applied": "horizontal buoyancy; tail-downwash moment correction",
             "open_jet_blockage_ratio": -0.25 if p.kind == "open_jet" else None,
@@ -293,11 +294,11 @@ def wall_corrections(
         eps_solid=eps_sb,
         eps_wake=eps_wb,
         q_ratio=q_ratio,
-        delta_aoa_rad=d_alpha,
+        delta_aoa_rad=d_aoa,
         delta_cd_induced=d_cdi,
         delta_cl_curvature=d_cl_sc,
         delta_cm_curvature=d_cm_sc,
-        aoa_rad=a_u + d_alpha,
+        aoa_rad=a_u + d_aoa,
         cl=out_cl,
         cd=out_cd,
         cm=out_cm,
@@ -380,3 +381,35 @@ def repeatability(
     )
     interval = np.array([[lo] * x.shape[1], [hi] * x.shape[1]])
     return Repeatability(s_rep, dof, s_prop, ratio, interval, disagree, rec)
+
+
+@dataclass(frozen=True)
+class CorrectedCoefficients:
+    """All six coefficients with the wall corrections (each (n, 6), order
+    :data:`cdpr.analysis.conventions.COEFFICIENTS`) and the corrections themselves.
+
+    coefficients: CL, CD and Cm from :func:`wall_corrections`; CY, Cl and Cn divided by the q
+    ratio (blockage only); sd: every σ divided by the q ratio (the corrections' own spread is not
+    included); walls: the :class:`WallCorrections` of the points."""
+
+    coefficients: FloatArray
+    sd: FloatArray
+    walls: WallCorrections
+
+
+def corrected_coefficients(
+    p: WallParameters, aoa_u_rad: ArrayLike, coefficients_u: ArrayLike, sd_u: ArrayLike
+) -> CorrectedCoefficients:
+    """Wall-corrected coefficients of n points from the uncorrected ones.
+
+    aoa_u_rad: (n,); coefficients_u, sd_u: (n, 6) ``CD, CY, CL, Cl, Cm, Cn`` and their σ."""
+    C = as_float_array(coefficients_u, "coefficients_u")
+    sd = as_float_array(sd_u, "sd_u")
+    if C.ndim != 2 or C.shape[1] != 6 or sd.shape != C.shape:
+        raise InputError(f"coefficients_u, sd_u: expected (n, 6) each, got {C.shape}, {sd.shape}")
+    k = {c: i for i, c in enumerate(COEFFICIENTS)}
+    wc = wall_corrections(p, aoa_u_rad, C[:, k["CL"]], C[:, k["CD"]], C[:, k["Cm"]])
+    qr = np.broadcast_to(wc.q_ratio, C.shape[:1])[:, None]
+    out = C / qr
+    out[:, k["CL"]], out[:, k["CD"]], out[:, k["Cm"]] = wc.cl, wc.cd, wc.cm
+    return CorrectedCoefficients(out, sd / qr, wc)

@@ -1,8 +1,10 @@
 """Gravity, inertia and Coriolis wrenches of the platform (paper eq. 4), batched over poses.
 
-The equation of motion is ``A T = -(M qdd + C + G + W_ext)`` with wrenches at P in {O} axes and the
-order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load* on the platform
-(so ``A T0 = -G`` holds wind-off).
+The equation of motion (Newton-Euler) is ``A T + G + W_ext = M qdd + C`` with wrenches at P in {O}
+axes and the order ``[Fx, Fy, Fz, Mx, My, Mz]``.  ``G = [m g; (R c) x m g]`` is the gravity *load*
+on the platform (so ``A T0 = -G`` holds wind-off at rest) and ``M qdd + C`` the rate of change of
+the platform's momentum (:func:`inertia_wrench`).  At rest this is the paper's eq. (4),
+``A T = -(G + W_ext)``; the paper's sign of ``M qdd + C`` holds only there.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import check_trailing
 from .conventions import GRAVITY_O_MPS2
 from .errors import InputError
-from .rotations import euler_rate_matrix, rotation_from_euler
+from .rotations import angular_rates, rotation_from_euler
 
 FloatArray = NDArray[np.float64]
 
@@ -30,6 +32,23 @@ def gravity_wrench(
     f = mass_kg * np.broadcast_to(g, R.shape[:-2] + (3,))
     rc = np.einsum("...ij,...j->...i", R, c)
     return np.concatenate([f, np.cross(rc, f)], axis=-1)
+
+
+def weight_basis(poses: ArrayLike, gravity_O_mps2: ArrayLike) -> FloatArray:
+    """``B(q)`` (..., 6, 4) with ``G(q) = B(q) @ theta``, ``theta = [m, m c_x, m c_y, m c_z]``
+    (kg, kg m; c in {P}), at P in {O} axes: :func:`gravity_wrench` written linear in the mass and
+    its first moment, as the weight model fits them (:mod:`cdpr.analysis.weight`).
+
+    poses: (..., 6) ``[x, y, z, roll, pitch, yaw]`` (m, rad); gravity_O_mps2: (3,).
+    """
+    q = check_trailing(poses, "poses", (6,))
+    g = check_trailing(gravity_O_mps2, "gravity_O_mps2", (3,))
+    R = rotation_from_euler(q[..., 3:])
+    sk = np.array([[0.0, -g[2], g[1]], [g[2], 0.0, -g[0]], [-g[1], g[0], 0.0]])
+    B = np.zeros(q.shape[:-1] + (6, 4))
+    B[..., :3, 0] = g
+    B[..., 3:, 1:] = -sk @ R
+    return B
 
 
 def finite_difference(values: ArrayLike, t_ns: ArrayLike) -> FloatArray:
@@ -59,43 +78,31 @@ def inertia_wrench(
 ) -> FloatArray:
     """Inertia plus Coriolis/centrifugal wrench ``M qdd + C`` (..., 6) at P in {O} axes.
 
-    pose (..., 6) = [x, y, z, alpha, beta, gamma]; pose_rate and pose_accel are its first and second
+    pose (..., 6) = [x, y, z, roll, pitch, yaw]; pose_rate and pose_accel are its first and second
     time derivatives (m/s, rad/s; m/s^2, rad/s^2).  The rigid body is referred to P: with
     ``rc = R c``, ``I_O = R I_P R^T`` (about P),
 
-        F = m (a_P + alpha x rc + omega x (omega x rc))
-        M = I_O alpha + omega x (I_O omega) + m rc x a_P
+        F = m (a_P + omega_dot x rc + omega x (omega x rc))
+        M = I_O omega_dot + omega x (I_O omega) + m rc x a_P
 
     which reduce to the paper's ``M qdd + C`` when the centre of mass is at P.  ``omega = H psi_dot``
-    and ``alpha = H psi_ddot + H_dot psi_dot``.
+    and the angular acceleration ``omega_dot = H psi_ddot + H_dot psi_dot``.
     """
     q = check_trailing(pose, "pose", (6,))
     qd = check_trailing(pose_rate, "pose_rate", (6,))
     qdd = check_trailing(pose_accel, "pose_accel", (6,))
     c = check_trailing(com_P_m, "com_P_m", (3,))
     I_P = check_trailing(inertia_P_kgm2, "inertia_P_kgm2", (3, 3))
-    psi, psid, psidd = q[..., 3:], qd[..., 3:], qdd[..., 3:]
+    psi = q[..., 3:]
     R = rotation_from_euler(psi)
-    H = euler_rate_matrix(psi)
-    omega = np.einsum("...ij,...j->...i", H, psid)
-    # H_dot psi_dot by the chain rule on H(beta, gamma).
-    b, g = psi[..., 1], psi[..., 2]
-    bd, gd = psid[..., 1], psid[..., 2]
-    sb, cb, sg, cg = np.sin(b), np.cos(b), np.sin(g), np.cos(g)
-    Hd = np.zeros(psi.shape[:-1] + (3, 3))
-    Hd[..., 0, 0] = -sb * bd * cg - cb * sg * gd
-    Hd[..., 0, 1] = -cg * gd
-    Hd[..., 1, 0] = -sb * bd * sg + cb * cg * gd
-    Hd[..., 1, 1] = -sg * gd
-    Hd[..., 2, 0] = -cb * bd
-    alpha = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    omega, omega_dot = angular_rates(psi, qd[..., 3:], qdd[..., 3:])
     rc = np.einsum("...ij,...j->...i", R, c)
     I_O = R @ I_P @ np.swapaxes(R, -1, -2)
     a_P = qdd[..., :3]
-    F = mass_kg * (a_P + np.cross(alpha, rc) + np.cross(omega, np.cross(omega, rc)))
+    F = mass_kg * (a_P + np.cross(omega_dot, rc) + np.cross(omega, np.cross(omega, rc)))
     Iw = np.einsum("...ij,...j->...i", I_O, omega)
     M = (
-        np.einsum("...ij,...j->...i", I_O, alpha)
+        np.einsum("...ij,...j->...i", I_O, omega_dot)
         + np.cross(omega, Iw)
         + mass_kg * np.cross(rc, a_P)
     )

@@ -11,7 +11,7 @@ Formulas and sources:
   deg C.
 - Moist-air density: ideal mixture of dry air and water vapour,
   ``rho = (p - e)/(R_d T) + e/(R_v T)`` with ``e = RH e_s(T)``, ``R_d = 287.05287``,
-  ``R_v = 461.495`` J/(kg K).  With ``RH = 0`` it is :func:`cdpr.analysis.aero.air_density`.
+  ``R_v = 461.495`` J/(kg K).  With ``RH = 0`` it is dry air, ``p / (R_d T)``.
 - Dynamic viscosity: Sutherland's law, ``mu = mu_ref (T/T_ref)^1.5 (T_ref + S)/(T + S)``,
   ``mu_ref = 1.716e-5`` Pa s, ``T_ref = 273.15`` K, ``S = 110.4`` K (White, *Viscous Fluid Flow*).
 - Speed of sound ``a = sqrt(gamma R_d T)``, ``gamma = 1.4``; Mach ``V / a``.
@@ -103,21 +103,43 @@ def reynolds_number(
     return np.asarray(rho * np.abs(v) * length / mu)
 
 
+DENSITY_SOURCES: tuple[str, ...] = ("p_T_humidity", "p_T_dry", "stream")
+"""Per point, where the density came from: its p, T and relative humidity (moist air), its p and T
+without a humidity (dry air, flag ``humidity_not_given``), or the density as given (no p and T:
+a measured density, e.g. the tunnel stream's)."""
+
+
 @dataclass(frozen=True)
 class FlowConditions:
-    """Flow conditions per point, each (n,) (or the broadcast shape of the inputs).
+    """Flow conditions per point, each (n,).
 
-    density_kgpm3, viscosity_Pas, q_Pa (dynamic pressure), reynolds (on the reference chord),
-    mach, speed_of_sound_mps; record says what was used.
+    density_kgpm3; density_source: (n,) str, one of :data:`DENSITY_SOURCES`; viscosity_Pas,
+    q_Pa (dynamic pressure), reynolds (on the reference chord), mach, speed_of_sound_mps: NaN where
+    the point lacks a temperature, a density or a speed; known: (n,) True where Re and Mach could
+    be had; dry: (n,) True where p and T were given without a humidity (computed as dry air);
+    record says what was used (flag ``humidity_not_given`` when a point in the wind was dry,
+    ``no_temperature`` when one had no Re or Mach).
     """
 
     density_kgpm3: FloatArray
+    density_source: NDArray[np.str_]
     viscosity_Pas: FloatArray
     q_Pa: FloatArray
     reynolds: FloatArray
     mach: FloatArray
     speed_of_sound_mps: FloatArray
+    known: NDArray[np.bool_]
+    dry: NDArray[np.bool_]
     record: CorrectionRecord
+
+
+def _nan_or_positive(value: ArrayLike, name: str, unit: str, n: int) -> FloatArray:
+    """``value`` broadcast to (n,): NaN means not given; anything else must be finite and > 0."""
+    arr = np.array(np.broadcast_to(as_float_array(value, name), (n,)), dtype=np.float64)
+    bad = ~np.isnan(arr) & ~(np.isfinite(arr) & (arr > 0))
+    if bad.any():
+        raise InputError(f"{name}: expected finite values > 0 {unit} (NaN: not given)")
+    return arr
 
 
 def flow_conditions(
@@ -126,43 +148,87 @@ def flow_conditions(
     temperature_K: ArrayLike,
     chord_m: float,
     relative_humidity: ArrayLike | None = None,
+    density_kgpm3: ArrayLike | None = None,
+    in_flow: ArrayLike | None = None,
 ) -> FlowConditions:
     """Density, viscosity, q, Re (on ``chord_m``) and Mach per point.
 
-    ``relative_humidity=None`` means not measured: dry air is used and the record carries the
-    flag ``humidity_not_given`` (dry air overestimates the density by up to about 1 % at 30 deg C).
+    airspeed_mps: (n,) (NaN: unknown); static_pressure_Pa, temperature_K: (n,) or scalars (NaN:
+    not given); relative_humidity: (n,) or scalar fraction 0..1, NaN or None where not measured;
+    density_kgpm3: (n,) a measured density kept where p and T are not given (else NaN);
+    in_flow: (n,) bool, the points in the wind (wind-on and model-off windage points above the
+    wind-off speed: those whose q the density sets), for the flags and the record's counts
+    (default: all).
+
+    Where p and T are given the density is moist air (:func:`air_density`, the Buck vapour
+    pressure); without a humidity it is dry air and the point is ``dry`` (up to about 1 % high at
+    30 deg C); elsewhere the given density stays (``stream``).  Viscosity (Sutherland), Re and
+    Mach where the point has a temperature, a positive density and a speed >= 0.
     """
-    flags: tuple[str, ...] = ()
-    if relative_humidity is None:
-        relative_humidity = 0.0
-        flags = ("humidity_not_given",)
-    v = as_float_array(airspeed_mps, "airspeed_mps")
-    if np.any(~np.isfinite(v)) or np.any(v < 0):
-        raise InputError("airspeed_mps: expected finite values >= 0 m/s")
-    rho = air_density(static_pressure_Pa, temperature_K, relative_humidity)
-    mu = sutherland_viscosity(temperature_K)
-    a = speed_of_sound(temperature_K)
-    q = dynamic_pressure(rho, v)
-    re = reynolds_number(rho, v, chord_m, mu)
-    mach = np.asarray(v / a)
+    v = np.atleast_1d(as_float_array(airspeed_mps, "airspeed_mps")).astype(np.float64)
+    n = v.shape[0]
+    if np.any(np.isfinite(v) & (v < 0)) or np.any(np.isinf(v)):
+        raise InputError("airspeed_mps: expected finite values >= 0 m/s (NaN: unknown)")
+    p = _nan_or_positive(static_pressure_Pa, "static_pressure_Pa", "Pa", n)
+    TK = _nan_or_positive(temperature_K, "temperature_K", "K", n)
+    rh = (
+        np.full(n, np.nan)
+        if relative_humidity is None
+        else as_float_array(relative_humidity, "relative_humidity")
+    )
+    rh = np.array(np.broadcast_to(rh, (n,)), dtype=np.float64)
+    rho = (
+        np.full(n, np.nan)
+        if density_kgpm3 is None
+        else np.array(
+            np.broadcast_to(as_float_array(density_kgpm3, "density_kgpm3"), (n,)), dtype=np.float64
+        )
+    )
+    wind = np.ones(n, bool) if in_flow is None else np.asarray(in_flow, dtype=bool)
+    pT = np.isfinite(p) & np.isfinite(TK)
+    wet = pT & np.isfinite(rh)
+    source = np.full(n, DENSITY_SOURCES[2], dtype=object)
+    if pT.any():
+        rho[pT] = air_density(p[pT], TK[pT], np.where(wet, rh, 0.0)[pT])
+        source[wet], source[pT & ~wet] = DENSITY_SOURCES[0], DENSITY_SOURCES[1]
+    known = np.isfinite(v) & np.isfinite(rho) & (rho > 0) & np.isfinite(TK)
+    mu, re, mach, a, q = (np.full(n, np.nan) for _ in range(5))
+    if known.any():
+        mu[known] = sutherland_viscosity(TK[known])
+        re[known] = reynolds_number(rho[known], v[known], chord_m, mu[known])
+        a[known] = speed_of_sound(TK[known])
+        mach[known] = v[known] / a[known]
+    has_q = np.isfinite(v) & np.isfinite(rho) & (rho > 0)
+    if has_q.any():
+        q[has_q] = dynamic_pressure(rho[has_q], v[has_q])
+    dry = pT & ~wet
     rec = CorrectionRecord(
         name="flow_conditions",
-        source="Buck equation (1981/1996) vapour pressure; ideal-gas moist air; Sutherland's law (White); "
-        "q = rho V^2/2; Re on the reference chord; M = V/sqrt(1.4 R T)",
+        source="density: ideal-gas moist air at the point's mean p, T and relative humidity "
+        "(Buck vapour pressure), dry air where no humidity is given; Re = rho V c / mu with "
+        "Sutherland's law (White); M = V / sqrt(1.4 R T)",
         values={
             "chord_m": float(chord_m),
-            "q_Pa_max": float(np.max(q)) if q.size else 0.0,
-            "reynolds_max": float(np.max(re)) if re.size else 0.0,
-            "mach_max": float(np.max(mach)) if mach.size else 0.0,
+            "points_with_humidity": int((wind & wet).sum()),
+            "points_without_humidity": int((wind & dry).sum()),
+            "reynolds_max": float(np.nanmax(re)) if known.any() else None,
+            "mach_max": float(np.nanmax(mach)) if known.any() else None,
         },
-        flags=flags,
+        flags=tuple(
+            f
+            for f, m in (("humidity_not_given", wind & dry), ("no_temperature", wind & ~known))
+            if m.any()
+        ),
     )
     return FlowConditions(
         density_kgpm3=rho,
+        density_source=source.astype(str),
         viscosity_Pas=mu,
         q_Pa=q,
         reynolds=re,
         mach=mach,
         speed_of_sound_mps=a,
+        known=known,
+        dry=dry,
         record=rec,
     )

@@ -121,7 +121,7 @@ def structure_matrix(
 def structure_matrix_at(
     rig_anchors_O_m: ArrayLike, rig_attach_P_m: ArrayLike, pose: ArrayLike
 ) -> FloatArray:
-    """Structure matrix (..., 6, m) from poses (..., 6) = ``[x, y, z, alpha, beta, gamma]`` (m, rad)."""
+    """Structure matrix (..., 6, m) from poses (..., 6) = ``[x, y, z, roll, pitch, yaw]`` (m, rad)."""
     q = check_trailing(pose, "pose", (6,))
     return structure_matrix(
         rig_anchors_O_m, rig_attach_P_m, q[..., :3], rotation_from_euler(q[..., 3:])

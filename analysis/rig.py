@@ -28,6 +28,8 @@ Rig file layout (all SI)::
     diameter_m = 0.001                            # optional, default DEFAULT_CABLE_DIAMETER_M
     drag_coefficient = 1.1                        # optional, default: CD(Re) of a cylinder
     EA_N = 70000.0                                # optional, default DEFAULT_CABLE_EA_N
+    max_speed_mps = 0.5                           # optional: the winch's largest cable speed
+    max_accel_mps2 = 20.0                         # optional: and acceleration (none: unchecked)
 
     [assumptions]                                 # optional free text, kept with the rig
     layout = "..."
@@ -87,6 +89,9 @@ class Rig:
       the cylinder's CD(Re) of :func:`cdpr.analysis.windage.cylinder_drag_coefficient`.
     cable_EA_N: (m,) axial stiffness E*A, N (default :data:`DEFAULT_CABLE_EA_N`).
     platform_drag_area_m2: CD*A of the bare platform in the flow, m^2 (default 0: inside the model).
+    cable_max_speed_mps, cable_max_accel_mps2: (m,) the winches' largest cable speed (m/s) and
+      acceleration (m/s^2), ``inf`` where the rig file gives none (the motion planner then says
+      it could not check them).
     """
 
     name: str
@@ -108,6 +113,8 @@ class Rig:
     cable_drag_coefficient: Any = None
     cable_EA_N: Any = None
     platform_drag_area_m2: float = 0.0
+    cable_max_speed_mps: Any = None
+    cable_max_accel_mps2: Any = None
 
     def __post_init__(self) -> None:
         src = self.source
@@ -204,6 +211,19 @@ class Rig:
             object.__setattr__(
                 self, "cable_EA_N", per_cable("EA_N", self.cable_EA_N, DEFAULT_CABLE_EA_N)
             )
+            for key, attr in (
+                ("max_speed_mps", "cable_max_speed_mps"),
+                ("max_accel_mps2", "cable_max_accel_mps2"),
+            ):
+                v = np.broadcast_to(
+                    np.asarray(math.inf if getattr(self, attr) is None else getattr(self, attr),
+                               dtype=float), (m,))  # fmt: skip
+                bad_i = np.flatnonzero(~(v > 0) | np.isnan(v))
+                if bad_i.size:
+                    raise ConfigError(
+                        src, f"cables[{bad_i[0]}].{key}", f"must be > 0, got {v[bad_i[0]]}"
+                    )
+                object.__setattr__(self, attr, _frozen(v, (m,)))
         except (TypeError, ValueError) as exc:
             raise ConfigError(
                 src, "cables", f"bad diameter_m, drag_coefficient or EA_N: {exc}"
@@ -285,6 +305,10 @@ def rig_to_mapping(rig: Rig) -> dict[str, Any]:
             cab["drag_coefficient"] = float(rig.cable_drag_coefficient[i])
         if rig.cable_EA_N[i] != DEFAULT_CABLE_EA_N:
             cab["EA_N"] = float(rig.cable_EA_N[i])
+        if math.isfinite(rig.cable_max_speed_mps[i]):
+            cab["max_speed_mps"] = float(rig.cable_max_speed_mps[i])
+        if math.isfinite(rig.cable_max_accel_mps2[i]):
+            cab["max_accel_mps2"] = float(rig.cable_max_accel_mps2[i])
     if rig.platform_drag_area_m2 != 0.0:
         out["platform"]["windage_drag_area_m2"] = rig.platform_drag_area_m2
     if rig.description:

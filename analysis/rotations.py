@@ -1,8 +1,8 @@
 """Rotations: Z-Y-X Euler angles, rotation matrices, quaternions and the Euler-rate matrix H.
 
-All functions are batched over leading ``...`` dimensions.  Euler angles ``psi = (alpha, beta, gamma)``
-in rad: alpha roll about x, beta pitch about y, gamma yaw about z, ``R_O_P = Rz(gamma) Ry(beta)
-Rx(alpha)`` maps {P} components to {O} components.  Quaternions are ``[w, x, y, z]``.
+All functions are batched over leading ``...`` dimensions.  Euler angles ``psi = (roll, pitch, yaw)``
+in rad: roll about x, pitch about y, yaw about z, ``R_O_P = Rz(yaw) Ry(pitch) Rx(roll)`` maps {P}
+components to {O} components (the paper's alpha, beta, gamma).  Quaternions are ``[w, x, y, z]``.
 """
 
 from __future__ import annotations
@@ -36,18 +36,18 @@ def rotation_from_euler(psi_rad: ArrayLike) -> FloatArray:
 def euler_from_rotation(R_O_P: ArrayLike) -> FloatArray:
     """Z-Y-X Euler angles (..., 3) in rad from rotation matrices (..., 3, 3).
 
-    beta is in [-pi/2, pi/2]; at gimbal lock (|beta| = pi/2) alpha is set to 0.
+    pitch is in [-pi/2, pi/2]; at gimbal lock (|pitch| = pi/2) roll is set to 0.
     """
     R = check_trailing(R_O_P, "R_O_P", (3, 3))
-    beta = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
+    pitch = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
     lock = np.hypot(R[..., 0, 0], R[..., 1, 0]) < 1e-12
-    alpha = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
-    gamma = np.where(
+    roll = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    yaw = np.where(
         lock,
         np.arctan2(-R[..., 0, 1], R[..., 1, 1]),
         np.arctan2(R[..., 1, 0], R[..., 0, 0]),
     )
-    return np.stack([alpha, beta, gamma], axis=-1)
+    return np.stack([roll, pitch, yaw], axis=-1)
 
 
 def quaternion_from_rotation(R_O_P: ArrayLike) -> FloatArray:
@@ -112,7 +112,8 @@ def euler_from_quaternion(q_wxyz: ArrayLike) -> FloatArray:
 def euler_rate_matrix(psi_rad: ArrayLike) -> FloatArray:
     """The paper's H (..., 3, 3): angular velocity in {O} ``omega = H @ psi_dot``.
 
-    ``H = [[cb cg, -sg, 0], [cb sg, cg, 0], [-sb, 0, 1]]`` for ``psi = (alpha, beta, gamma)``.
+    ``H = [[cb cg, -sg, 0], [cb sg, cg, 0], [-sb, 0, 1]]`` for ``psi = (roll, pitch, yaw)``, with
+    ``b`` the pitch and ``g`` the yaw.
     """
     psi = check_trailing(psi_rad, "psi_rad", (3,))
     cb, cg = np.cos(psi[..., 1]), np.cos(psi[..., 2])
@@ -125,6 +126,33 @@ def euler_rate_matrix(psi_rad: ArrayLike) -> FloatArray:
     H[..., 2, 0] = -sb
     H[..., 2, 2] = 1.0
     return H
+
+
+def angular_rates(
+    psi_rad: ArrayLike, psi_dot: ArrayLike, psi_ddot: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Angular velocity and acceleration in {O}, ``(omega, omega_dot)`` each (..., 3), from Z-Y-X
+    Euler angles (..., 3) and their first and second time derivatives (rad/s, rad/s^2).
+
+    ``omega = H psi_dot`` and ``omega_dot = H psi_ddot + H_dot psi_dot``, with ``H_dot`` by the
+    chain rule on ``H(pitch, yaw)`` (:func:`euler_rate_matrix`).
+    """
+    psi = check_trailing(psi_rad, "psi_rad", (3,))
+    psid = check_trailing(psi_dot, "psi_dot", (3,))
+    psidd = check_trailing(psi_ddot, "psi_ddot", (3,))
+    H = euler_rate_matrix(psi)
+    b, g = psi[..., 1], psi[..., 2]
+    bd, gd = psid[..., 1], psid[..., 2]
+    sb, cb, sg, cg = np.sin(b), np.cos(b), np.sin(g), np.cos(g)
+    Hd = np.zeros(np.broadcast_shapes(psi.shape, psid.shape)[:-1] + (3, 3))
+    Hd[..., 0, 0] = -sb * bd * cg - cb * sg * gd
+    Hd[..., 0, 1] = -cg * gd
+    Hd[..., 1, 0] = -sb * bd * sg + cb * cg * gd
+    Hd[..., 1, 1] = -sg * gd
+    Hd[..., 2, 0] = -cb * bd
+    omega = np.einsum("...ij,...j->...i", H, psid)
+    omega_dot = np.einsum("...ij,...j->...i", H, psidd) + np.einsum("...ij,...j->...i", Hd, psid)
+    return omega, omega_dot
 
 
 def skew(v: ArrayLike) -> FloatArray:

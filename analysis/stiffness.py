@@ -25,6 +25,7 @@ file gives it, so the platform and model are both in it).  Modes: ``K phi = omeg
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
 from .conventions import GRAVITY_O_MPS2
-from .errors import InputError
+from .errors import CdprError, InputError
 from .records import CorrectionRecord
 from .rig import Rig
 from .rotations import skew
@@ -280,16 +281,134 @@ def rig_modes(
     if not bool(np.all(res.feasible)):
         raise InfeasibleError(f"{rig.name}: no feasible tensions at the pose ({method})")
     T = np.asarray(res.tensions_N, dtype=np.float64)
+    st, modes = modes_at(rig, p, R, T)
+    return RigModes(tensions_N=T, stiffness=st, modes=modes, method=method)
+
+
+def modes_at(
+    rig: Rig, position_O_m: ArrayLike, R_O_P: ArrayLike, tensions_N: ArrayLike
+) -> tuple[Stiffness, Modes]:
+    """The rig's stiffness and natural modes at a batch of poses (position (..., 3), R_O_P
+    (..., 3, 3)) under given tensions (..., m): EA, mass, centre of mass and inertia from the rig,
+    gravity's term included (as :func:`rig_modes`, for tensions other than gravity's alone, e.g.
+    those that carry a motion)."""
+    R = check_trailing(R_O_P, "R_O_P", (3, 3))
     st = stiffness_matrix(
         rig.anchors_O_m,
         rig.attach_P_m,
-        p,
+        position_O_m,
         R,
-        T,
+        tensions_N,
         rig.cable_EA_N,
         rig.mass_kg,
         rig.com_P_m,
         rig.gravity_O_mps2,
     )
     M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R)
-    return RigModes(tensions_N=T, stiffness=st, modes=natural_modes(st.K, M), method=method)
+    return st, natural_modes(st.K, M)
+
+
+def dominant_coordinates(shapes: ArrayLike, M: ArrayLike) -> FloatArray:
+    """Each mode's share of kinetic energy per coordinate (..., 6 coordinates, 6 modes): the
+    columns of ``|phi * (M phi)|`` normalised to sum 1 (coordinates ``[x, y, z, roll, pitch,
+    yaw]`` as small displacements and rotations in {O})."""
+    phi = check_trailing(shapes, "shapes", (6, 6))
+    Mm = check_trailing(M, "M", (6, 6))
+    e = np.abs(phi * (Mm @ phi))
+    return np.asarray(e / np.maximum(e.sum(axis=-2, keepdims=True), 1e-300))
+
+
+@dataclass(frozen=True)
+class HarmonicCheck:
+    """The harmonics ``h f`` (h = 1..n) of a motion against modes: harmonic_Hz (n,), mode (n,) the
+    index of the nearest mode, distance_rel (n,) the distance from ``h f`` to that mode's band
+    ``[lo, hi]`` relative to the band's edge (0 inside it), near (n,) ``distance_rel <=
+    band_rel``."""
+
+    harmonic_Hz: FloatArray
+    mode: NDArray[np.intp]
+    distance_rel: FloatArray
+    near: NDArray[np.bool_]
+
+
+def harmonic_check(
+    frequency_Hz: float,
+    modes_lo_Hz: ArrayLike,
+    modes_hi_Hz: ArrayLike,
+    n_harmonics: int = 3,
+    band_rel: float = 0.1,
+) -> HarmonicCheck:
+    """The first ``n_harmonics`` multiples of ``frequency_Hz`` against modes whose frequency
+    ranges over ``[modes_lo_Hz, modes_hi_Hz]`` (k,) (e.g. over a cycle of the motion): a harmonic
+    is near a mode when it lies within ``band_rel`` (relative) of that range."""
+    if not (np.isfinite(frequency_Hz) and frequency_Hz > 0):
+        raise InputError(f"frequency_Hz: expected > 0, got {frequency_Hz}")
+    if n_harmonics < 1:
+        raise InputError(f"n_harmonics: expected >= 1, got {n_harmonics}")
+    lo = as_float_array(modes_lo_Hz, "modes_lo_Hz").reshape(-1)
+    hi = as_float_array(modes_hi_Hz, "modes_hi_Hz").reshape(-1)
+    if lo.shape != hi.shape or lo.size == 0 or np.any(~np.isfinite(lo) | ~np.isfinite(hi)):
+        raise InputError("modes_lo_Hz, modes_hi_Hz: expected finite ranges of the same length")
+    h = float(frequency_Hz) * np.arange(1, n_harmonics + 1, dtype=np.float64)
+    below = (lo[None, :] - h[:, None]) / lo[None, :]
+    above = (h[:, None] - hi[None, :]) / hi[None, :]
+    d = np.maximum(np.maximum(below, above), 0.0)  # (n, k)
+    j = np.argmin(d, axis=1)
+    dist = d[np.arange(h.size), j]
+    return HarmonicCheck(h, j, dist, dist <= band_rel)
+
+
+@dataclass(frozen=True)
+class PointSpectra:
+    """The spectrum check of every point (computed from the samples, which the core does not
+    hold): ``modes_Hz`` (s, 6) the rig's natural frequencies at each point's pose (NaN: none),
+    ``too_few_periods`` and ``peak_near_mode`` (s,), ``peak_Hz`` (s, m), and the spectra of each
+    point for the report's plot (``freqs_Hz`` (s) arrays, ``psd`` (s) (m, nf) arrays)."""
+
+    modes_Hz: NDArray[np.float64]
+    too_few_periods: NDArray[np.bool_]
+    peak_near_mode: NDArray[np.bool_]
+    peak_Hz: NDArray[np.float64]
+    freqs_Hz: list[NDArray[np.float64]]
+    psd: list[NDArray[np.float64]]
+
+
+def point_spectra(
+    rig: Rig,
+    t_ns: NDArray[np.int64],
+    tensions_N: NDArray[np.float64],
+    ranges: Sequence[tuple[int, int]],
+    poses: NDArray[np.float64],
+) -> PointSpectra:
+    """:func:`spectrum_check` of each point's tension window against the
+    rig's modes at the point's mean pose (:func:`rig_modes`).  A window
+    with fewer than 8 finite samples, or a pose where no tension distribution exists, gets NaN."""
+    s, m = len(ranges), tensions_N.shape[1]
+    # the mean sample rate over the run: reception times come in bursts (a loaded host, a pty), so
+    # the median interval can be near zero while the samples are evenly spaced at the source
+    span_ns = float(t_ns[-1] - t_ns[0]) if len(t_ns) > 1 else 0.0
+    fs = (len(t_ns) - 1) * 1e9 / span_ns if span_ns > 0 else float("nan")
+    modes = np.full((s, 6), np.nan)
+    few = np.zeros(s, bool)
+    near = np.zeros(s, bool)
+    peak = np.full((s, m), np.nan)
+    freqs: list[NDArray[np.float64]] = []
+    psd: list[NDArray[np.float64]] = []
+    for i, (a, b) in enumerate(ranges):  # one Welch estimate per point (vectorised inside)
+        freqs.append(np.zeros(0))
+        psd.append(np.zeros((m, 0)))
+        x = tensions_N[a:b]
+        x = x[np.isfinite(x).all(axis=1)]
+        if x.shape[0] < 8 or not np.isfinite(poses[i]).all() or not np.isfinite(fs):
+            continue
+        try:
+            f = rig_modes(rig, poses[i, :3], poses[i, 3:]).modes.frequencies_Hz
+        except CdprError:
+            continue
+        modes[i] = f
+        if not np.isfinite(f).any():
+            continue
+        sc = spectrum_check(x, fs, f)
+        few[i], near[i], peak[i] = sc.too_few_periods, bool(sc.peak_near_mode.any()), sc.peak_Hz
+        freqs[i], psd[i] = sc.freqs_Hz, sc.psd
+    return PointSpectra(modes, few, near, peak, freqs, psd)

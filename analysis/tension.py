@@ -30,9 +30,12 @@ Objectives (named, because they differ):
 
 Rank-deficient (or numerically singular, see :data:`RANK_TOL`) structure matrices do not raise:
 the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``, by every method,
-with a per-pose test (the same verdict alone and in any batch).  ``exact`` solves the poses close
-to that limit from the SVD of ``A'`` (:data:`SVD_BELOW`), so its answers stay within 1e-6 N of the
-optimum down to it.
+with a per-pose test (the same verdict alone and in any batch) relative to the problem's scale
+(:func:`rank_floor`: where no double-precision answer is determined to :data:`ACCURACY_N` by the
+data).  ``exact`` applies it to the structure matrix of the cables not at a limit at its answer
+too, and solves the poses close to the floor from the SVD of ``A'`` (:data:`SVD_BELOW`), so its
+answers stay within 1e-6 N of the optimum (and of quadprog) down to it; the closed forms use the
+SVD there too, and ``penalty`` flags where its weight cannot hold the equations.
 """
 
 from __future__ import annotations
@@ -99,23 +102,55 @@ FEASIBILITY_TOL_N = 1e-6
 CHUNK = 5000
 """Poses per chunk: bounds the working memory (well under 1 KiB per pose) and keeps it in cache."""
 
-RANK_TOL = 1e-5
-"""The rank test, the same for every method and every batch: a pose is flagged
-``STATUS_RANK_DEFICIENT`` when the smallest singular value of ``A'`` (A with unit-norm rows) is
-below this (``cond(A') > ~1e5``).  Decided per pose: a cheap determinant bound clears the well
-conditioned poses, the others get their singular values (LAPACK SVD), so the verdict never depends
-on the other poses of the batch.  Above it ``exact`` is within 1e-6 N of the optimum (measured in
-docs/tension.md: 2e-7 N at sigma_min 1.3e-5); at 1e-6 the error would reach ~4e-6 N."""
+ACCURACY_N = 1e-6
+"""What ``exact`` promises (N): its tensions are within this of the exact optimum of the problem as
+given, or the pose is flagged ``STATUS_RANK_DEFICIENT`` (see :data:`RANK_TOL`)."""
 
-PIVOT_TOL = RANK_TOL**2
-"""``RANK_TOL**2``: the scale of the smallest eigenvalue of ``A' A'^T`` (``A'``: A with unit-norm
-rows, so the diagonal is 1) below which a pose is rank deficient."""
+ACCURACY_REL = 1e-10
+"""Beyond a scale of ``ACCURACY_N / ACCURACY_REL`` = 1e4 N (``scale_N``, :func:`rank_floor`) the
+promise is relative: within ``ACCURACY_REL scale_N`` (1e-6 N of 1e4 N is all double precision
+gives; an upper limit of 1e9 N standing for "none" must not flag every pose)."""
+
+_EPS = float(np.finfo(np.float64).eps)
+
+RANK_TOL = 2.0 * _EPS / ACCURACY_N
+"""The rank test, relative to the problem's scale (per N, 4.4e-10): a pose is flagged
+``STATUS_RANK_DEFICIENT`` when ``sigma_min(A') < RANK_TOL * scale_N`` (:func:`rank_floor`), with
+``A'`` = A with unit-norm rows and ``scale_N = sqrt(m) max_j max(|t_min_j|, |t_max_j|, |t_ref_j|)``,
+which bounds both ``|T|_2`` and ``|T_ref|_2``.  ``exact`` also flags an answer whose *reduced*
+matrix fails the same test: ``sigma_F``, the smallest singular value of ``A'`` restricted to the
+cables not at a limit (the columns at a limit taken out), in place of ``sigma_min(A')``.
+
+Why: an answer computed in double precision -- ``exact``'s, or quadprog's -- is the exact optimum of
+data perturbed by a few eps, which moves the optimum by up to ``kappa eps scale_N / sigma_F``
+(first order: the cables not at a limit solve ``A'_F T_F = w' - A'_S T_S``).  Measured against the
+exact rational optimum of the stored data on 1690 near-singular problems (docs/tension.md):
+``kappa <= 0.31`` for ``exact`` and <= 7 for quadprog given orthonormal equations, while
+``sigma_min(A')`` in place of ``sigma_F`` gives ``kappa`` up to 3e5 (a vertex of two nearly
+parallel limits is ill-conditioned in a well-conditioned pose).  At ``sigma_F >= RANK_TOL scale_N``
+the bound ``eps scale_N / sigma_F`` is at most ``ACCURACY_N / 2``: ``exact`` was within 1e-7 N of
+the optimum and 1e-6 N of quadprog there.  Below it quadprog is off by up to 2.7e-6 N (0.1 .. 1 x
+the floor) and calls feasible problems infeasible (below 0.1 x).  The floor is 3.8e-7 for the flat
+rig (limits up to 300 N), 1.3e-6 for the cubic rig (1000 N); :data:`ACCURACY_REL` caps it.
+
+Decided per pose from the pose's own data, so the verdict never depends on the other poses of the
+batch: a lower bound clears the well-conditioned poses (``sigma_min(A')`` from the Cholesky factor of
+``A' A'^T``, ``sigma_F`` from it and the null-space rows of the cables at a limit, see
+:func:`_free_sigma_low`), the others get their singular values (LAPACK SVD)."""
+
+PIVOT_TOL = 1e-20
+"""Floor of the Cholesky pivots of ``A' A'^T`` (diagonal 1): keeps a rank-deficient pose finite.  A
+pose with a floored pivot never passes the Cholesky bound (:data:`_TRUST_BELOW`); the SVD decides."""
 
 SVD_BELOW = 1e-3
-"""``exact``: poses whose ``sigma_min(A')`` is not certified above this are solved from the SVD of
-``A'`` (error ~ eps |T| / sigma_min) instead of the normal equations (error ~ eps |T| / sigma_min^2),
-which keeps the answer within 1e-6 N of the optimum down to :data:`RANK_TOL`."""
+"""``exact``: poses whose ``sigma_min(A')`` -- or, at a limit, ``sigma_F`` -- is not certified
+above this are solved from the SVD of ``A'`` (error ~ eps |T| / sigma_min) instead of the normal
+equations (error ~ eps |T| / sigma_min^2, and ~ eps |T| / (sigma_min sigma_F) at a vertex),
+which keeps the answer within ``ACCURACY_N / 4`` down to the rank floor."""
 
+_FLOOR_CAP = 2.0 * _EPS / ACCURACY_REL  # the largest rank floor (scales above 1e4 N), 4.4e-6
+_TRUST_BELOW = 1e-6  # lower bounds of sigma below this are not trusted to clear a pose: SVD
+_FAST_MARGIN = 1e4  # exact's fast path keeps a pose only with sigma_F certified >= this x floor
 _REL_TOL = 1e-12  # exact: constraints relaxed by this times (1 + max t_max) when intersected
 _NULL_TOL = 1e-20  # |null-space row|^2 below which a cable does not move in the null space
 _TINY = 1e-280  # replaces 0 as a divisor: turns "parallel" constraints into +-huge bounds
@@ -182,7 +217,7 @@ def _lead_shape(*named: tuple[str, tuple[int, ...]]) -> tuple[int, ...]:
 
 def sigma_min_unit_rows(A: ArrayLike) -> FloatArray:
     """Smallest singular value of A (..., n, m) with its rows scaled to unit norm (zero rows
-    stay zero), the quantity the rank test compares with :data:`RANK_TOL`."""
+    stay zero), the quantity the rank test compares with :func:`rank_floor`."""
     A = np.asarray(A, dtype=np.float64)
     rn = np.linalg.norm(A, axis=-1, keepdims=True)
     As = np.divide(A, rn, out=np.zeros_like(A), where=rn > 0)
@@ -191,14 +226,79 @@ def sigma_min_unit_rows(A: ArrayLike) -> FloatArray:
     return np.linalg.svd(As, compute_uv=False)[..., -1]
 
 
-def _rank_ok(As: FloatArray, floor: FloatArray) -> BoolArray:
-    """Per pose: sigma_min(As) >= RANK_TOL for As (n, m, C) (unit rows); the SVD runs only for the
-    poses whose lower bound ``floor`` (C,) of sigma_min does not already clear the test."""
-    ok = floor >= 4.0 * RANK_TOL
+def rank_floor(
+    t_min_N: ArrayLike, t_max_N: ArrayLike, t_ref_N: ArrayLike | None = None
+) -> FloatArray:
+    """The rank test's floor (...,) for limits (and reference) (..., m): a pose whose
+    ``sigma_min_unit_rows(A)`` is below it is flagged ``STATUS_RANK_DEFICIENT`` by every method.
+
+    ``eps scale_N / max(ACCURACY_N, ACCURACY_REL scale_N)``, ``scale_N = sqrt(m) max_j
+    max(|t_min_j|, |t_max_j|, |t_ref_j|)``: ``RANK_TOL scale_N`` up to a scale of 1e4 N, then
+    ``eps / ACCURACY_REL`` (see :data:`RANK_TOL`)."""
+    lo = np.asarray(t_min_N, dtype=np.float64)
+    hi = np.asarray(t_max_N, dtype=np.float64)
+    big = np.maximum(np.abs(lo), np.abs(hi))
+    if t_ref_N is not None:
+        big = np.maximum(big, np.abs(np.asarray(t_ref_N, dtype=np.float64)))
+    return _floor_of_scale(np.sqrt(big.shape[-1]) * big.max(axis=-1))
+
+
+def _floor_soa(lo: FloatArray, hi: FloatArray, ref: FloatArray | None = None) -> FloatArray:
+    """:func:`rank_floor` (C,) of struct-of-arrays limits (m, C)."""
+    big = np.maximum(np.abs(lo), np.abs(hi))
+    if ref is not None:
+        big = np.maximum(big, np.abs(ref))
+    return _floor_of_scale(np.sqrt(big.shape[0]) * big.max(axis=0))
+
+
+def _floor_of_scale(scale_N: FloatArray) -> FloatArray:
+    out: FloatArray = np.minimum(RANK_TOL * scale_N, _FLOOR_CAP)
+    return out
+
+
+class _RankFloor:
+    """The rank floor of a chunk's poses (struct-of-arrays limits (m, C) or (m, 1), optional
+    reference), computed only for the poses that ask: a pose whose lower bound of sigma clears
+    the largest floor there can be, ``max(_FLOOR_CAP, at_least)``, never needs its own."""
+
+    def __init__(
+        self,
+        lo: FloatArray,
+        hi: FloatArray,
+        ref: FloatArray | None = None,
+        at_least: float = 0.0,
+        idx: NDArray[np.intp] | None = None,
+    ) -> None:
+        self.lo, self.hi, self.ref, self.at_least, self.idx = lo, hi, ref, at_least, idx
+        self.cap = max(_FLOOR_CAP, at_least)
+
+    def at(self, k: NDArray[np.intp]) -> FloatArray:
+        """The floor (K,) of the poses k."""
+        j = k if self.idx is None else self.idx[k]
+        ref = None if self.ref is None else _take_cols(self.ref, j)
+        fl = _floor_soa(_take_cols(self.lo, j), _take_cols(self.hi, j), ref)
+        return np.maximum(np.broadcast_to(fl, j.shape), self.at_least)
+
+    def sub(self, k: NDArray[np.intp]) -> _RankFloor:
+        """The floors of the poses k, as their own chunk."""
+        j = k if self.idx is None else self.idx[k]
+        return _RankFloor(self.lo, self.hi, self.ref, self.at_least, j)
+
+
+def _rank_ok(As: FloatArray, bound: FloatArray, floors: _RankFloor) -> BoolArray:
+    """Per pose: sigma_min(As) >= its rank floor, for As (n, m, C) (unit rows).  ``bound`` (C,) is
+    a lower bound of sigma_min; the floor is computed only where it does not clear the largest
+    floor, and the SVD runs only where it does not clear the pose's own."""
+    ok = bound >= max(4.0 * floors.cap, _TRUST_BELOW)
     unsure = np.flatnonzero(~ok)
     if unsure.size:
-        sv = np.linalg.svd(np.moveaxis(_take(As, unsure), -1, 0), compute_uv=False)
-        ok[unsure] = sv[:, -1] >= RANK_TOL
+        fl = floors.at(unsure)
+        ok[unsure] = bound[unsure] >= np.maximum(4.0 * fl, _TRUST_BELOW)
+        left = ~ok[unsure]
+        if left.any():
+            k = unsure[left]
+            sv = np.linalg.svd(np.moveaxis(_take(As, k), -1, 0), compute_uv=False)
+            ok[k] = sv[:, -1] >= fl[left]
     return ok
 
 
@@ -265,7 +365,7 @@ class _Factor:
     over the n rows only; each step is one numpy call over the whole chunk.
     """
 
-    def __init__(self, At: FloatArray) -> None:
+    def __init__(self, At: FloatArray, floors: _RankFloor) -> None:
         n, _, C = At.shape
         rn = np.sqrt(np.einsum("imc,imc->ic", At, At))
         self.rs = np.divide(1.0, rn, out=np.zeros_like(rn), where=rn > 0)
@@ -290,14 +390,15 @@ class _Factor:
         # a lower bound within sqrt(n) of sigma_min, from one triangular solve
         Linv = self.forward(np.broadcast_to(np.eye(n)[:, :, None], (n, n, C)))
         self.floor = 1.0 / np.sqrt(np.einsum("ijc,ijc->c", Linv, Linv))
-        self.ok = _rank_ok(self.As, self.floor)
+        self.floors = floors
+        self.ok = _rank_ok(self.As, self.floor, floors)
 
     def subset(self, idx: NDArray[np.intp]) -> _Factor:
         """The factor of the poses ``idx`` of the chunk."""
         sub = object.__new__(_Factor)
         sub.rs, sub.As, sub.n = _take(self.rs, idx), _take(self.As, idx), self.n
         sub.L, sub.inv_diag = _take(self.L, idx), _take(self.inv_diag, idx)
-        sub.ok, sub.floor = self.ok[idx], self.floor[idx]
+        sub.ok, sub.floor, sub.floors = self.ok[idx], self.floor[idx], self.floors.sub(idx)
         return sub
 
     def forward(self, r: FloatArray) -> FloatArray:
@@ -322,6 +423,16 @@ class _Factor:
         """``A^+ r`` (m, C) for r (n, C) in the units of the unscaled rows."""
         y = self.backward(self.forward(r * self.rs))
         return np.einsum("imc,ic->mc", self.As, y)
+
+    def closest(self, At: FloatArray, w: FloatArray, ref: FloatArray) -> FloatArray:
+        """``T_p = ref + A^+ (w - A ref)`` (m, C): from the normal equations, or from the SVD of
+        ``A'`` for the poses whose sigma_min is not certified above :data:`SVD_BELOW`."""
+        Tp = ref + self.pinv(w - _apply(At, np.broadcast_to(ref, At.shape[1:])))
+        weak = np.flatnonzero(self.ok & (self.floor < SVD_BELOW))
+        if weak.size:
+            ref_k = _take(np.broadcast_to(ref, Tp.shape), weak)
+            Tp[:, weak] = _svd_solve(self, weak, _take(w, weak), _take(At, weak), ref_k)[0]
+        return Tp
 
     def orthonormal_rows(self) -> FloatArray:
         """``B = L^-1 A'`` (n, m, C): orthonormal rows spanning the row space of A."""
@@ -411,9 +522,8 @@ class _Chunked:
 def _closed_form_kernel(
     At: FloatArray, w: FloatArray, lo: FloatArray, hi: FloatArray
 ) -> tuple[FloatArray, IntArray]:
-    f = _Factor(At)
-    mid = 0.5 * (lo + hi)
-    T = mid + f.pinv(w - _apply(At, np.broadcast_to(mid, At.shape[1:])))
+    f = _Factor(At, _RankFloor(lo, hi))
+    T = f.closest(At, w, 0.5 * (lo + hi))
     status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
     return T, status
 
@@ -424,7 +534,9 @@ def closed_form(
     """Pott's closed form: ``T = T_mid + A^+ (w - A T_mid)``, ``T_mid = (t_min + t_max)/2``.
 
     The minimiser of ``|T - T_mid|_2`` subject to ``A T = w`` only; feasible when it respects limits.
-    A: (..., n, m); w: (..., n) (N, N m); t_min_N, t_max_N: (..., m) or (m,) (N).
+    From the normal equations, or from the SVD of ``A'`` where ``sigma_min(A')`` is not certified
+    above :data:`SVD_BELOW` (the normal equations' error ~ eps |T| / sigma^2 would be 2e-2 N at
+    sigma 1e-6).  A: (..., n, m); w: (..., n) (N, N m); t_min_N, t_max_N: (..., m) or (m,) (N).
     """
     A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
     return _Chunked(A_, w_, lo, hi).run(
@@ -449,6 +561,7 @@ def _improved_kernel(
     T_fix = np.zeros((m, C))
     idx = np.arange(C)
     tol = 1e-9 * (1.0 + np.abs(hi).max(axis=0))
+    floors = _RankFloor(lo, hi)
     for _ in range(m - n + 1):
         A_k = _take(At, idx)
         fr = _take(free, idx)
@@ -456,9 +569,8 @@ def _improved_kernel(
         Tf = _take(T_fix, idx)
         mid_k, lo_k, hi_k = _take(mid, idx), _take(lo, idx), _take(hi, idx)
         Af = A_k * frf
-        f = _Factor(Af)
-        r = _take(w, idx) - _apply(A_k, Tf) - _apply(Af, mid_k)
-        T = np.where(fr, mid_k + f.pinv(r), Tf)
+        f = _Factor(Af, floors.sub(idx))
+        T = np.where(fr, f.closest(Af, _take(w, idx) - _apply(A_k, Tf), mid_k), Tf)
         T_out[:, idx] = T
         v_lo = lo_k - T
         v_hi = T - hi_k
@@ -491,7 +603,8 @@ def improved_closed_form(
     Closed form; while a free cable violates its limits: clamp the worst violator (largest
     violation in N) at the limit it violates, move its force to the wrench, re-solve the closed form
     for the free cables.  ``status``: OK, GAVE_UP (fewer than n free cables would remain) or
-    RANK_DEFICIENT (the reduced structure matrix lost rank).
+    RANK_DEFICIENT (the reduced structure matrix is below :func:`rank_floor`).  Each closed form
+    is solved from the SVD where its matrix is ill-conditioned, as in :func:`closed_form`.
     """
     A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
     return _Chunked(A_, w_, lo, hi).run(
@@ -538,10 +651,12 @@ def _polygon(
     origin is assumed infeasible.  By the KKT conditions (``lam* = -sum mu_k g_k`` with
     ``|lam*|^2 = -sum mu_k h_k > 0`` for constraints ``g_k . lam <= h_k``) the optimum lies on the
     line of a constraint the origin violates; on each such line the foot of the origin is clipped
-    into the line's feasible interval (the line intersected with the other 2m - 1 half-planes), and
-    the candidate of least norm wins.  Poses are bucketed by their number of violated constraints,
-    so most poses check one or two lines.  Returns lam1, lam2 (K,) and found (K,) (False: the
-    polygon is empty).
+    into the line's feasible interval (the line intersected with the other 2m - 1 half-planes; the
+    limits' own interval where it is not empty, else the relaxed one).  The candidate that
+    satisfies the KKT conditions wins, lines that meet the unrelaxed polygon first; the least norm
+    decides only among those (see :func:`_polygon_lines` for why it cannot decide alone).  Poses
+    are bucketed by their number of violated constraints, so most poses check one or two lines.
+    Returns lam1, lam2 (K,) and found (K,) (False: the polygon is empty).
     """
     m, K = n1.shape
     q = n1 * n1 + n2 * n2  # |n_i|^2, (m, K)
@@ -559,7 +674,7 @@ def _polygon(
             sel = np.flatnonzero((cnt > prev) & (cnt <= kb))
             prev = kb
             if sel.size:
-                _polygon_lines(n1, n2, lo_, hi_, q, V, lower, width, kb, sel, out)
+                _polygon_lines(n1, n2, lo_, hi_, q, V, lower, width, tol, kb, sel, out)
     return out
 
 
@@ -572,6 +687,7 @@ def _polygon_lines(
     V: BoolArray,
     lower: FloatArray,
     width: FloatArray,
+    tol: FloatArray,
     kb: int,
     sel: NDArray[np.intp],
     out: tuple[FloatArray, FloatArray, BoolArray],
@@ -599,8 +715,9 @@ def _polygon_lines(
     qi = np.where(valid, qi, 1.0)
     t = c / qi  # foot of the origin on the line is t n_i; points t n_i + s (-n2_i, n1_i)
     # constraint l along line i: lower_l <= n_l . (t n_i) + s (n_i x n_l) <= lower_l + width_l
-    a = _take(lower, sel)[None] - (t * n1i)[:, None] * n1s[None]  # (kb, m, Ks)
-    a -= (t * n2i)[:, None] * n2s[None]
+    dot = n1i[:, None] * n1s[None]  # n_l . n_i, (kb, m, Ks)
+    dot += n2i[:, None] * n2s[None]
+    a = _take(lower, sel)[None] - t[:, None] * dot
     e = n1i[:, None] * n2s[None]
     e -= n2i[:, None] * n1s[None]
     b = a + _take(width, sel)[None]
@@ -608,12 +725,48 @@ def _polygon_lines(
     # (a < 0 < b), an empty interval if not, NaN (ignored by fmin/fmax) if it holds with equality.
     a /= e
     b /= e
-    slo = np.fmax.reduce(np.fmin(a, b), axis=1)  # (kb, Ks)
-    shi = np.fmin.reduce(np.fmax(a, b, out=b), axis=1)
+    lo_s = np.fmin(a, b)
+    hi_s = np.fmax(a, b, out=b)
+    slo = np.fmax.reduce(lo_s, axis=1)  # (kb, Ks)
+    shi = np.fmin.reduce(hi_s, axis=1)
+    ok = valid & (slo <= shi)
+    # the relaxed interval decides whether the line meets the polygon; the point is clipped into
+    # the interval of the limits themselves where that is not empty (the relaxation would move a
+    # vertex by tol / sin(angle), 2e-7 N where narrow ranges cross at a shallow angle)
+    tol_e = _take(tol, sel) / np.abs(e)
+    lo_0 = lo_s + tol_e
+    hi_0 = hi_s - tol_e
+    slo0 = np.fmax.reduce(lo_0, axis=1)
+    shi0 = np.fmin.reduce(hi_0, axis=1)
+    unrelaxed: BoolArray = np.less_equal(slo0, shi0)
+    slo = _select(unrelaxed, slo0, slo)
+    shi = _select(unrelaxed, shi0, shi)
+    lo_s = _select(unrelaxed[:, None], lo_0, lo_s)
+    hi_s = _select(unrelaxed[:, None], hi_0, hi_s)
     s = np.minimum(np.maximum(0.0, slo), shi)
-    ok = valid & (slo <= shi) & (np.abs(s) < _BIG)
+    ok &= np.abs(s) < _BIG
     norm2 = np.where(ok, (c * c + s * s * qi * qi) / qi, np.inf)  # |t n_i|^2 + s^2 |n_i|^2
-    best = np.argmin(norm2, axis=0)
+    # The least norm alone is not a safe choice: a candidate on line j clipped by a constraint
+    # relaxed by tol can beat the optimum by ~|lam| tol in norm^2 (or by the rounding of norm^2,
+    # ~eps |lam|^2), and since |x|^2 >= |x*|^2 + |x - x*|^2 on the polygon, the wrong point can be
+    # ~sqrt(|lam| tol) away -- 1e-5 N when a range narrower than that puts two candidates close.
+    # So the candidate that satisfies the KKT conditions wins: the foot itself (s = 0: the
+    # polygon lies in the line's half-plane, whose closest point it is), or a vertex with the one
+    # cable l bounding the interval where the multiplier of line i, sigma_i (t - s rho_l),
+    # rho_l = (n_l . n_i) / (n_l x n_i), is >= 0 (as in :func:`_polygon_one_line`).  The least
+    # norm decides only among certified candidates, or when none is (ties of two bounds).
+    at_hi = np.less(s, 0.0)[:, None]
+    bound = np.where(at_hi, hi_s == shi[:, None], lo_s == slo[:, None])
+    one = bound.sum(axis=1) == 1
+    rho_b = np.where(bound, dot / e, -np.inf).max(axis=1)
+    mu = np.where(lines < m, 1.0, -1.0) * (t - s * rho_b)
+    cert = ok & ((s == 0.0) | (one & (mu >= 0.0)))
+    # lines that meet the polygon of the limits themselves come first: where it is not empty, the
+    # optimum is on one of them, and a vertex of the relaxed polygon can be far from it
+    if_exact = ok & unrelaxed
+    first = np.where(if_exact.any(axis=0), if_exact, ok)
+    pick = np.where((cert & first).any(axis=0), cert & first, first)
+    best = np.argmin(np.where(pick, norm2, np.inf), axis=0)
     ab = np.arange(Ks)
     f = np.isfinite(norm2[best, ab])
     tb, sb = t[best, ab], np.where(f, s[best, ab], 0.0)
@@ -622,6 +775,12 @@ def _polygon_lines(
     lam1[sel] = tb * n1b - sb * n2b
     lam2[sel] = tb * n2b + sb * n1b
     found[sel] = f
+
+
+def _select(cond: BoolArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.where(cond, a, b)`` (typed: mypy resolves some calls to the one-argument form)."""
+    out: FloatArray = np.where(cond, a, b)
+    return out
 
 
 def _interval(
@@ -645,15 +804,53 @@ def _exact_kernel(
     ref: FloatArray,
 ) -> tuple[FloatArray, IntArray]:
     n, m, C = At.shape
-    r = m - n
-    f = _Factor(At)
     ref = np.broadcast_to(ref, (m, C))
+    f = _Factor(At, _RankFloor(lo, hi, ref))
+    svd = f.ok & (f.floor < SVD_BELOW)  # ill-conditioned, not rank deficient: from the SVD
+    T, status, low, at = _exact_solve(f, At, w, lo, hi, ref, svd)
+    if m == n:
+        return T, status
+    # At a limit the normal equations' error is ~ eps |T| / (sigma_min sigma_F): the poses whose
+    # sigma_F is not certified above SVD_BELOW are solved again from the SVD
+    redo = np.flatnonzero((status == STATUS_OK) & ~svd & (low < SVD_BELOW))
+    if redo.size:
+        a_, w_, lo_, hi_, ref_ = (_take(x, redo) for x in (At, w, lo, hi, ref))
+        every = np.ones(redo.size, dtype=bool)
+        T2, st2, low2, at2 = _exact_solve(f.subset(redo), a_, w_, lo_, hi_, ref_, every)
+        T[:, redo], status[redo], low[redo], at[:, redo] = T2, st2, low2, at2
+    # the rank test on the reduced matrix at the answer (RANK_TOL)
+    check = np.flatnonzero((status == STATUS_OK) & (low < max(f.floors.cap, _TRUST_BELOW)))
+    if check.size:
+        fl = f.floors.at(check)
+        near = low[check] < np.maximum(fl, _TRUST_BELOW)
+        check, fl = check[near], fl[near]
+        bad = _sigma_free(f.As, at, check) < fl
+        status[check[bad]] = STATUS_RANK_DEFICIENT
+    return T, status
+
+
+def _exact_solve(
+    f: _Factor,
+    At: FloatArray,
+    w: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    ref: FloatArray,
+    svd: BoolArray,
+) -> tuple[FloatArray, IntArray, FloatArray, BoolArray]:
+    """T (m, C), status (C,), a lower bound (C,) of the answer's sigma_F (sigma_min(A') where no
+    limit is reached) and the cables at a limit (m, C); the poses ``svd`` from the SVD of A'."""
+    n, m, C = At.shape
+    r = m - n
     Tp = ref + f.pinv(w - _apply(At, ref))
-    # ill-conditioned (not rank-deficient) poses: T_p and the null space from the SVD of A'
-    weak = np.flatnonzero(f.ok & (f.floor < SVD_BELOW))
+    low = f.floor.copy()
+    at = np.zeros((m, C), dtype=bool)
+    weak = np.flatnonzero(svd)
     n_svd: FloatArray | None = None
     if weak.size:
-        Tp[:, weak], n_svd = _svd_solve(f, weak, _take(w, weak), _take(At, weak), _take(ref, weak))
+        Tp[:, weak], n_svd, low[weak] = _svd_solve(
+            f, weak, _take(w, weak), _take(At, weak), _take(ref, weak)
+        )
     lo_ = lo - Tp
     hi_ = hi - Tp
     tol = _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
@@ -663,10 +860,10 @@ def _exact_kernel(
     T = Tp
     if r == 0:
         status[need] = STATUS_INFEASIBLE
-        return T, status
+        return T, status, low, at
     idx = np.flatnonzero(need)
     if idx.size == 0:
-        return T, status
+        return T, status, low, at
     if idx.size < C:  # only the poses whose T_p violates a limit need the null space
         sub = f.subset(idx)
     else:
@@ -689,15 +886,71 @@ def _exact_kernel(
         lam2[~found] = 0.0
         T[:, idx] += N[0] * lam1 + N[1] * lam2
     status[idx[~found]] = STATUS_INFEASIBLE
-    return T, status
+    at_k = _at_limit(_take(T, idx), _take(lo, idx), _take(hi, idx))
+    at[:, idx] = at_k
+    low[idx] = _free_sigma_low(low[idx], N, at_k)
+    return T, status, low, at
+
+
+def _at_limit(T: FloatArray, lo: FloatArray, hi: FloatArray) -> BoolArray:
+    """The cables (m, K) the answer T puts at a limit: the columns the rank test on the reduced
+    matrix takes out.  The polygon puts a cable on its limit to the rounding or the relaxation
+    (``_REL_TOL (1 + max t_max)``); 10 times that, so that a cable merely near its limit (the
+    answer is then decided by the objective, not by that limit) stays in."""
+    delta = 10.0 * _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
+    return (T - lo <= delta) | (hi - T <= delta)
+
+
+def _free_sigma_low(sigma_R: FloatArray, N: list[FloatArray], at: BoolArray) -> FloatArray:
+    """Lower bound (K,) of ``sigma_F``, the smallest singular value of ``A'_F`` (``A'`` without the
+    columns ``at`` (m, K)), from a lower bound ``sigma_R`` (K,) of ``sigma_min(A')`` and the
+    orthonormal null-space basis N (r vectors (m, K)).
+
+    With ``B`` orthonormal rows spanning the rows of ``A' = R B`` and ``G = N[at]`` (|S| x r),
+    ``C = [A'; E_S]`` times the orthogonal ``[B; N^T]^T`` is ``M = [R 0; X G]`` (``|X| <= 1``), and
+    ``Z = [R^-1 0; -G^+ X R^-1  G^+]`` inverts it (from the right if |S| < r, the left otherwise),
+    so ``sigma_min(C) >= 1/|Z| >= sigma_R sigma_G / (1 + sigma_R + sigma_G)`` with ``sigma_G`` the
+    smallest of the min(|S|, r) singular values of G; and ``sigma_F >= sigma_min(C)`` (a vector
+    of C's row space with the components on S removed is one of A'_F's, and vice versa for
+    columns).  No cable at a limit: ``sigma_F = sigma_min(A')``.
+    """
+    k = at.sum(axis=0)
+    n1a = N[0] * at
+    a = np.einsum("mk,mk->k", n1a, N[0])
+    if len(N) == 1:
+        g2 = a
+    else:
+        n2 = N[1]
+        b = np.einsum("mk,mk->k", n1a, n2)
+        c = np.einsum("mk,mk->k", n2 * at, n2)
+        big = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+        small = np.divide(a * c - b * b, big, out=np.zeros_like(big), where=big > 0)
+        g2 = np.where(k >= 2, small, a + c)  # lambda_min(G^T G), or |g|^2 for one cable
+    sigma_G = np.sqrt(np.maximum(g2, 0.0))
+    return np.where(k > 0, sigma_R * sigma_G / (1.0 + sigma_R + sigma_G), sigma_R)
+
+
+def _sigma_free(As: FloatArray, at: BoolArray, idx: NDArray[np.intp]) -> FloatArray:
+    """``sigma_F`` (K,) of the poses idx: the smallest of the min(n, |F|) singular values of the
+    unit-row ``As`` (n, m, C) with the columns ``at`` (m, C) zeroed (LAPACK SVD); inf if |F| = 0."""
+    n = As.shape[0]
+    keep = ~_take(at, idx)
+    M = _take(As, idx) * keep[None]
+    sv = np.linalg.svd(np.moveaxis(M, -1, 0), compute_uv=False)  # (K, n), descending
+    k = np.minimum(keep.sum(axis=0), n)
+    out = np.full(idx.size, np.inf)
+    has = k > 0
+    out[has] = sv[np.flatnonzero(has), k[has] - 1]
+    return out
 
 
 def _svd_solve(
     f: _Factor, k: NDArray[np.intp], w: FloatArray, At: FloatArray, ref: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """``T_p = T_ref + A^+ (w - A T_ref)`` (m, K) and an orthonormal null-space basis (r, m, K)
-    of the poses ``k`` of the factor's chunk from the SVD ``A' = U S V^T`` (w, At, ref: those
-    poses).  Error ~ eps |T| / sigma_min, against eps |T| / sigma_min^2 for the normal equations."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``T_p = T_ref + A^+ (w - A T_ref)`` (m, K), an orthonormal null-space basis (r, m, K) and
+    ``sigma_min(A')`` (K,) of the poses ``k`` of the factor's chunk from the SVD ``A' = U S V^T``
+    (w, At, ref: those poses).  Error ~ eps |T| / sigma_min, against eps |T| / sigma_min^2 for the
+    normal equations."""
     n = f.n
     As = np.moveaxis(_take(f.As, k), -1, 0)  # (K, n, m)
     U, sv, Vt = np.linalg.svd(As, full_matrices=True)
@@ -706,7 +959,7 @@ def _svd_solve(
     for _ in range(2):  # the solve and one step of iterative refinement
         rhs = np.einsum("kji,jk->ik", U, rs * (w - _apply(At, Tp))) / sv.T
         Tp += np.einsum("kim,ik->mk", Vt[:, :n], rhs)
-    return Tp, np.moveaxis(Vt[:, n:], 0, -1)
+    return Tp, np.moveaxis(Vt[:, n:], 0, -1), sv[:, -1]
 
 
 # Fast path for m = n + 2 (the paper's rigs), used by :func:`exact`.  Per chunk: Gaussian
@@ -722,10 +975,11 @@ _LU_RATIO = 0.25
 """Fast path: each elimination pivot must be >= this times every entry below it (bounded growth, as
 with partial pivoting) and >= :data:`_LU_PIVOT`, else the pose takes the general kernel."""
 _LU_PIVOT = 1e-3
-_DET_FACTOR = 10.0
-"""Fast path: ``|det [A'; N^T]| >= _DET_FACTOR sqrt(PIVOT_TOL) n^((n-1)/2)`` guarantees
-``sigma_min(A') > _DET_FACTOR sqrt(PIVOT_TOL)``, so a pose the fast path accepts is not rank
-deficient for the general kernel either."""
+_DET_MIN = 1e-4
+"""Fast path: a pose is taken only if ``|det [A'; N^T]| >= _DET_MIN n^((n-1)/2)``, which keeps
+the near-singular poses for the general kernel's SVD.  For the m x m matrix ``[A'; N^T]`` (squared
+Frobenius norm m, singular values those of A' and 1) Hong and Pan's bound gives
+``sigma_min(A') >= |det| ((m-1)/m)^((m-1)/2)`` (:func:`_hong_pan`), 5.5e-3 at that limit."""
 _ORDER_SAMPLES = 32  # poses sampled to choose the pivot order
 
 
@@ -833,8 +1087,9 @@ def _exact2_chunk(
     tol = np.broadcast_to(_REL_TOL * (1.0 + np.abs(hi_q).max(axis=0)), (C,))
     S = np.empty((4, m, C))  # n1, n2, lo - T_p, hi - T_p
     status = np.zeros(C, dtype=np.int8)
+    ref_q = _cols(ref, s, e, q)
     with np.errstate(all="ignore"):
-        Tp, ok = _reduce(Ap, wp, _cols(ref, s, e, q), S[0], S[1])
+        Tp, ok, det = _reduce(Ap, wp, ref_q, S[0], S[1])
         lo_, hi_ = S[2], S[3]
         np.subtract(lo_q, Tp, out=lo_)
         np.subtract(hi_q, Tp, out=hi_)
@@ -855,6 +1110,19 @@ def _exact2_chunk(
             S[1] *= L[1]
             Tp += S[0]
             Tp += S[1]
+        # keep only the answers whose conditioning is certified well clear of the rank floor:
+        # sigma_min(A') (Hong-Pan, from det) or, at a limit, sigma_F (:func:`_free_sigma_low`)
+        low = _hong_pan(det, m)
+        if idx.size:
+            solved = np.flatnonzero(state == 0)
+            k = idx[solved]
+            at = _at_limit(np.take(Tp, k, axis=1), _take_cols(lo_q, k), _take_cols(hi_q, k))
+            N = [Sk[0][:, solved], Sk[1][:, solved]]
+            low[k] = _free_sigma_low(low[k], N, at)
+        weak = np.flatnonzero(ok & ~(low >= max(_FAST_MARGIN * _FLOOR_CAP, _TRUST_BELOW)))
+        if weak.size:
+            floor = _RankFloor(lo_q, hi_q, ref_q).at(weak)
+            weak = weak[~(low[weak] >= np.maximum(_FAST_MARGIN * floor, _TRUST_BELOW))]
     # the contract's summary, in the pivot order (row order does not change |A T - w|)
     r = np.einsum("imc,mc->ic", Ap, Tp)
     r -= wp
@@ -869,13 +1137,17 @@ def _exact2_chunk(
     T_out, feas_out, res_out, viol_out, status_out = out
     T_out[s:e] = Tp.take(np.argsort(q), axis=0).T
     feas_out[s:e], res_out[s:e], viol_out[s:e], status_out[s:e] = feas, res, vmax, status
-    return np.flatnonzero(~ok), undecided
+    redo = np.zeros(C, dtype=bool)
+    redo[undecided] = True
+    redo[weak] = True
+    return np.flatnonzero(~ok), np.flatnonzero(redo)
 
 
 def _reduce(
     Ap: FloatArray, wp: FloatArray, ref_q: FloatArray, n1: FloatArray, n2: FloatArray
-) -> tuple[FloatArray, BoolArray]:
-    """T_p (m, C), written n1, n2 (m, C; orthonormal null-space basis) and ok (C,), in pivot order.
+) -> tuple[FloatArray, BoolArray, FloatArray]:
+    """T_p (m, C), written n1, n2 (m, C; orthonormal null-space basis), ok (C,) and
+    ``|det [A'; N^T]|`` (C,), in pivot order.
 
     Gaussian elimination of ``[A' | w']`` without further pivoting, then ``[x0 x1 xw] =
     A1'^-1 [free columns | w']`` by back substitution: the null space is spanned by ``[-x0; 1; 0]``
@@ -917,7 +1189,7 @@ def _reduce(
     beta = g12 / g11
     gram = g22 - g12 * beta
     det *= np.sqrt(g11 * gram)  # |det [A'; N^T]| = |det A1'| sqrt(det(I + F^T F))
-    ok &= det >= _DET_FACTOR * np.sqrt(PIVOT_TOL) * n ** ((n - 1) / 2)
+    ok &= det >= _DET_MIN * n ** ((n - 1) / 2)
     a1 = 1.0 / np.sqrt(g11)
     a2 = 1.0 / np.sqrt(gram)
     np.multiply(x0, -a1, out=n1[:n])  # [-x0; 1; 0] / sqrt(g11)
@@ -938,7 +1210,19 @@ def _reduce(
     np.multiply(n2, c2, out=tmp)
     Tp -= tmp
     Tp += ref_q
-    return Tp, ok
+    return Tp, ok, det
+
+
+def _hong_pan(det: FloatArray, m: int) -> FloatArray:
+    """Lower bound of ``sigma_min(A')`` from ``|det [A'; N^T]|`` (m x m, squared Frobenius norm m):
+    ``sigma_min(M) >= |det M| ((k-1)/|M|_F^2)^((k-1)/2)`` (Hong and Pan 1992) for k = m, and the
+    singular values of ``[A'; N^T]`` are those of A' and 1."""
+    return det * ((m - 1) / m) ** ((m - 1) / 2)
+
+
+def _take_cols(x: FloatArray, k: NDArray[np.intp]) -> FloatArray:
+    """Columns k of x (m, C), or x itself if it is constant over the batch (m, 1)."""
+    return x if x.shape[-1] == 1 else np.take(x, k, axis=-1)
 
 
 def _polygon_one_line(
@@ -1042,6 +1326,11 @@ def exact(
     within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``; the tensions are then
     ``T_p``.  For m = n + 2 a fast path (shared pivot order, one certified line of the polygon, see
     docs/tension.md) solves the poses it can and leaves the others to the general kernel.
+
+    Accuracy: within :data:`ACCURACY_N` of the exact optimum of the problem as given (and of
+    quadprog), also for limit ranges narrower than that; otherwise ``STATUS_RANK_DEFICIENT``: the
+    pose's ``sigma_min(A')``, or at the answer the smallest singular value of ``A'`` restricted to
+    the cables not at a limit, is below :func:`rank_floor` (``t_ref_N`` included in the scale).
     A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
     """
     # A is scanned for NaN/inf by the fast path (a non-finite row fails its pivot checks, and
@@ -1125,7 +1414,11 @@ def _penalty_kernel(
                 break
         converged[k] = False
     status = np.where(converged, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
-    status[~_Factor(At).ok] = STATUS_RANK_DEFICIENT  # the shared per-pose rank test
+    # the shared rank test, and the method's own: with lambda_max sigma_min(A')^2 < 1 the penalty
+    # on the weakest direction of A' T = w' weighs less than the objective (sigma < 1e-5 for the
+    # default schedule; its error grows as 1 / (lambda sigma^2), docs/tension.md)
+    floors = _RankFloor(lo_c.T, hi_c.T, at_least=1.0 / np.sqrt(max(lambdas)))
+    status[~_Factor(At, floors).ok] = STATUS_RANK_DEFICIENT
     return np.ascontiguousarray(T.T), status
 
 
@@ -1145,7 +1438,11 @@ def penalty(
     stage is a convex piecewise quadratic solved exactly by a semismooth Newton (active-set)
     iteration.  The squared norm replaces the paper's norm (same minimiser, smooth).  The result
     approaches the exact min ``|T - T_min|_2`` solution as lambda grows (error O(1/lambda), see
-    docs/tension.md); ``feasible`` uses the same tolerance as the other methods.
+    docs/tension.md); ``feasible`` uses the same tolerance as the other methods.  Besides the
+    shared rank test, a pose with ``max(lambdas) sigma_min(A')^2 < 1`` is ``STATUS_RANK_DEFICIENT``:
+    the penalty on the weakest direction of ``A' T = w'`` weighs less than the objective there
+    (sigma < 1e-5 for the default schedule); above it the error still grows as
+    1 / (lambda sigma^2), 1.4e-3 N at sigma 1e-2 on the flat rig.
     """
     A_, w_, lo, hi = check_problem(A, w, t_min_N, t_max_N)
     lams = tuple(float(x) for x in lambdas)

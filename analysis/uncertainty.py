@@ -23,11 +23,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
-from .dynamics import gravity_wrench
 from .errors import InputError
 from .kinematics import structure_matrix
 from .rig import Rig
 from .rotations import rotation_from_euler
+from .wrench import recover_wrench
 
 FloatArray = NDArray[np.float64]
 
@@ -54,6 +54,13 @@ def _as_cov(value: ArrayLike, n: int, name: str) -> FloatArray:
     if v.ndim >= 2 and v.shape[-2:] == (n, n):
         return v
     raise InputError(f"{name}: expected a scalar, ({n},) or (..., {n}, {n}), got {v.shape}")
+
+
+def propagate(M: ArrayLike, C: ArrayLike) -> FloatArray:
+    """``M C M^T`` (..., k, k): a covariance C (..., n, n) carried through a linear map M (..., k, n)
+    (first order for a non-linear map with M its Jacobian)."""
+    m = np.asarray(M, dtype=np.float64)
+    return np.asarray(m @ np.asarray(C, dtype=np.float64) @ np.swapaxes(m, -1, -2))
 
 
 def tension_noise_covariance(A: ArrayLike, tension_cov: ArrayLike) -> FloatArray:
@@ -116,6 +123,7 @@ def wrench_covariance(
     pose_cov: ArrayLike,
     tare_tensions_N: ArrayLike | None = None,
     tare_tension_cov: ArrayLike | None = None,
+    weight_theta: ArrayLike | None = None,
 ) -> WrenchCovariance:
     """Covariance of the recovered ``W_ext`` at P in {O} axes, linearised at the measured values.
 
@@ -125,6 +133,8 @@ def wrench_covariance(
         covariance of the pose.
     tare_tensions_N: (..., m) wind-off tensions for the tare method (else the absolute method);
     tare_tension_cov: their noise (default: the same as ``tension_cov``).
+    weight_theta: (4,) a fitted weight ``[m, m c]`` for the absolute method (None: the rig file's),
+    as in :func:`cdpr.analysis.wrench.recover_wrench`.
 
     In the tare method ``T0`` and ``Tw`` are taken at the same (measured) pose, so the pose error acts
     through ``A(q) (T0 - Tw)`` only.
@@ -149,11 +159,8 @@ def wrench_covariance(
 
     else:
 
-        def wrench_of_pose(qp: FloatArray) -> FloatArray:
-            Rp = rotation_from_euler(qp[..., 3:])
-            Ap = structure_matrix(rig.anchors_O_m, rig.attach_P_m, qp[..., :3], Rp)
-            G = gravity_wrench(rig.mass_kg, rig.com_P_m, Rp, rig.gravity_O_mps2)
-            return -np.einsum("...kij,...j->...ki", Ap, Tw) - G
+        def wrench_of_pose(qp: FloatArray) -> FloatArray:  # the recovery itself, at qp
+            return recover_wrench(rig, qp, Tw[..., None, :], weight_theta=weight_theta)
 
     cov_from_T = A @ cov_T @ np.swapaxes(A, -1, -2)
     J = pose_jacobian(wrench_of_pose, q)

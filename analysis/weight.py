@@ -21,25 +21,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import check_trailing
+from .conventions import WIND_OFF_KINDS
+from .dynamics import weight_basis
 from .errors import InputError
-from .rotations import rotation_from_euler
+from .rig import Rig
+from .uncertainty import wrench_covariance
+from .wrench import recover_wrench
 
 FloatArray = NDArray[np.float64]
 
 THETA_NAMES: tuple[str, ...] = ("mass", "com_x", "com_y", "com_z")
 """Names of the fitted parameters (flag words use them)."""
-
-
-def weight_basis(poses: ArrayLike, gravity_O_mps2: ArrayLike) -> FloatArray:
-    """``B(q)`` (..., 6, 4) with ``G(q) = B(q) @ [m, m c_x, m c_y, m c_z]`` at P in {O} axes."""
-    q = check_trailing(poses, "poses", (6,))
-    g = check_trailing(gravity_O_mps2, "gravity_O_mps2", (3,))
-    R = rotation_from_euler(q[..., 3:])
-    sk = np.array([[0.0, -g[2], g[1]], [g[2], 0.0, -g[0]], [-g[1], g[0], 0.0]])
-    B = np.zeros(q.shape[:-1] + (6, 4))
-    B[..., :3, 0] = g
-    B[..., 3:, 1:] = -sk @ R
-    return B
 
 
 @dataclass(frozen=True)
@@ -121,3 +113,65 @@ def fit_weight(
     if theta[0] <= 0:
         raise InputError(f"fit_weight: fitted mass {theta[0]:.4g} kg <= 0 (tares inconsistent)")
     return WeightModel(theta, 0.5 * (cov + cov.T), k, chi2 / dof if dof > 0 else float("nan"), weak)
+
+
+def fit_weight_model(
+    rig: Rig,
+    kind: ArrayLike,
+    poses: ArrayLike,
+    tensions_N: ArrayLike,
+    tension_cov_N2: ArrayLike,
+    pose_cov: ArrayLike,
+    prior_mass_rel_sd: float = 0.05,
+    prior_com_sd_m: float = 0.01,
+) -> WeightModel | None:
+    """The weight model from a run's wind-off points, or None when it has none.
+
+    kind: (s,) point kinds (the wind-off ones, :data:`~cdpr.analysis.conventions.WIND_OFF_KINDS`,
+    with finite tensions and pose are used); poses: (s, 6) mean poses (m, rad); tensions_N: (s, m);
+    tension_cov_N2: (s, m, m) and pose_cov: (s, 6, 6) the covariances of those means.  Each point's
+    ``-A(q) T0`` (:func:`cdpr.analysis.wrench.recover_wrench` with a zero weight) and its
+    covariance from the load cells and the pose
+    (:func:`cdpr.analysis.uncertainty.wrench_covariance`) feed :func:`fit_weight`, with the rig
+    file's mass and centre of mass as the prior (``prior_mass_rel_sd`` relative, ``prior_com_sd_m``
+    per axis)."""
+    q = check_trailing(poses, "poses", (6,), allow_nan=True)
+    T = np.asarray(tensions_N, dtype=np.float64)
+    off = np.isin(np.asarray(kind).astype(str), WIND_OFF_KINDS) & np.isfinite(T).all(axis=1)
+    off &= np.isfinite(q).all(axis=1)
+    idx = np.flatnonzero(off)
+    if idx.size == 0:
+        return None
+    zero = np.zeros(4)
+    y = recover_wrench(rig, q[idx], T[idx], weight_theta=zero)
+    cov = wrench_covariance(
+        rig,
+        q[idx],
+        T[idx],
+        np.asarray(tension_cov_N2)[idx],
+        np.asarray(pose_cov)[idx],
+        weight_theta=zero,
+    )
+    return fit_weight(
+        q[idx],
+        y,
+        cov.total,
+        rig.gravity_O_mps2,
+        rig.mass_kg,
+        rig.com_P_m,
+        prior_mass_rel_sd * rig.mass_kg,
+        prior_com_sd_m,
+    )
+
+
+def weight_model_note(wm: WeightModel | None, rig: Rig) -> str:
+    """One sentence on a fitted weight model (or its absence) for the stage log."""
+    if wm is None:
+        return "no wind-off point: no weight model"
+    sd = wm.com_sd_m
+    return (
+        f"{wm.n_tares} wind-off points: mass {wm.mass_kg:.5f} ± {np.sqrt(wm.theta_cov[0, 0]):.5f} kg "
+        f"(rig file {rig.mass_kg:g}); CoM_P {np.round(wm.com_P_m * 1e3, 3).tolist()} ± "
+        f"{np.round(sd * 1e3, 3).tolist()} mm; chi2/dof {wm.chi2_per_dof:.3g}"
+        + (f"; left to the prior: {', '.join(wm.weak)}" if wm.weak else "")
+    )

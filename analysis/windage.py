@@ -36,9 +36,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
+from .aero import flow_angles
 from .errors import InputError
 from .records import CorrectionRecord
 from .rig import Rig
+from .rotations import rotation_from_euler
 from .test_section import SectionGeometry, segment_inside
 
 FloatArray = NDArray[np.float64]
@@ -422,3 +424,161 @@ def windage_of_rig(
         sigma_rel=sigma_rel,
         platform_drag_area_m2=rig.platform_drag_area_m2,
     )
+
+
+WINDAGE_SOURCES: tuple[str, ...] = ("measured", "model", "none")
+"""Per wind-on point, where the windage subtracted came from."""
+
+
+@dataclass(frozen=True)
+class WindageCorrection:
+    """The windage of every point, chosen measured > modelled > none (each (s, ...)).
+
+    applied_N: (s, 6) subtracted from the wind-on points (0 elsewhere); cov: (s, 6, 6) its
+    covariance; source: (s,) one of :data:`WINDAGE_SOURCES` on wind-on points ("" elsewhere);
+    measured_N, measured_sd_N: (s, 6) the measured tare's fit at every wind-on and windage point
+    (NaN elsewhere; on the windage points their residuals are ``wrench - measured_N``); model_N:
+    (s, 6) the model's value (NaN without a test section); flags: word -> (s,) mask; records: what
+    was done; notes: sentences for the stage log.
+    """
+
+    applied_N: FloatArray
+    cov: FloatArray
+    source: NDArray[np.str_]
+    measured_N: FloatArray
+    measured_sd_N: FloatArray
+    model_N: FloatArray
+    flags: dict[str, BoolArray]
+    records: tuple[CorrectionRecord, ...]
+    notes: tuple[str, ...]
+
+
+def windage_correction(
+    rig: Rig,
+    section: SectionGeometry | None,
+    kind: ArrayLike,
+    airspeed_mps: ArrayLike,
+    wrench_O: ArrayLike,
+    poses: ArrayLike,
+    tensions_N: ArrayLike,
+    density_kgpm3: ArrayLike,
+    viscosity_Pas: ArrayLike,
+    nose_P: ArrayLike = (-1.0, 0.0, 0.0),
+    up_P: ArrayLike = (0.0, 0.0, 1.0),
+    sigma_rel: float = 0.15,
+    aoa_degree: int = 2,
+    sideslip_degree: int = 2,
+    wind_off_mps: float = 1.0,
+    angle_tol_rad: float = float(np.deg2rad(0.1)),
+) -> WindageCorrection:
+    """The cable and platform windage of each wind-on point.
+
+    - measured tare: the run's model-off wind-on points (kind ``windage``) fitted per speed in
+      aoa/sideslip (:func:`fit_windage_tare`), evaluated at each wind-on point
+      (:func:`evaluate_windage_tare`; flag ``windage_tare``, outside the fitted attitudes
+      ``windage_tare_extrapolated``); a windage point with too few others at its speed is left
+      out (``windage_tare_unfit``);
+    - else the model from the rig file and the test section (:func:`windage_of_rig`, flag
+      ``windage_modelled``);
+    - else nothing (flag ``no_windage_correction``).
+
+    kind, airspeed_mps: (s,); wrench_O: (s, 6) the wrench at P in {O} axes with the weight
+    removed; poses: (s, 6); tensions_N: (s, m); density_kgpm3, viscosity_Pas: (s,) (the model
+    needs both).  An angle the windage points hold within ``angle_tol_rad`` (the sideslip of an
+    alpha sweep) is not a fit variable: points within that tolerance of it count as at it, and a
+    point within it beyond the ends of the fitted range is evaluated at the end; further out a
+    point is flagged as extrapolated.
+    """
+    kind = np.asarray(kind).astype(str)
+    s = kind.shape[0]
+    V = np.asarray(airspeed_mps, dtype=np.float64)
+    W = check_trailing(wrench_O, "wrench_O", (6,), allow_nan=True)
+    q = check_trailing(poses, "poses", (6,), allow_nan=True)
+    rho = np.asarray(density_kgpm3, dtype=np.float64)
+    mu = np.asarray(viscosity_Pas, dtype=np.float64)
+    R = rotation_from_euler(np.nan_to_num(q[:, 3:]))
+    aoa, slip = (np.array(a, dtype=np.float64) for a in flow_angles(R, nose_P, up_P))
+    finite = np.isfinite(W).all(axis=1) & np.isfinite(V)
+    on = (kind == "wind_on") & finite & (V > wind_off_mps)
+    wnd = (kind == "windage") & finite & (V > wind_off_mps)
+    recs: list[CorrectionRecord] = []
+    notes: list[str] = []
+    flags: dict[str, BoolArray] = {}
+    measured = np.full((s, 6), np.nan)
+    measured_sd = np.full((s, 6), np.nan)
+    extrap = np.zeros(s, bool)
+    if wnd.any():
+        for ang in (aoa, slip):
+            if np.ptp(ang[wnd]) < angle_tol_rad:
+                held = float(np.mean(ang[wnd]))
+                ang[np.abs(ang - held) <= angle_tol_rad] = held
+        # a windage point whose speed has too few others (a speed ramp caught in its window)
+        # cannot be fitted: it is left out and flagged, the other speeds are still fitted
+        close = (np.abs(V[:, None] - V[None, :]) <= 0.03 * V[None, :]) & wnd[None, :]
+        lonely = wnd & (close.sum(axis=1) < aoa_degree + 2)
+        fitset = wnd & ~lonely
+        flags["windage_tare_unfit"] = lonely
+        if lonely.any():
+            notes.append(f"{int(lonely.sum())} windage point(s) left out: too few at their speed")
+        try:
+            if not fitset.any():
+                raise InputError("no speed with enough windage points")
+            fit = fit_windage_tare(
+                V[fitset], aoa[fitset], slip[fitset], W[fitset], aoa_degree, sideslip_degree
+            )
+        except InputError as exc:
+            notes.append(f"measured tare not fitted: {exc}")
+            flags["windage_tare_unfit"] = wnd
+        else:
+            recs.append(fit.record)
+            at = np.flatnonzero(on | wnd)
+            g = np.argmin(np.abs(V[at, None] - fit.speeds_mps[None, :]), axis=1)
+            for ang, rng in ((aoa, "aoa_range_rad"), (slip, "sideslip_range_rad")):
+                lo, hi = (np.array([getattr(f, rng)[k] for f in fit.fits])[g] for k in (0, 1))
+                x = ang[at]
+                x = np.where((x < lo) & (x >= lo - angle_tol_rad), lo, x)
+                ang[at] = np.where((x > hi) & (x <= hi + angle_tol_rad), hi, x)
+            ev = evaluate_windage_tare(fit, V[at], aoa[at], slip[at])
+            measured[at], measured_sd[at], extrap[at] = ev.tare_N, ev.sigma_N, ev.extrapolated
+            recs.append(ev.record)
+            notes.append(f"measured tare from {int(fitset.sum())} model-off points")
+    model = np.full((s, 6), np.nan)
+    model_cov = np.full((s, 6, 6), np.nan)
+    if section is not None:
+        ok = (on | wnd) & np.isfinite(mu) & np.isfinite(rho)
+        if ok.any():
+            T = np.asarray(tensions_N, dtype=np.float64)
+            cw = windage_of_rig(
+                rig, section, q[ok, :3], R[ok], T[ok], V[ok], rho[ok], mu[ok], sigma_rel
+            )
+            model[ok], model_cov[ok] = cw.wrench_N, cw.cov
+            recs.append(cw.record)
+    use_meas = on & np.isfinite(measured).all(axis=1)
+    use_model = on & ~use_meas & np.isfinite(model).all(axis=1)
+    none = on & ~use_meas & ~use_model
+    applied = np.zeros((s, 6))
+    applied[use_meas] = measured[use_meas]
+    applied[use_model] = model[use_model]
+    cov = np.zeros((s, 6, 6))
+    cov[use_meas] = measured_sd[use_meas, :, None] ** 2 * np.eye(6)
+    cov[use_model] = model_cov[use_model]
+    source = np.full(s, "", dtype=object)
+    source[use_meas], source[use_model], source[none] = WINDAGE_SOURCES
+    flags.update(
+        {
+            "windage_tare": use_meas,
+            "windage_tare_extrapolated": use_meas & extrap,
+            "windage_modelled": use_model,
+            "no_windage_correction": none,
+        }
+    )
+    if wnd.any() and (on & ~use_meas).any():
+        flags["windage_tare_missing"] = on & ~use_meas
+    notes.append(
+        f"{int(use_meas.sum())} measured, {int(use_model.sum())} modelled, "
+        f"{int(none.sum())} uncorrected"
+    )
+    return WindageCorrection(
+        applied, cov, source.astype(str), measured, measured_sd, model, flags, tuple(recs),
+        tuple(notes),
+    )  # fmt: skip

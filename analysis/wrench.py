@@ -1,11 +1,17 @@
 """Recovery of the external (aerodynamic) wrench from measured cable tensions and pose (paper eq. 4-7).
 
-The equation of motion of the platform is (see :mod:`cdpr.analysis.dynamics`)::
+The equation of motion of the platform (Newton–Euler about P, see :mod:`cdpr.analysis.dynamics`)::
 
-    A(q) T = -(M qdd + C + G + W_ext)
+    A(q) T + G + W_ext = M qdd + C
 
 with ``A`` (..., 6, m) the structure matrix at the measured pose, ``T`` (..., m) the cable tensions
-(N), ``G`` the gravity load and ``M qdd + C`` the inertia and Coriolis terms.  Every wrench here is the
+(N), ``G`` the gravity load and ``M qdd + C`` the platform's mass times its acceleration (inertia,
+centrifugal and Coriolis terms).  At rest this is the paper's eq. (5)-(6), ``A T = -(G + W_ext)``.
+The paper's eq. (4) prints the inertia on the load side, ``A T = -(M qdd + C + G + W_ext)``: with its
+own G (the gravity force) and A (unit vectors towards the anchors, the cables pulling), that sign
+contradicts Newton's second law (a platform accelerated by the cables alone would then need a
+negative mass), so the code follows Newton–Euler, checked against the momentum of an independent
+rigid body in ``tests/test_lab_generator.py``.  Every wrench here is the
 load *on the platform* at its reference point P, components in {O} axes (x downstream, z up), order
 ``[Fx, Fy, Fz, Mx, My, Mz]`` in N and N m, moments about P.
 
@@ -15,9 +21,9 @@ Two methods recover ``W_ext``:
   ``W_ext = A (T0 - Tw)``.  Needs no mass model; errors in ``A`` scale with ``T0 - Tw`` only.
 - **absolute**: ``W_ext = -A Tw - G`` from the mass model (mass, centre of mass, gravity).
 
-When the platform moves, subtract the inertia wrench ``D = M qdd + C`` (from the pose time series,
-:func:`inertia_wrench_from_poses`): ``W_ext = A (T0 - Tw) - D`` (tare taken static) or
-``W_ext = -A Tw - G - D``.
+When the platform moves, the inertia wrench ``D = M qdd + C`` (from the pose time series,
+:func:`inertia_wrench_from_poses`) is added back: ``W_ext = A (T0 - Tw) + D`` (tare taken static) or
+``W_ext = -A Tw - G + D``: what the cables and gravity do not supply of the platform's ``m a``.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_float_array, check_trailing
-from .dynamics import finite_difference, gravity_wrench, inertia_wrench
+from .dynamics import finite_difference, gravity_wrench, inertia_wrench, weight_basis
 from .errors import InputError
 from .kinematics import structure_matrix
 from .rig import Rig
@@ -68,7 +74,7 @@ def wrench_absolute(
     gravity_wrench_N: ArrayLike,
     inertia_wrench_N: ArrayLike | None = None,
 ) -> FloatArray:
-    """Absolute method: ``W_ext = -A T - G [- (M qdd + C)]`` (..., 6) at P in {O} axes.
+    """Absolute method: ``W_ext = -A T - G [+ (M qdd + C)]`` (..., 6) at P in {O} axes.
 
     A: (..., 6, m) structure matrix; tensions_N: (..., m) measured tensions, N;
     gravity_wrench_N: (..., 6) gravity load G on the platform (see
@@ -79,8 +85,26 @@ def wrench_absolute(
     g = check_trailing(gravity_wrench_N, "gravity_wrench_N", (6,))
     w = -np.einsum("...ij,...j->...i", a, t) - g
     if inertia_wrench_N is not None:
-        w = w - check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
+        w = w + check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
     return w
+
+
+def pose_derivatives(poses: ArrayLike, t_ns: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """First and second time derivatives ``(qd, qdd)`` (n, 6) each of a pose time series.
+
+    poses: (n, 6) ``[x, y, z, roll, pitch, yaw]`` (m, rad) sampled at integer-nanosecond times
+    t_ns (n,), strictly increasing, n >= 3.  The Euler angles are unwrapped, then differentiated
+    twice with :func:`cdpr.analysis.dynamics.finite_difference` (second-order central differences,
+    one-sided at the ends, so the first and last samples are the least accurate; noise in the
+    poses is amplified twice: fit a smooth motion first where there is one).
+    """
+    q = check_trailing(poses, "poses", (6,))
+    if q.ndim != 2:
+        raise InputError(f"poses: expected shape (n, 6), got {q.shape}")
+    q = q.copy()
+    q[:, 3:] = np.unwrap(q[:, 3:], axis=0)
+    qd = finite_difference(q, t_ns)
+    return qd, finite_difference(qd, t_ns)
 
 
 def inertia_wrench_from_poses(
@@ -90,21 +114,10 @@ def inertia_wrench_from_poses(
     poses: ArrayLike,
     t_ns: ArrayLike,
 ) -> FloatArray:
-    """Inertia plus Coriolis wrench ``M qdd + C`` (n, 6) at P in {O} axes from a pose time series.
-
-    poses: (n, 6) ``[x, y, z, alpha, beta, gamma]`` (m, rad) sampled at integer-nanosecond times
-    t_ns (n,), strictly increasing, n >= 3.  The Euler angles are unwrapped, then differentiated twice
-    with :func:`cdpr.analysis.dynamics.finite_difference` (second-order central differences, one-sided
-    at the ends, so the first and last samples are the least accurate).
-    """
-    q = check_trailing(poses, "poses", (6,))
-    if q.ndim != 2:
-        raise InputError(f"poses: expected shape (n, 6), got {q.shape}")
-    q = q.copy()
-    q[:, 3:] = np.unwrap(q[:, 3:], axis=0)
-    qd = finite_difference(q, t_ns)
-    qdd = finite_difference(qd, t_ns)
-    return inertia_wrench(mass_kg, com_P_m, inertia_P_kgm2, q, qd, qdd)
+    """Inertia plus Coriolis wrench ``M qdd + C`` (n, 6) at P in {O} axes from a pose time series
+    (its derivatives by :func:`pose_derivatives`)."""
+    qd, qdd = pose_derivatives(poses, t_ns)
+    return inertia_wrench(mass_kg, com_P_m, inertia_P_kgm2, poses, qd, qdd)
 
 
 def recover_wrench(
@@ -113,14 +126,19 @@ def recover_wrench(
     tensions_N: ArrayLike,
     tare_tensions_N: ArrayLike | None = None,
     inertia_wrench_N: ArrayLike | None = None,
+    weight_theta: ArrayLike | None = None,
 ) -> FloatArray:
     """External wrench ``W_ext`` (..., 6) on the platform at P in {O} axes (N, N m) for a rig.
 
-    poses: (..., 6) measured poses ``[x, y, z, alpha, beta, gamma]`` (m, rad).
+    poses: (..., 6) measured poses ``[x, y, z, roll, pitch, yaw]`` (m, rad).
     tensions_N: (..., m) measured tensions, N.
     tare_tensions_N: optional (..., m) wind-off tensions at the same poses: tare method
-        ``A (T0 - Tw)``; without it the absolute method ``-A Tw - G`` (rig mass model).
-    inertia_wrench_N: optional (..., 6) ``M qdd + C`` subtracted in either method.
+        ``A (T0 - Tw)``; without it the absolute method ``-A Tw - G``.
+    inertia_wrench_N: optional (..., 6) ``M qdd + C`` of a moving platform, added in either method
+        (Newton–Euler: the cables and gravity supply ``M qdd + C - W_ext``).
+    weight_theta: optional (4,) ``[m, m c_x, m c_y, m c_z]`` (kg, kg m; c in {P}), a fitted weight
+        (:mod:`cdpr.analysis.weight`): ``G = B(q) theta`` (:func:`~cdpr.analysis.dynamics.weight_basis`);
+        None: the rig file's mass and centre of mass.  Absolute method only.
     """
     q = check_trailing(poses, "poses", (6,))
     R = rotation_from_euler(q[..., 3:])
@@ -128,7 +146,10 @@ def recover_wrench(
     if tare_tensions_N is not None:
         w = wrench_tare(A, tensions_N, tare_tensions_N)
         if inertia_wrench_N is not None:
-            w = w - check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
+            w = w + check_trailing(inertia_wrench_N, "inertia_wrench_N", (6,))
         return w
-    G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+    if weight_theta is None:
+        G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+    else:
+        G = weight_basis(q, rig.gravity_O_mps2) @ check_trailing(weight_theta, "weight_theta", (4,))
     return wrench_absolute(A, tensions_N, G, inertia_wrench_N)

@@ -19,8 +19,7 @@ SDK) and the same run pinned to one CPU beside it; goal p99 <= 50 ms.
 
 ``online_reduction_update``: the on-line reduction's cost per update at the end of the sample
 campaign (45 test points: the whole session's points through the core), ms; peer: ``cdpr
-analyze``'s reduction of the same run (``analyze_arrays``, the batch path with the spectrum
-check).  Also the cost with 10 points ended.
+analyze``'s reduction of the same run (``reduce_run``).  Also the cost with 10 points ended.
 """
 
 from __future__ import annotations
@@ -172,9 +171,10 @@ def _online_cost(d: str) -> dict:
 
     sys.path.insert(0, str(ROOT / "pipelines" / "commands"))
     from cdpr.daq.run_reader import open_run
-    from cdpr.pipelines.analyze import analyze_arrays, load_run
+    from cdpr.pipelines.analyze import reduce_run
     from cdpr.pipelines.commands.play import _readings
     from cdpr.pipelines.online import OnlineReduction, online_options
+    from cdpr.pipelines.run_arrays import load_run
 
     matrix = ROOT / "data_samples" / "campaign_alpha_sweep.toml"
     res = subprocess.run(
@@ -212,10 +212,10 @@ def _online_cost(d: str) -> dict:
     at_end = timed(events[-1].t_ns + 10**9)
     at_10 = timed(events[9].t_ns + 10**6)
     t0 = time.perf_counter()
-    analyze_arrays(rig_run, opts)
+    reduce_run(rig_run, opts)
     t_analyze = time.perf_counter() - t0
     t0 = time.perf_counter()
-    analyze_arrays(rig_run, opts)
+    reduce_run(rig_run, opts)
     t_analyze = min(t_analyze, time.perf_counter() - t0)
     return {"end_s": at_end, "ten_s": at_10, "analyze_s": t_analyze, "points": len(events)}
 
@@ -283,7 +283,7 @@ def run() -> dict[str, dict]:
         "online_reduction_update": {
             "value": round(cost["end_s"] * 1e3, 2),
             "unit": "ms",
-            "peer": "cdpr analyze's reduction of the same run (analyze_arrays, with the spectra)",
+            "peer": "cdpr analyze's reduction of the same run (reduce_run, the same core)",
             "peer_value": round(cost["analyze_s"] * 1e3, 2),
             "points": cost["points"],
             "ten_points_ms": round(cost["ten_s"] * 1e3, 2),

@@ -57,6 +57,7 @@ from cdpr.calibration.pose import (
 )
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
+from .pose_camera import pose_stream
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
 from .vision_files import load_camera, load_marker_layout
 
@@ -276,17 +277,7 @@ def _describe(
     rate_hz: float, image_every: int, image_rate_hz: float = 0.0
 ) -> dict[str, StreamDescription]:
     d = {
-        "pose": StreamDescription(
-            {
-                "position_O_m": FieldDescription("m", shape=(3,)),
-                "quaternion_wxyz": FieldDescription("", shape=(4,)),
-                "euler_rad": FieldDescription("rad", shape=(3,)),
-                "reprojection_px": FieldDescription("px"),
-                "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
-                "flags": FieldDescription("", "int64"),
-                "n_points": FieldDescription("", "int64"),
-                "frame_index": FieldDescription("", "int64"),
-            },
+        "pose": pose_stream(
             rate_hz,
             "platform pose of {P} in {O} from the camera; covariance order [position_O_m, rotation_O_rad]",
         )

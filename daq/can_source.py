@@ -40,6 +40,12 @@ from typing import Any
 import can
 import cantools
 
+from cdpr.analysis.conventions import (
+    CHANNEL_STATUS_FAULT,
+    CHANNEL_STATUS_SATURATED,
+    CHANNEL_STATUS_SLACK,
+    status_from_channel_bits,
+)
 from cdpr.analysis.errors import ConfigError
 
 from . import can_raw
@@ -52,9 +58,6 @@ from .loadcell import (
 from .mcap_writer import register_stream_codec
 from .source import (
     STATUS_GAP,
-    STATUS_SATURATED,
-    STATUS_SENSOR_FAULT,
-    STATUS_SLACK,
     FieldDescription,
     Reading,
     ReopenBackoff,
@@ -69,16 +72,6 @@ DEFAULT_DBC = Path(__file__).resolve().parent / "loadcell.dbc"
 ``data_samples/loadcell.dbc`` links to it), so it is found in a wheel install too."""
 
 _CH_RE = re.compile(r"^Ch(\d+)_(Counts|Saturated|Slack|Fault)$")
-CHANNEL_STATUS_SATURATED = 1
-CHANNEL_STATUS_SLACK = 2
-CHANNEL_STATUS_FAULT = 4
-_STATUS_TO_SOURCE = (
-    (CHANNEL_STATUS_SATURATED, STATUS_SATURATED),
-    (CHANNEL_STATUS_SLACK, STATUS_SLACK),
-    (CHANNEL_STATUS_FAULT, STATUS_SENSOR_FAULT),
-)
-
-
 #: pauses kept in :attr:`LoadCellDecoder.pauses` (the count goes on)
 MAX_PAUSES = 1000
 
@@ -368,9 +361,7 @@ class LoadCellDecoder:
         self._seq = int(seq[-1])
         T = cal.to_newtons(counts)
         any_status = np.bitwise_or.reduce(ch_status, axis=1)
-        status = np.zeros(k, np.int64)
-        for bit, sbit in _STATUS_TO_SOURCE:
-            status |= np.where(any_status & bit, sbit, 0)
+        status = status_from_channel_bits(any_status)
         cols: dict[str, Any] = {"t_ns": ts, "status": status}
         for j, key in enumerate(self._keys_T):
             cols[key] = T[:, j]
@@ -440,9 +431,7 @@ class LoadCellDecoder:
             values[key] = st
             any_status |= st
         if any_status:
-            for bit, sbit in _STATUS_TO_SOURCE:
-                if any_status & bit:
-                    status |= sbit
+            status |= status_from_channel_bits(int(any_status))
         values["counter"] = counter
         values["seq"] = self._seq
         values["t_bus_ns"] = t_bus_ns

@@ -35,6 +35,7 @@ import numpy as np
 
 from .recorder import Recorder, RecorderStatus
 from .source import STATUS_GAP, STATUS_SATURATED, STATUS_SENSOR_FAULT, STATUS_SLACK
+from .vrig_events import MOTION_EVENT_FIELDS
 
 #: fields of a test point copied into its ``test_point`` events
 POINT_FIELDS = (
@@ -104,6 +105,10 @@ class TestPointStepper:
     def _emit(self, phase: str) -> None:
         p = self.current
         fields = {k: _field(p, k) for k in POINT_FIELDS}
+        for k in MOTION_EVENT_FIELDS:  # an oscillation point's motion and inertia tare
+            v = _field(p, k)
+            if v is not None:
+                fields[k] = v
         self.event(
             f"test point {fields['point']} {phase}",
             level="info",

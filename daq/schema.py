@@ -237,6 +237,8 @@ class CableSection(Schema):
     diameter_m: Diameter_m | None = None
     drag_coefficient: DragCoefficient | None = None
     EA_N: Stiffness_N | None = None
+    max_speed_mps: Annotated[float, _bounded(0.0, 1e3, gt=True)] | None = None
+    max_accel_mps2: Annotated[float, _bounded(0.0, 1e5, gt=True)] | None = None
 
 
 class RigFile(Schema):
@@ -276,6 +278,8 @@ def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
         cable_drag_coefficient=_per_cable([c.drag_coefficient for c in cables], math.nan),
         cable_EA_N=_per_cable([c.EA_N for c in cables], DEFAULT_CABLE_EA_N),
         platform_drag_area_m2=f.platform.windage_drag_area_m2,
+        cable_max_speed_mps=_per_cable([c.max_speed_mps for c in cables], math.inf),
+        cable_max_accel_mps2=_per_cable([c.max_accel_mps2 for c in cables], math.inf),
     )
 
 

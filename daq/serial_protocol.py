@@ -34,9 +34,12 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from cdpr.analysis.conventions import STEADY_POINT_KINDS
+
 MAX_LINE_BYTES = 512
-POINT_KINDS = ("wind_on", "tare", "zero", "windage")
-"""The kinds of test point a ``$TPT`` line may name (those of the test matrix)."""
+POINT_KINDS = STEADY_POINT_KINDS
+"""The kinds a ``$TPT`` line carries: the steady ones (an oscillation point's motion does not fit
+the line)."""
 TPT_PHASES = ("start", "end")
 
 

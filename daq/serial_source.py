@@ -22,15 +22,13 @@ from typing import Any
 
 import serial
 
+from cdpr.analysis.conventions import status_from_channel_bits
 from cdpr.analysis.errors import ConfigError
 
 from .loadcell import calibration_from_settings
 from .serial_protocol import LineError, LineSplitter, parse_loadcell_line
 from .source import (
     STATUS_BAD_FRAME,
-    STATUS_SATURATED,
-    STATUS_SENSOR_FAULT,
-    STATUS_SLACK,
     FieldDescription,
     Reading,
     ReopenBackoff,
@@ -277,12 +275,7 @@ class SerialLoadCellSource(SerialLineSource):
         for i, c in enumerate(self.cables):
             st = (p.status >> (3 * i)) & 7
             values[f"status_{c}"] = st
-            if st & 1:
-                status |= STATUS_SATURATED
-            if st & 2:
-                status |= STATUS_SLACK
-            if st & 4:
-                status |= STATUS_SENSOR_FAULT
+            status |= status_from_channel_bits(int(st))
         values["seq"] = p.seq
         values["t_device_us"] = p.t_device_us
         return Reading("tensions", t_ns, values, status)

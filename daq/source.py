@@ -16,6 +16,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from cdpr.analysis.conventions import (  # noqa: F401  (the status bits, re-exported for drivers)
+    STATUS_BAD_FRAME,
+    STATUS_GAP,
+    STATUS_OK,
+    STATUS_SATURATED,
+    STATUS_SENSOR_FAULT,
+    STATUS_SLACK,
+    STATUS_STALE,
+)
 from cdpr.analysis.errors import ConfigError
 
 
@@ -26,22 +35,14 @@ class Reading:
     stream: stream name (``"tensions"``, ``"can_raw"``, ``"tunnel"``, ``"pose"``, ``"event"``, ...).
     t_ns: host time of reception, integer ns since the Unix epoch (``time.time_ns()``).
     values: field name -> value; numeric fields carry their unit in the name (``_N``, ``_m``, ...).
-    status: 0 for a good sample, else a bit field of ``STATUS_*`` flags.
+    status: 0 for a good sample, else a bit field of ``STATUS_*`` flags (defined once, in
+        :mod:`cdpr.analysis.conventions`).
     """
 
     stream: str
     t_ns: int
     values: Mapping[str, Any]
     status: int = 0
-
-
-STATUS_OK = 0
-STATUS_SATURATED = 1 << 0
-STATUS_SLACK = 1 << 1
-STATUS_STALE = 1 << 2
-STATUS_BAD_FRAME = 1 << 3
-STATUS_GAP = 1 << 4
-STATUS_SENSOR_FAULT = 1 << 5
 
 
 @dataclass(frozen=True)

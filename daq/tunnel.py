@@ -30,9 +30,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from cdpr.analysis.errors import CdprError
-from cdpr.analysis.flow import air_density as moist_air_density
+from cdpr.analysis.flow import air_density as flow_air_density
 
-from .aero_model import R_AIR_J_PER_KGK
 from .schema import plain
 from .serial_protocol import is_test_point_line, parse_test_point_line, parse_tunnel_line
 from .serial_source import SERIAL_BAD_DESCRIPTION, SerialLineSource, check_serial_budget
@@ -52,9 +51,17 @@ TEST_POINT_WARNING = "test_point_warning"
 """``name`` of the warning events of a ``$TPT`` sequence that does not pair up."""
 
 
-def air_density(static_pressure_Pa: float, temperature_K: float) -> float:
-    """Ideal-gas density, kg/m^3."""
-    return static_pressure_Pa / (R_AIR_J_PER_KGK * temperature_K)
+def air_density(
+    static_pressure_Pa: float, temperature_K: float, relative_humidity: float | None = None
+) -> float:
+    """The density of the air a tunnel reports, kg/m^3 (:func:`cdpr.analysis.flow.air_density`:
+    moist air with a humidity, else dry); NaN where p or T is not physical (the reading keeps it
+    rather than a made-up value)."""
+    try:
+        rh = 0.0 if relative_humidity is None else relative_humidity
+        return float(flow_air_density(static_pressure_Pa, temperature_K, rh))
+    except CdprError:
+        return float("nan")
 
 
 class SerialTunnelSource(SerialLineSource):
@@ -189,17 +196,13 @@ class SerialTunnelSource(SerialLineSource):
             "airspeed_mps": p.airspeed_mps,
             "static_pressure_Pa": p.static_pressure_Pa,
             "temperature_K": p.temperature_K,
-            "density_kgpm3": air_density(p.static_pressure_Pa, p.temperature_K),
+            "density_kgpm3": air_density(
+                p.static_pressure_Pa, p.temperature_K, p.relative_humidity
+            ),
             "seq": p.seq,
         }
         if p.relative_humidity is not None:  # the optional fifth value of the line
             values["relative_humidity"] = p.relative_humidity
-            try:
-                values["density_kgpm3"] = float(
-                    moist_air_density(p.static_pressure_Pa, p.temperature_K, p.relative_humidity)
-                )
-            except CdprError:  # p or T not physical: the dry value (NaN-free) as before
-                pass
         return Reading("tunnel", t_ns, values)
 
 

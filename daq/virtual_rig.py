@@ -49,15 +49,17 @@ from cdpr.analysis.dynamics import gravity_wrench
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.flow import sutherland_viscosity
 from cdpr.analysis.kinematics import structure_matrix
+from cdpr.analysis.motion import Motion, motion_tensions, oscillation_offset
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import quaternion_from_euler, rotation_from_euler
 from cdpr.analysis.tension import distribute
 from cdpr.analysis.test_section import SectionGeometry
 from cdpr.analysis.windage import windage_of_rig
 
-from .aero_model import AeroModel
+from .aero_model import DERIVATIVE_NAMES, AeroModel
 from .files import atomic_output, load_toml
 from .loadcell import INT24_MAX, INT24_MIN, Calibration
+from .vrig_events import oscillation_event_fields
 from .vrig_schedule import (  # noqa: F401  (the schedule API, re-exported for its users)
     FAULT_KINDS,
     POINT_KINDS,
@@ -141,10 +143,15 @@ class VirtualRig:
             sutherland_viscosity(aero.temperature_K),
         ).wrench_N
 
+    def _segment_starts(self) -> FloatArray:
+        d = np.array([s.duration_s for s in self.schedule.segments])
+        return np.concatenate([[0.0], np.cumsum(d)[:-1]])
+
     def _state_at(
         self, t_s: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]:
-        """(position (n,3), euler (n,3), wind (n,), segment index (n,)) at schedule times t_s."""
+        """(position (n,3), euler (n,3), wind (n,), segment index (n,)) at schedule times t_s,
+        the oscillation of an oscillation segment included (:meth:`_motion_at`)."""
         segs = self.schedule.segments
         ends = np.cumsum([s.duration_s for s in segs])
         starts = ends - np.array([s.duration_s for s in segs])
@@ -164,7 +171,33 @@ class VirtualRig:
         pos = P_prev[idx] + frac[:, None] * (P[idx] - P_prev[idx])
         eul = E_prev[idx] + frac[:, None] * (E[idx] - E_prev[idx])
         wind = V_prev[idx] + frac * (V[idx] - V_prev[idx])
-        return pos, eul, wind, idx
+        off, _, _ = self._motion_at(t_s, idx)
+        return pos + off[:, :3], eul + off[:, 3:], wind, idx
+
+    def _motion_at(
+        self, t_s: FloatArray, idx: NDArray[np.int64]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The oscillation's pose offset from the segment's mean pose, its rate and acceleration
+        (each (n, 6)) at schedule times ``t_s`` in segments ``idx``; zero outside oscillation
+        segments.  The motion starts when the segment's ramp ends (its ``start`` event)."""
+        n = t_s.shape[0]
+        off, rate, acc = np.zeros((n, 6)), np.zeros((n, 6)), np.zeros((n, 6))
+        starts = self._segment_starts()
+        for i, seg in enumerate(self.schedule.segments):  # segments, not samples
+            osc = seg.oscillation
+            if osc is None:
+                continue
+            sel = np.flatnonzero(idx == i)
+            if sel.size == 0:
+                continue
+            x, xd, xdd = oscillation_offset(t_s[sel] - starts[i] - seg.transition_s, osc)
+            j = osc.index
+            off[sel, j], rate[sel, j], acc[sel, j] = x, xd, xdd
+        return off, rate, acc
+
+    def motion_start_s(self, segment: int) -> float:
+        """Schedule time (s) at which segment ``segment``'s point starts (its ramp over)."""
+        return float(self._segment_starts()[segment] + self.schedule.segments[segment].transition_s)
 
     def physics(
         self,
@@ -187,6 +220,46 @@ class VirtualRig:
         D = self._cable_drag_O(position_O_m, R_O_P, airspeed_mps)
         return W, G, D
 
+    def physics_moving(
+        self, motion: Motion, airspeed_mps: FloatArray, model_on: NDArray[np.bool_]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:meth:`physics` of a moving platform: the aero wrench of the moving model (its
+        dynamic derivatives, :meth:`~cdpr.daq.aero_model.AeroModel.wrench_moving_O`), gravity,
+        and the cable windage at the instantaneous pose (the cables' own motion neglected)."""
+        rig = self.rig
+        q = motion.pose
+        R = rotation_from_euler(q[:, 3:])
+        W = self.aero.wrench_moving_O(airspeed_mps, q, motion.rate, motion.accel)
+        W = W * model_on[:, None]
+        G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
+        D = self._cable_drag_O(q[:, :3], R, airspeed_mps)
+        return W, G, D
+
+    def _refuse_infeasible(
+        self,
+        res: Any,
+        rows: NDArray[np.intp],
+        t_s: FloatArray,
+        wind: FloatArray,
+        seg: NDArray[np.int64],
+        inv: NDArray[np.intp],
+    ) -> None:
+        """A ConfigError naming the segment of the first sample (``rows[k]``) whose tensions are
+        not feasible; ``inv`` maps samples to the rows of ``res``."""
+        bad = np.flatnonzero(~np.asarray(res.feasible))
+        if not bad.size:
+            return
+        k = int(np.flatnonzero(inv == bad[0])[0])
+        j = int(rows[k])
+        s = int(seg[j])
+        raise ConfigError(
+            self.schedule.source,
+            f"segments[{s}]",
+            f"no feasible tensions with method {self.schedule.method!r} at t = {t_s[j]:.3f} s "
+            f"(wind {wind[j]:.2f} m/s): residual {float(res.residual_N[bad[0]]):.3g}, "
+            f"limit violation {float(res.max_violation_N[bad[0]]):.3g} N",
+        )
+
     def _compute_truth(self, rng: np.random.Generator) -> None:
         sch, rig, sens = self.schedule, self.rig, self.schedule.sensor
         n = max(1, int(round(sch.duration_s * sch.rate_hz)))
@@ -194,34 +267,47 @@ class VirtualRig:
         self.t_rel_ns = np.round(k * 1e9 / sch.rate_hz).astype(np.int64)
         t_s = self.t_rel_ns.astype(np.float64) * 1e-9
         pos, eul, wind, seg = self._state_at(t_s)
-        # tensions at the unique states only (a few per segment), then broadcast
+        _, rate, acc = self._motion_at(t_s, seg)
+        moving = np.any(rate != 0.0, axis=1) | np.any(acc != 0.0, axis=1)
         model_on = np.array([s.kind != "windage" for s in sch.segments], dtype=np.float64)[seg]
-        state = np.concatenate([pos, eul, wind[:, None], model_on[:, None]], axis=1)
-        uniq, inv = np.unique(np.round(state, 12), axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
-        R_u = rotation_from_euler(uniq[:, 3:6])
-        A_u = structure_matrix(rig.anchors_O_m, rig.attach_P_m, uniq[:, :3], R_u)
-        W_u, G_u, D_u = self.physics(uniq[:, :3], R_u, uniq[:, 6], uniq[:, 7] > 0.5)
-        res = distribute(sch.method, A_u, -(G_u + W_u + D_u), rig.t_min_N, rig.t_max_N)
-        bad = np.flatnonzero(~np.asarray(res.feasible))
-        if bad.size:
-            j = int(np.flatnonzero(inv == bad[0])[0])
-            s = int(seg[j])
-            raise ConfigError(
-                sch.source,
-                f"segments[{s}]",
-                f"no feasible tensions with method {sch.method!r} at t = {t_s[j]:.3f} s "
-                f"(wind {wind[j]:.2f} m/s): residual {float(res.residual_N[bad[0]]):.3g}, "
-                f"limit violation {float(res.max_violation_N[bad[0]]):.3g} N",
+        T_true = np.empty((n, rig.n_cables))
+        W_all, G_all, D_all = np.empty((n, 6)), np.empty((n, 6)), np.empty((n, 6))
+        inertia = np.zeros((n, 6))
+        # held still: tensions at the unique states only (a few per segment), then broadcast
+        still = np.flatnonzero(~moving)
+        if still.size:
+            state = np.concatenate(
+                [pos[still], eul[still], wind[still, None], model_on[still, None]], axis=1
             )
-        T_true = np.asarray(res.tensions_N)[inv]
+            uniq, inv = np.unique(np.round(state, 12), axis=0, return_inverse=True)
+            inv = inv.reshape(-1)
+            R_u = rotation_from_euler(uniq[:, 3:6])
+            A_u = structure_matrix(rig.anchors_O_m, rig.attach_P_m, uniq[:, :3], R_u)
+            W_u, G_u, D_u = self.physics(uniq[:, :3], R_u, uniq[:, 6], uniq[:, 7] > 0.5)
+            res = distribute(sch.method, A_u, -(G_u + W_u + D_u), rig.t_min_N, rig.t_max_N)
+            self._refuse_infeasible(res, still, t_s, wind, seg, inv)
+            T_true[still] = np.asarray(res.tensions_N)[inv]
+            W_all[still], G_all[still], D_all[still] = W_u[inv], G_u[inv], D_u[inv]
+        # moving (an oscillation): the cables carry the motion, A T = D - G - W at every sample
+        mv = np.flatnonzero(moving)
+        if mv.size:
+            motion = Motion(np.concatenate([pos[mv], eul[mv]], axis=1), rate[mv], acc[mv])
+            W_m, _, D_m = self.physics_moving(motion, wind[mv], model_on[mv] > 0.5)
+            mt = motion_tensions(rig, motion, W_m + D_m, sch.method)
+            self._refuse_infeasible(mt.result, mv, t_s, wind, seg, np.arange(mv.size))
+            T_true[mv] = mt.result.tensions_N
+            W_all[mv], G_all[mv], D_all[mv] = W_m, mt.gravity_O, D_m
+            inertia[mv] = mt.inertia_O
         self.position_O_m = pos
         self.euler_rad = eul
+        self.pose_rate = rate
+        self.pose_accel = acc
         self.wind_mps = wind
         self.segment_index = seg.astype(np.int64)
-        self.wrench_aero_O = W_u[inv]
-        self.wrench_gravity_O = G_u[inv]
-        self.wrench_cable_drag_O = D_u[inv]
+        self.wrench_aero_O = W_all
+        self.wrench_gravity_O = G_all
+        self.wrench_cable_drag_O = D_all
+        self.wrench_inertia_O = inertia
         self.tensions_true_N = T_true
 
         # -- sensor model ------------------------------------------------------------------
@@ -298,11 +384,15 @@ class VirtualRig:
         ``k``): ``t_rel_ns`` (n,), ``t_ns`` (n,, host epoch, -1 before start), ``position_O_m``
         (n, 3), ``euler_rad`` (n, 3), ``quaternion_wxyz`` (n, 4), ``wind_mps`` (n,),
         ``wrench_aero_O`` (n, 6), ``wrench_gravity_O`` (n, 6) and ``wrench_cable_drag_O`` (n, 6,
-        zero without a test section) at P in {O} (N, N m),
-        ``tensions_true_N`` (n, m) physics, ``tensions_sensor_N`` (n, m) after noise/drift/faults
-        before quantisation, ``counts`` (n, m), ``channel_status`` (n, m) bits 1 sat 2 slack
-        4 fault, ``sent`` (n,) False in dropouts, ``port_up`` (n,), ``fault_code`` (n, m), segment
-        index, the calibration, and the tunnel arrays (``tunnel_*``)."""
+        zero without a test section) at P in {O} (N, N m), ``pose_rate`` and ``pose_accel``
+        (n, 6) the pose's derivatives (zero except on oscillation points), ``wrench_inertia_O``
+        (n, 6) ``D = M qdd + C`` of the rig file's mass and inertia (the cables carry
+        ``A T = D - G - W_aero - W_cable_drag``), ``camera_clock_offset_ns`` (a scalar: the
+        camera's clock minus the load cells'), ``tensions_true_N`` (n, m) physics,
+        ``tensions_sensor_N`` (n, m) after noise/drift/faults before quantisation, ``counts``
+        (n, m), ``channel_status`` (n, m) bits 1 sat 2 slack 4 fault, ``sent`` (n,) False in
+        dropouts, ``port_up`` (n,), ``fault_code`` (n, m), segment index, the calibration, and
+        the tunnel arrays (``tunnel_*``)."""
         return {
             "t_rel_ns": self.t_rel_ns,
             "t_ns": self._host_ns(self.t_rel_ns),
@@ -314,6 +404,10 @@ class VirtualRig:
             "wrench_aero_O": self.wrench_aero_O,
             "wrench_gravity_O": self.wrench_gravity_O,
             "wrench_cable_drag_O": self.wrench_cable_drag_O,
+            "pose_rate": self.pose_rate,
+            "pose_accel": self.pose_accel,
+            "wrench_inertia_O": self.wrench_inertia_O,
+            "camera_clock_offset_ns": np.int64(self.schedule.camera_clock_offset_ns),
             "tensions_true_N": self.tensions_true_N,
             "tensions_sensor_N": self.tensions_sensor_N,
             "counts": self.counts,
@@ -370,7 +464,11 @@ class VirtualRig:
         t = 0.0
         for s in self.schedule.segments:
             if s.is_test_point:
-                for phase, t_s in (("start", t + s.transition_s), ("end", t + s.duration_s)):
+                osc = s.oscillation
+                start = t + s.transition_s
+                end = t + s.duration_s if osc is None else start + osc.window_s[1]
+                extra = {} if osc is None else oscillation_event_fields(s)
+                for phase, t_s in (("start", start), ("end", end)):
                     out.append(
                         {
                             "t_rel_ns": int(round(t_s * 1e9)),
@@ -383,10 +481,26 @@ class VirtualRig:
                             "target_sideslip_deg": s.target_sideslip_deg,
                             "target_airspeed_mps": s.wind_mps,
                             "repeat_of": s.repeat_of,
+                            **extra,
                         }
                     )
             t += s.duration_s
         return out
+
+    def aero_derivatives(self) -> tuple[list[str], FloatArray]:
+        """The dynamic derivatives a noiseless reduction of each oscillation segment would find
+        (:meth:`~cdpr.daq.aero_model.AeroModel.oscillation_derivatives` at the segment's motion,
+        mean pose and wind): ``(names, values (n_segments, k))``, NaN rows for other segments
+        and wind-off ones."""
+        names = list(DERIVATIVE_NAMES)
+        out = np.full((len(self.schedule.segments), len(names)), np.nan)
+        for i, s in enumerate(self.schedule.segments):  # segments, not samples
+            osc = s.oscillation
+            if osc is not None and s.wind_mps > 0 and s.kind != "windage":
+                mean = np.array([*s.position_O_m, *s.euler_rad])
+                d = self.aero.oscillation_derivatives(osc, mean, s.wind_mps)
+                out[i] = [d[k] for k in names]
+        return names, out
 
     def write_calibration(self, path: str | os.PathLike[str]) -> Path:
         """Write the amplifiers' true calibration as a load-cell calibration file (the format
@@ -404,16 +518,41 @@ class VirtualRig:
         return Path(path)
 
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
-        """Write the truth atomically: ``.npz`` (all arrays plus ``cable_names``, ``segment_labels``)
-        or ``.csv`` (one row per sample: times, pose, wind, wrench, true and sensor tensions)."""
+        """Write the truth atomically: ``.npz`` (all arrays of :meth:`truth` plus ``cable_names``,
+        ``segment_labels``, ``segment_kinds``, per segment its motion (``segment_motion_axis``,
+        ``_amplitude`` (rad or m), ``_frequency_Hz``, ``_cycles``, ``_settling_cycles``,
+        ``_start_rel_ns`` the motion's start, ``segment_inertia_tare``), the dynamic derivatives
+        of :meth:`aero_derivatives` (``derivative_names``, ``segment_derivatives``) and the aero
+        model's coefficients (``aero_model_names``, ``aero_model_values``: CL_alpha, Cmq, Cnr,
+        ...)) or ``.csv`` (one row per sample: times, pose, wind, wrench, true and sensor
+        tensions)."""
         p = Path(path)
         tr = self.truth()
         if p.suffix == ".npz":
             buf = io.BytesIO()
+            segs = self.schedule.segments
+            d_names, d_values = self.aero_derivatives()
+            aero = self.aero.to_mapping()
+            coef = [k for k, v in aero.items() if isinstance(v, float) and k[:1] in "CkK"]
             arrays: dict[str, Any] = {
                 "cable_names": np.array(self.cable_names),
-                "segment_labels": np.array([s.label for s in self.schedule.segments]),
-                "segment_kinds": np.array([s.kind for s in self.schedule.segments]),
+                "segment_labels": np.array([s.label for s in segs]),
+                "segment_kinds": np.array([s.kind for s in segs]),
+                "segment_motion_axis": np.array([s.motion_axis for s in segs]),
+                "segment_motion_amplitude": np.array([s.motion_amplitude for s in segs]),
+                "segment_motion_frequency_Hz": np.array([s.motion_frequency_Hz for s in segs]),
+                "segment_motion_cycles": np.array([s.motion_cycles for s in segs], np.int64),
+                "segment_motion_settling_cycles": np.array(
+                    [s.motion_settling_cycles for s in segs], np.int64
+                ),
+                "segment_motion_start_rel_ns": np.array(
+                    [round(self.motion_start_s(i) * 1e9) for i in range(len(segs))], np.int64
+                ),
+                "segment_inertia_tare": np.array([s.inertia_tare for s in segs]),
+                "derivative_names": np.array(d_names),
+                "segment_derivatives": d_values,
+                "aero_model_names": np.array(coef),
+                "aero_model_values": np.array([aero[k] for k in coef], np.float64),
                 **tr,
             }
             np.savez(buf, allow_pickle=False, **arrays)
@@ -457,6 +596,13 @@ class VirtualRig:
         shape = t.shape
         pos, eul, _, _ = self._state_at(np.clip(t.reshape(-1), 0.0, self.schedule.duration_s))
         return pos.reshape(shape + (3,)), rotation_from_euler(eul).reshape(shape + (3, 3))
+
+    def camera_pose_at(self, t_cam_ns: Any) -> tuple[FloatArray, FloatArray]:
+        """The true pose a camera whose clock runs ``schedule.camera_clock_offset_ns`` ahead of
+        the load cells' sees in the frame it stamps ``t_cam_ns``: the pose at
+        ``t_cam_ns - offset`` (host times; :meth:`true_pose_at`)."""
+        t = np.asarray(t_cam_ns, dtype=np.int64) - np.int64(self.schedule.camera_clock_offset_ns)
+        return self.true_pose_at(t)
 
     def true_pose_at(self, t_ns: Any) -> tuple[FloatArray, FloatArray]:
         """True pose at host times ``t_ns`` (..., epoch ns): (position_O_m (..., 3), R_O_P (..., 3, 3)).

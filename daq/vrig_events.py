@@ -34,7 +34,34 @@ EVENT_FIELDS = {
     "target_sideslip_deg": FieldDescription("deg"),
     "target_airspeed_mps": FieldDescription("m/s"),
     "repeat_of": FieldDescription("", "str"),
+    "motion_axis": FieldDescription("", "str"),
+    "motion_amplitude": FieldDescription("rad or m"),
+    "motion_frequency_Hz": FieldDescription("Hz"),
+    "motion_cycles": FieldDescription("", "int64"),
+    "motion_settling_cycles": FieldDescription("", "int64"),
+    "inertia_tare": FieldDescription("", "str"),
 }
+"""The fields of a ``test_point`` event; the ``motion_*`` fields and ``inertia_tare`` on an
+oscillation point's events only (:func:`oscillation_event_fields`)."""
+
+MOTION_EVENT_FIELDS = (
+    "motion_axis",
+    "motion_amplitude",
+    "motion_frequency_Hz",
+    "motion_cycles",
+    "motion_settling_cycles",
+    "inertia_tare",
+)
+"""The event fields of an oscillation point's motion (issue 22's shared names): the axis, the
+amplitude in SI (rad or m), the frequency, the cycles analysed and the settling cycles before
+them, the label of the inertia tare that serves it ("" if none)."""
+
+
+def oscillation_event_fields(point: Any) -> dict[str, Any]:
+    """The :data:`MOTION_EVENT_FIELDS` of an oscillation point or segment (any object with those
+    attributes), as plain Python values."""
+    cast = {"str": str, "int64": int, "float64": float}
+    return {k: cast[EVENT_FIELDS[k].dtype](getattr(point, k)) for k in MOTION_EVENT_FIELDS}
 
 
 class TestPointEventSource(Source):

@@ -17,7 +17,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, POINT_KINDS
+from cdpr.analysis.errors import ConfigError, InputError
+from cdpr.analysis.motion import MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
 
 from .aero_model import AeroModel, aero_from_mapping
@@ -50,11 +52,13 @@ FAULT_KINDS = (
 # schedule
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class Segment:
+class Segment(OscillationFields):
     """One constant test condition: pose of P in {O}, wind speed, duration.
 
     Values ramp linearly from the previous segment's over ``transition_s`` (quasi-static: the
     inertia of the slow move is neglected).  ``tare``: a wind-off tare segment (wind must be 0).
+    An oscillation segment (``kind`` oscillation or oscillation_tare) carries its motion
+    (:class:`~cdpr.analysis.motion.OscillationFields`, ``.oscillation``) about its pose.
     """
 
     label: str
@@ -129,13 +133,28 @@ class Schedule:
     aero: AeroModel = field(default_factory=AeroModel)
     source: str = "<memory>"
     test_points_on_link: bool = False
+    camera_clock_offset_ns: int = 0
+    pose_camera: PoseCamera | None = None
 
     @property
     def duration_s(self) -> float:
         return float(sum(s.duration_s for s in self.segments))
 
 
-POINT_KINDS = ("wind_on", "tare", "zero", "windage")
+@dataclass(frozen=True)
+class PoseCamera:
+    """A camera that delivers the platform pose (a motion-capture system; no frames rendered):
+    the true pose at ``rate_hz`` with white noise of ``position_sd_m`` per axis and
+    ``rotation_sd_rad`` per axis of a small rotation in {O} (``[pose_camera]`` of a schedule,
+    ``[virtual_rig.pose_camera]`` of a test matrix)."""
+
+    rate_hz: float = 200.0
+    position_sd_m: float = 5.0e-5
+    rotation_sd_rad: float = math.radians(0.01)
+
+
+MAX_CLOCK_OFFSET_NS = 10**12
+"""Largest camera clock offset (ns) in magnitude: 1000 s."""
 PER_CABLE_FAULTS = ("slack", "saturate", "stuck", "sensor_fault")
 
 _Rate_hz = Annotated[float, Field(gt=0.0, le=MAX_RATE_HZ)]
@@ -158,6 +177,9 @@ class ScheduleSection(Schema):
     seed: int = 0
     bitrate: Annotated[int, Field(gt=0, le=MAX_BITRATE)] = 1_000_000
     test_points_on_link: bool = False
+    camera_clock_offset_ns: Annotated[
+        int, Field(ge=-MAX_CLOCK_OFFSET_NS, le=MAX_CLOCK_OFFSET_NS)
+    ] = 0
 
 
 class SegmentSection(Schema):
@@ -171,10 +193,16 @@ class SegmentSection(Schema):
     euler_deg: Annotated[list[_Angle_deg], Field(min_length=3, max_length=3)] | None = None
     transition_s: _Time_s = 0.0
     tare: bool = False
-    kind: Literal["", "wind_on", "tare", "zero", "windage"] = ""
+    kind: Text = ""
     target_aoa_deg: _Angle_deg = 0.0
     target_sideslip_deg: _Angle_deg = 0.0
     repeat_of: Text = ""
+    motion_axis: Text = ""
+    motion_amplitude: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
+    motion_frequency_Hz: Annotated[float, Field(ge=0.0, le=1e4)] = 0.0
+    motion_cycles: Annotated[int, Field(ge=0, le=10**7)] = 0
+    motion_settling_cycles: Annotated[int, Field(ge=0, le=10**6)] = 0
+    inertia_tare: Text = ""
 
 
 class FaultSection(Schema):
@@ -208,14 +236,24 @@ class SensorSection(Schema):
     )
 
 
+class PoseCameraSection(Schema):
+    """``[pose_camera]``: a camera that delivers the pose (:class:`PoseCamera`)."""
+
+    rate_hz: Annotated[float, Field(gt=0.0, le=1e5)] = PoseCamera.rate_hz
+    position_sd_m: Annotated[float, Field(ge=0.0, le=1.0)] = PoseCamera.position_sd_m
+    rotation_sd_deg: Annotated[float, Field(ge=0.0, le=90.0)] = 0.01
+
+
 class ScheduleFile(Schema):
     """A schedule file: ``[schedule]``, ``[[segments]]``, ``[[faults]]``, ``[sensor]``,
-    ``[aero]`` (the last one checked by :class:`cdpr.daq.aero_model.AeroSection`)."""
+    ``[pose_camera]``, ``[aero]`` (the last one checked by
+    :class:`cdpr.daq.aero_model.AeroSection`)."""
 
     schedule: ScheduleSection = Field(default_factory=ScheduleSection)
     segments: Annotated[list[SegmentSection], Field(min_length=1, max_length=100_000)]
     faults: Annotated[list[FaultSection], Field(max_length=10_000)] = Field(default_factory=list)
     sensor: SensorSection = Field(default_factory=SensorSection)
+    pose_camera: PoseCameraSection | None = None
     aero: dict[str, Any] | None = None
 
 
@@ -247,9 +285,14 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
     prev_e = (float(re_[0]), float(re_[1]), float(re_[2]))
     for i, s in enumerate(f.segments):
         k = f"segments[{i}]"
-        tare = s.tare or s.kind in ("tare", "zero")
-        if s.kind in ("wind_on", "windage") and s.wind_mps == 0:
+        if s.kind not in ("", *POINT_KINDS):
+            raise ConfigError(
+                source, f"{k}.kind", f"expected one of {list(POINT_KINDS)}, got {s.kind!r}"
+            )
+        tare = s.tare or s.kind in ("tare", "zero", "oscillation_tare")
+        if s.kind in ("oscillation", "wind_on", "windage") and s.wind_mps == 0:
             raise ConfigError(source, f"{k}.wind_mps", f"a {s.kind} point needs wind > 0")
+        _check_motion(source, k, s, f.schedule.test_points_on_link)
         if tare and s.wind_mps != 0:
             raise ConfigError(source, f"{k}.wind_mps", "a tare segment is wind-off: must be 0")
         if s.euler_rad is not None and s.euler_deg is not None:
@@ -278,6 +321,12 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
                 s.target_aoa_deg,
                 s.target_sideslip_deg,
                 s.repeat_of,
+                motion_axis=s.motion_axis,
+                motion_amplitude=s.motion_amplitude,
+                motion_frequency_Hz=s.motion_frequency_Hz,
+                motion_cycles=s.motion_cycles,
+                motion_settling_cycles=s.motion_settling_cycles,
+                inertia_tare=s.inertia_tare,
             )
         )
         prev_p, prev_e = pos, eul
@@ -338,7 +387,61 @@ def schedule_from_mapping(data: Mapping[str, Any], source: str, rig: Rig) -> Sch
         aero=aero_from_mapping(f.aero, source),
         source=source,
         test_points_on_link=sch.test_points_on_link,
+        camera_clock_offset_ns=sch.camera_clock_offset_ns,
+        pose_camera=(
+            None
+            if f.pose_camera is None
+            else PoseCamera(
+                f.pose_camera.rate_hz,
+                f.pose_camera.position_sd_m,
+                math.radians(f.pose_camera.rotation_sd_deg),
+            )
+        ),
     )
+
+
+def _check_motion(source: str, k: str, s: SegmentSection, on_link: bool) -> None:
+    """An oscillation segment has its motion (and fits it), any other has none."""
+    moving = s.kind in OSCILLATION_POINT_KINDS
+    if not moving:
+        if s.motion_axis:
+            raise ConfigError(
+                source, f"{k}.motion_axis", f"only an oscillation point moves (kind {s.kind!r})"
+            )
+        return
+    if on_link:
+        raise ConfigError(
+            source,
+            f"{k}.kind",
+            "an oscillation point cannot go on the tunnel link ($TPT lines carry no motion): "
+            "set test_points_on_link = false",
+        )
+    if not s.motion_axis:
+        raise ConfigError(
+            source,
+            f"{k}.motion_axis",
+            f"missing: an {s.kind} point needs one of {list(MOTION_AXES)}",
+        )
+    try:
+        osc = Oscillation(
+            s.motion_axis,
+            s.motion_amplitude,
+            s.motion_frequency_Hz,
+            s.motion_cycles,
+            s.motion_settling_cycles,
+        )
+    except InputError as exc:
+        key = str(exc).split(":")[0]
+        raise ConfigError(source, f"{k}.motion_{key}", str(exc).split(": ", 1)[-1]) from None
+    need = s.transition_s + osc.duration_s
+    if s.duration_s < need - 1e-9:
+        raise ConfigError(
+            source,
+            f"{k}.duration_s",
+            f"{s.duration_s:g} s is shorter than the ramp and the motion ({need:g} s: "
+            f"{osc.settling_cycles} + {osc.cycles} + {osc.ramp_down_cycles} cycles at "
+            f"{osc.frequency_Hz:g} Hz)",
+        )
 
 
 def load_schedule(path: str | os.PathLike[str], rig: Rig) -> Schedule:

@@ -148,10 +148,6 @@ class RigRun:
         vr = self.vr
         try:
             self._wait_reader()
-            t0 = time.time_ns()
-            vr.t0_ns = t0
-            vr.speed = self.speed
-            self.started.set()
             lat_ns = int(vr.schedule.sensor.latency_s * 1e9)
             # the controller's $TPT lines (schedule test_points_on_link) go out on the tunnel link
             tpt_t, tpt_lines = (
@@ -171,7 +167,13 @@ class RigRun:
             ev_idx = np.concatenate([np.arange(vr.n_samples), np.arange(nt), np.arange(np_)])
             order = np.argsort(ev_t, kind="stable")
             vanished = False
+            # the schedule's start on both clocks at once (the truth's t_ns = t0 + t_rel / speed
+            # is when each sample is sent, not a few ms before: building the lists above takes
+            # milliseconds at 1 kHz)
             mono0 = time.monotonic_ns()
+            vr.t0_ns = time.time_ns()
+            vr.speed = self.speed
+            self.started.set()
             for e in order:
                 if self._stop.is_set():
                     break

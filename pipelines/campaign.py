@@ -48,25 +48,29 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cdpr.analysis.aero import attitude_from_flow_angles
+from cdpr.analysis.aero import ModelGeometry, attitude_from_flow_angles
+from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, WIND_OFF_KINDS
+from cdpr.analysis.conventions import POINT_KINDS as KINDS
 from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.motion import ANGULAR_AXES, MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_rotation
 from cdpr.daq.files import load_toml
 from cdpr.daq.virtual_rig import Schedule, schedule_from_mapping
+from cdpr.daq.vrig_events import oscillation_event_fields
 
 from .tunnel_section import TunnelSection, tunnel_section_from_mapping
 
-KINDS = ("wind_on", "tare", "zero", "windage")
-WIND_OFF_KINDS = ("tare", "zero")
+_WIND_OFF = (*WIND_OFF_KINDS, "oscillation_tare")
+"""Kinds whose airspeed must be 0: the wind-off ones at rest and the inertia tare."""
 
-_TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig"}
+_TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig", "aero_estimate"}
 _CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
 _MODEL = {"name", "area_m2", "span_m", "chord_m", "mrp_P_m", "volume_m3"}
 _MODEL_WALLS = {
@@ -89,31 +93,40 @@ _POINT = {
     "repeat_of",
     "position_O_m",
 }
+_MOTION = {
+    "axis",
+    "amplitude_deg",
+    "amplitude_m",
+    "frequency_Hz",
+    "cycles",
+    "settling_cycles",
+    "inertia_tare",
+}
+"""Keys of an oscillation point beside the steady ones (docs/dynamic_tests.md)."""
+DEFAULT_SETTLING_CYCLES = 2
+"""Settling cycles of an oscillation point that names none: the amplitude ramps up over them."""
 _VRIG = {
     "rate_hz", "tunnel_rate_hz", "method", "seed", "bitrate", "sensor", "aero", "faults",
-    "test_points_on_link",
+    "test_points_on_link", "camera_clock_offset_ns", "pose_camera",
 }  # fmt: skip
 _AERO_FROM_MODEL = ("c_ref_m", "b_ref_m", "s_ref_m2", "mrp_P_m")
+_POSE_CAMERA = {"rate_hz", "position_sd_m", "rotation_sd_deg"}
+_AERO_ESTIMATE = {
+    "CL0", "CL_alpha", "CD0", "k_induced", "CY_beta", "Cl_beta", "Cm0", "Cm_alpha", "Cn_beta",
+    "CLq", "CLadot", "Cmq", "Cmadot", "Clp", "Clr", "Cnr", "Cnp", "Cnbetadot",
+    "static_pressure_Pa", "temperature_K", "relative_humidity",
+}  # fmt: skip
+"""Keys of ``[aero_estimate]``: the aero model's coefficients and air (geometry from [model])."""
 
 
 @dataclass(frozen=True)
-class ModelGeometry:
-    """Reference geometry of the model: area (m^2), span and chord (m), MRP in {P} (m)."""
-
-    name: str
-    area_m2: float
-    span_m: float
-    chord_m: float
-    mrp_P_m: tuple[float, float, float]
-    volume_m3: float | None = None
-
-
-@dataclass(frozen=True)
-class TestPoint:
+class TestPoint(OscillationFields):
     """One test point of the matrix, in run order.
 
-    kind: "wind_on" | "tare" | "zero" | "windage"; targets in degrees and m/s; duration_s: time
-    held at the target after a ramp of transition_s; repeat_of: label of the point it repeats or "".
+    kind: one of :data:`KINDS`; targets in degrees and m/s; duration_s: time held at the target
+    after a ramp of transition_s (an oscillation: its motion, ramp-down included); repeat_of:
+    label of the point it repeats or ""; an oscillation point's motion and inertia tare
+    (:class:`~cdpr.analysis.motion.OscillationFields`, ``.oscillation``).
     """
 
     __test__ = False  # not a pytest class
@@ -127,6 +140,32 @@ class TestPoint:
     transition_s: float
     repeat_of: str = ""
     position_O_m: tuple[float, float, float] | None = None
+
+    def event_fields(self) -> dict[str, Any]:
+        """The fields of this point's ``test_point`` events (docs/campaign.md): ``point``,
+        ``kind``, the targets, ``repeat_of``, and an oscillation's motion and inertia tare."""
+        out: dict[str, Any] = {
+            "point": self.label,
+            "kind": self.kind,
+            "target_aoa_deg": self.aoa_deg,
+            "target_sideslip_deg": self.sideslip_deg,
+            "target_airspeed_mps": self.airspeed_mps,
+            "repeat_of": self.repeat_of,
+        }
+        if self.kind in OSCILLATION_POINT_KINDS:
+            out.update(oscillation_event_fields(self))
+        return out
+
+    def motion_key(self) -> tuple[Any, ...]:
+        """What an oscillation and its inertia tare share: the motion and the mean pose."""
+        return (
+            self.motion_axis,
+            self.motion_amplitude,
+            self.motion_frequency_Hz,
+            self.aoa_deg,
+            self.sideslip_deg,
+            self.position_O_m,
+        )
 
     @property
     def euler_rad(self) -> tuple[float, float, float]:
@@ -155,6 +194,10 @@ class TestMatrix:
     tunnel: TunnelSection | None = None
     """The ``[tunnel]`` table with the wall-correction keys of ``[model]`` (None: no test section
     given: no wall corrections and no windage model, said by the reduction's flags)."""
+    aero_estimate: Mapping[str, Any] | None = None
+    """The ``[aero_estimate]`` table: the expected aerodynamic coefficients the motion planner
+    loads the plan with (keys of the virtual rig's aero model, geometry from ``[model]``); None
+    when the matrix gives none (the planner then says it uses the aero model's defaults)."""
 
     def point(self, label: str) -> TestPoint:
         for p in self.points:
@@ -170,6 +213,11 @@ class TestMatrix:
             for p in self.points
             if p.kind == "wind_on" and (p.aoa_deg, p.sideslip_deg) not in tares
         ]
+
+    def missing_inertia_tares(self) -> list[str]:
+        """Labels of oscillation points no ``oscillation_tare`` serves (flag ``no_inertia_tare``:
+        the reduction then removes the inertia of the rig file's mass and inertia, said so)."""
+        return [p.label for p in self.points if p.kind == "oscillation" and not p.inertia_tare]
 
 
 # --------------------------------------------------------------------------------------------
@@ -293,7 +341,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
     seen: dict[str, int] = {}
     for i, entry in enumerate(raw):
         key = f"points[{i}]"
-        t = _table(src, key, entry, _POINT)
+        t = _table(src, key, entry, _POINT | _MOTION)
         if "label" not in t:
             raise ConfigError(src, f"{key}.label", "missing")
         label = _str(src, f"{key}.label", t["label"])
@@ -308,12 +356,13 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         for name, vals in (("aoa_deg", aoas), ("sideslip_deg", betas)):
             if any(abs(v) >= 90.0 for v in vals):
                 raise ConfigError(src, f"{key}.{name}", "expected angles within (-90, 90) degrees")
-        if kind in WIND_OFF_KINDS and any(v != 0.0 for v in speeds):
+        if kind in _WIND_OFF and any(v != 0.0 for v in speeds):
             raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point is wind-off: must be 0")
-        if kind in ("wind_on", "windage") and any(v == 0.0 for v in speeds):
+        if kind in ("wind_on", "windage", "oscillation") and any(v == 0.0 for v in speeds):
             raise ConfigError(src, f"{key}.airspeed_mps", f"a {kind} point needs airspeed > 0")
         if kind == "zero" and any(v != 0.0 for v in aoas + betas):
             raise ConfigError(src, f"{key}.aoa_deg", "a zero point is level: aoa and sideslip 0")
+        motion = _motion(src, key, t, kind)
         dur = _num(src, f"{key}.duration_s", t.get("duration_s", dft_dur), 0.0, True)
         tr = _num(src, f"{key}.transition_s", t.get("transition_s", dft_tr), 0.0)
         pos = (
@@ -322,23 +371,36 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         repeat_of = t.get("repeat_of", "")
         if not isinstance(repeat_of, str):
             raise ConfigError(src, f"{key}.repeat_of", f"expected a label, got {repeat_of!r}")
-        sweep = len(aoas) * len(betas) * len(speeds) > 1
+        amps, freqs = motion.amplitudes, motion.frequencies
+        sweep = len(aoas) * len(betas) * len(speeds) * len(amps) * len(freqs) > 1
         if sweep and repeat_of:
             raise ConfigError(src, f"{key}.repeat_of", "a sweep cannot repeat one point")
         for v in speeds:
             for b in betas:
                 for a in aoas:
-                    lab = f"{label}-a{_fmt(a)}-b{_fmt(b)}-v{_fmt(v)}" if sweep else label
-                    if lab in seen:
-                        raise ConfigError(
-                            src,
-                            f"{key}.label",
-                            f"label {lab!r} already used by points[{seen[lab]}]",
-                        )
-                    seen[lab] = i
-                    points.append(TestPoint(lab, kind, a, b, v, dur, tr, repeat_of, pos))
+                    for amp in amps:
+                        for fr in freqs:
+                            lab = label
+                            if sweep:
+                                lab = f"{label}-a{_fmt(a)}-b{_fmt(b)}-v{_fmt(v)}"
+                                if motion.axis:
+                                    lab = (
+                                        f"{label}-A{_fmt(amp)}-f{_fmt(fr)}-a{_fmt(a)}-b{_fmt(b)}"
+                                        f"-v{_fmt(v)}"
+                                    )
+                            if lab in seen:
+                                raise ConfigError(
+                                    src,
+                                    f"{key}.label",
+                                    f"label {lab!r} already used by points[{seen[lab]}]",
+                                )
+                            seen[lab] = i
+                            points.append(
+                                _point(lab, kind, a, b, v, dur, tr, repeat_of, pos, motion, amp, fr)
+                            )
         if repeat_of:
             _check_repeat(src, key, points[-1], points[:-1])
+    points = _resolve_inertia_tares(src, points, seen)
     vrig = _table(src, "virtual_rig", data.get("virtual_rig", {}), _VRIG)
     aero = vrig.get("aero", {})
     if isinstance(aero, Mapping):
@@ -347,6 +409,26 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
                 raise ConfigError(
                     src, f"virtual_rig.aero.{k}", "the model geometry comes from [model] only"
                 )
+    if "pose_camera" in vrig:
+        _table(src, "virtual_rig.pose_camera", vrig["pose_camera"], _POSE_CAMERA)
+    if "camera_clock_offset_ns" in vrig:
+        off = vrig["camera_clock_offset_ns"]
+        if isinstance(off, bool) or not isinstance(off, int):
+            raise ConfigError(
+                src, "virtual_rig.camera_clock_offset_ns", f"expected an integer (ns), got {off!r}"
+            )
+    if "pose_camera" in vrig and optional["camera"] is not None:
+        raise ConfigError(
+            src,
+            "virtual_rig.pose_camera",
+            "one camera: campaign.camera (rendered frames) or [virtual_rig.pose_camera], not both",
+        )
+    aero_estimate = None
+    if "aero_estimate" in data:
+        aero_estimate = _table(src, "aero_estimate", data["aero_estimate"], _AERO_ESTIMATE)
+        from cdpr.daq.aero_model import aero_from_mapping
+
+        aero_from_mapping(aero_estimate, src, key="aero_estimate")  # checked here, used by plan
     name = camp.get("name", Path(src).stem)
     return TestMatrix(
         name=_str(src, "campaign.name", name),
@@ -356,6 +438,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         points=points,
         virtual_rig=dict(vrig),
         tunnel=tunnel,
+        aero_estimate=None if aero_estimate is None else dict(aero_estimate),
         **optional,
     )
 
@@ -384,11 +467,12 @@ def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint])
     ref = next((q for q in before if q.label == p.repeat_of), None)
     if ref is None:
         raise ConfigError(src, f"{key}.repeat_of", f"no earlier point labelled {p.repeat_of!r}")
-    if (ref.kind, ref.aoa_deg, ref.sideslip_deg, ref.airspeed_mps) != (
+    if (ref.kind, ref.aoa_deg, ref.sideslip_deg, ref.airspeed_mps, ref.motion_key()[:3]) != (
         p.kind,
         p.aoa_deg,
         p.sideslip_deg,
         p.airspeed_mps,
+        p.motion_key()[:3],  # and the same motion (axis, amplitude, frequency)
     ):
         raise ConfigError(
             src,
@@ -398,6 +482,142 @@ def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint])
         )
     if ref.repeat_of:
         raise ConfigError(src, f"{key}.repeat_of", f"{ref.label!r} is itself a repeat")
+
+
+@dataclass(frozen=True)
+class _Motion:
+    """The motion keys of one ``[[points]]`` table (empty axis: a steady point)."""
+
+    axis: str = ""
+    amplitudes: tuple[float, ...] = (0.0,)
+    frequencies: tuple[float, ...] = (0.0,)
+    unit: str = ""
+    cycles: int = 0
+    settling_cycles: int = 0
+    inertia_tare: str = ""
+
+
+def _int(src: str, key: str, v: Any, lo: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ConfigError(src, key, f"expected a whole number, got {v!r}")
+    if v < lo:
+        raise ConfigError(src, key, f"must be >= {lo}, got {v}")
+    return v
+
+
+def _motion(src: str, key: str, t: Mapping[str, Any], kind: str) -> _Motion:
+    """The motion of an oscillation point (checked), or the empty motion of a steady one."""
+    given = sorted(set(t) & _MOTION)
+    if kind not in OSCILLATION_POINT_KINDS:
+        if given:
+            raise ConfigError(
+                src, f"{key}.{given[0]}", f"only an oscillation point takes it (kind {kind!r})"
+            )
+        return _Motion()
+    if "duration_s" in t:
+        raise ConfigError(
+            src,
+            f"{key}.duration_s",
+            "an oscillation point lasts its cycles: (settling_cycles + cycles + 1) / frequency_Hz",
+        )
+    if kind == "oscillation_tare" and "inertia_tare" in t:
+        raise ConfigError(src, f"{key}.inertia_tare", "only an oscillation point has a tare")
+    if "axis" not in t:
+        raise ConfigError(src, f"{key}.axis", f"missing (one of {list(MOTION_AXES)})")
+    axis = t["axis"]
+    if axis not in MOTION_AXES:
+        raise ConfigError(src, f"{key}.axis", f"expected one of {list(MOTION_AXES)}, got {axis!r}")
+    unit = "deg" if axis in ANGULAR_AXES else "m"
+    other = "m" if unit == "deg" else "deg"
+    if f"amplitude_{other}" in t:
+        raise ConfigError(
+            src, f"{key}.amplitude_{other}", f"a {axis} oscillation takes amplitude_{unit}"
+        )
+    if f"amplitude_{unit}" not in t:
+        raise ConfigError(src, f"{key}.amplitude_{unit}", f"missing (the {axis} amplitude)")
+    amps = _nums(src, f"{key}.amplitude_{unit}", t[f"amplitude_{unit}"], 0.0)
+    if any(a <= 0 for a in amps):
+        raise ConfigError(src, f"{key}.amplitude_{unit}", "must be > 0")
+    if unit == "deg" and any(a >= 90.0 for a in amps):
+        raise ConfigError(src, f"{key}.amplitude_deg", "expected an amplitude below 90 degrees")
+    if "frequency_Hz" not in t:
+        raise ConfigError(src, f"{key}.frequency_Hz", "missing (the oscillation's frequency)")
+    freqs = _nums(src, f"{key}.frequency_Hz", t["frequency_Hz"], 0.0)
+    if any(f <= 0 for f in freqs):
+        raise ConfigError(src, f"{key}.frequency_Hz", "must be > 0")
+    if "cycles" not in t:
+        raise ConfigError(src, f"{key}.cycles", "missing (whole cycles to analyse)")
+    cycles = _int(src, f"{key}.cycles", t["cycles"], 1)
+    settling = _int(
+        src, f"{key}.settling_cycles", t.get("settling_cycles", DEFAULT_SETTLING_CYCLES), 1
+    )
+    tare = t.get("inertia_tare", "")
+    if not isinstance(tare, str):
+        raise ConfigError(src, f"{key}.inertia_tare", f"expected a label, got {tare!r}")
+    return _Motion(axis, tuple(amps), tuple(freqs), unit, cycles, settling, tare)
+
+
+def _point(
+    label: str,
+    kind: str,
+    aoa: float,
+    beta: float,
+    speed: float,
+    duration: float,
+    transition: float,
+    repeat_of: str,
+    pos: tuple[float, float, float] | None,
+    motion: _Motion,
+    amplitude: float,
+    frequency: float,
+) -> TestPoint:
+    """One expanded point; an oscillation's duration is its motion's (ramp down included)."""
+    if not motion.axis:
+        return TestPoint(label, kind, aoa, beta, speed, duration, transition, repeat_of, pos)
+    amp = math.radians(amplitude) if motion.unit == "deg" else amplitude
+    osc = Oscillation(motion.axis, amp, frequency, motion.cycles, motion.settling_cycles)
+    return TestPoint(
+        label, kind, aoa, beta, speed, osc.duration_s, transition, repeat_of, pos,
+        motion_axis=motion.axis, motion_amplitude=amp, motion_frequency_Hz=frequency,
+        motion_cycles=motion.cycles, motion_settling_cycles=motion.settling_cycles,
+        inertia_tare=motion.inertia_tare,
+    )  # fmt: skip
+
+
+def _resolve_inertia_tares(
+    src: str, points: list[TestPoint], table_of: Mapping[str, int]
+) -> list[TestPoint]:
+    """Each oscillation point with the label of the ``oscillation_tare`` that serves it: the one
+    it names (checked: same motion and mean pose), else the nearest matching one before it,
+    else the first after it, else "" (missing: :meth:`TestMatrix.missing_inertia_tares`)."""
+    out = list(points)
+    for i, p in enumerate(points):
+        if p.kind != "oscillation":
+            continue
+        key = f"points[{table_of[p.label]}].inertia_tare"
+        if p.inertia_tare:
+            ref = next((q for q in points if q.label == p.inertia_tare), None)
+            if ref is None:
+                raise ConfigError(src, key, f"no point labelled {p.inertia_tare!r}")
+            if ref.kind != "oscillation_tare":
+                raise ConfigError(
+                    src, key, f"{ref.label!r} is a {ref.kind} point, not an oscillation_tare"
+                )
+            if ref.motion_key() != p.motion_key():
+                raise ConfigError(
+                    src,
+                    key,
+                    f"{ref.label!r} has another motion or mean pose than {p.label!r} (axis, "
+                    "amplitude, frequency, aoa, sideslip and position must match)",
+                )
+            continue
+        match = [j for j, q in enumerate(points)
+                 if q.kind == "oscillation_tare" and q.motion_key() == p.motion_key()]  # fmt: skip
+        before = [j for j in match if j < i]
+        j = before[-1] if before else (match[0] if match else None)
+        if j is not None:
+            out[i] = replace(p, inertia_tare=points[j].label)
+    return out
 
 
 def load_test_matrix(path: str | os.PathLike[str]) -> TestMatrix:
@@ -411,8 +631,9 @@ def load_test_matrix(path: str | os.PathLike[str]) -> TestMatrix:
 # --------------------------------------------------------------------------------------------
 def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
     """The virtual-rig schedule (a TOML mapping for :func:`cdpr.daq.virtual_rig.schedule_from_mapping`)
-    that runs the matrix: one segment per point (ramp ``transition_s`` then ``duration_s`` held),
-    carrying the point's label, kind and targets so the rig emits the test-point events.
+    that runs the matrix: one segment per point (ramp ``transition_s`` then ``duration_s`` held,
+    or the oscillation's motion about the point's mean pose), carrying the point's label, kind,
+    targets and motion so the rig emits the test-point events.
 
     The aero model takes its reference geometry and MRP from ``[model]``; ``[virtual_rig]`` sets
     rates, method, seed, the sensor and aero tables and faults.
@@ -424,12 +645,14 @@ def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
     out: dict[str, Any] = {
         "schedule": {
             "name": matrix.name,
-            **{k: v for k, v in vr.items() if k not in ("sensor", "faults")},
+            **{k: v for k, v in vr.items() if k not in ("sensor", "faults", "pose_camera")},
         },
         "aero": aero,
     }
     if "sensor" in vr:
         out["sensor"] = dict(vr["sensor"])
+    if "pose_camera" in vr:
+        out["pose_camera"] = dict(vr["pose_camera"])
     if "faults" in vr:
         out["faults"] = list(vr["faults"])
     segs = []
@@ -447,6 +670,8 @@ def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
         }
         if p.position_O_m is not None:
             seg["position_O_m"] = list(p.position_O_m)
+        if p.kind in OSCILLATION_POINT_KINDS:
+            seg.update(oscillation_event_fields(p))
         segs.append(seg)
     out["segments"] = segs
     return out
@@ -479,7 +704,9 @@ def schedule_from_matrix(
         if key.startswith("segments["):
             i = int(key[len("segments[") : key.index("]")])
             key = f"points ({matrix.points[i].label})" + key[key.index("]") + 1 :]
-        elif key.split(".")[0].split("[")[0] in ("schedule", "sensor", "aero", "faults"):
+        elif key.split(".")[0].split("[")[0] in (
+            "schedule", "sensor", "aero", "faults", "pose_camera",
+        ):  # fmt: skip
             key = (
                 "virtual_rig" + key[len("schedule") :]
                 if key.startswith("schedule")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
+import json
 import os
 import re
 import warnings
@@ -225,3 +226,31 @@ def read_tensions(path: str | os.PathLike[str], rig: Rig, n_rows: int | None = N
     if n_rows is not None and len(T) == 1:
         T = np.repeat(T, n_rows, axis=0)
     return T
+
+
+def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
+    """The interaction matrix and, where ``cdpr calibrate balance`` could fit it, the second-order
+    model ``(K1, K2)`` from its JSON output; ``(None, None)`` without a file."""
+    if path is None:
+        return None, None
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "", f"cannot read the balance calibration: {exc}") from None
+    K = np.asarray(doc.get("interaction_matrix", []), dtype=np.float64)
+    if K.shape != (6, 6) or not np.all(np.isfinite(K)):
+        raise ConfigError(
+            path, "interaction_matrix", f"expected a finite 6x6 matrix, got {K.shape}"
+        )
+    so = doc.get("second_order")
+    if so is None:
+        return K, None
+    K1 = np.asarray(so.get("K1", []), dtype=np.float64)
+    K2 = np.asarray(so.get("K2", []), dtype=np.float64)
+    if K1.shape != (6, 6) or K2.shape != (6, 21):
+        raise ConfigError(
+            path, "second_order", f"expected K1 (6, 6), K2 (6, 21), got {K1.shape}, {K2.shape}"
+        )
+    if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(K2))):
+        raise ConfigError(path, "second_order", "expected finite values")
+    return K, (K1, K2)

@@ -12,7 +12,10 @@ the first CAN frame of the imported log), non-decreasing; ``#`` lines are commen
   ``zero`` | ``windage``), optional ``target_aoa_deg``, ``target_sideslip_deg``,
   ``target_airspeed_mps`` (empty cell: unknown, written as null) and ``repeat_of``; each row
   becomes a ``test_point`` event on ``/events``.  Every point starts, then ends, before the next
-  starts.
+  starts.  An ``oscillation`` / ``oscillation_tare`` row (docs/dynamic_tests.md) also needs
+  ``motion_axis``, ``motion_amplitude`` (SI: rad or m), ``motion_frequency_Hz``,
+  ``motion_cycles`` and ``motion_settling_cycles`` (whole numbers >= 1), optionally
+  ``inertia_tare`` (a label); steady rows leave those cells empty.
 
 Errors are ``ConfigError(file, "row N, column C", problem)`` with N counted as a spreadsheet shows
 it (the header is row 1), raised before anything is written.
@@ -28,10 +31,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cdpr.analysis.aero import air_density
 from cdpr.analysis.errors import ConfigError, InputError
-from cdpr.analysis.flow import air_density as moist_air_density
-from cdpr.analysis.flow import saturation_vapour_pressure
+from cdpr.analysis.flow import air_density, saturation_vapour_pressure
 from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
 from .campaign import KINDS
@@ -149,7 +150,7 @@ def read_tunnel_csv(path: str | os.PathLike[str]) -> TimedTable:
         if "static_pressure_Pa" in cols and have.any():
             ps, tk = cols["static_pressure_Pa"][have], cols["temperature_K"][have]
             try:
-                cols["density_kgpm3"][have] = moist_air_density(ps, tk, rh[have])
+                cols["density_kgpm3"][have] = air_density(ps, tk, rh[have])
             except InputError:  # vapour pressure above p: name the first such row
                 e = rh[have] * saturation_vapour_pressure(tk)
                 i = int(np.flatnonzero(have)[np.flatnonzero(e >= ps)[0]])
@@ -225,8 +226,58 @@ def read_events_csv(path: str | os.PathLike[str]) -> TimedTable:
             cols[c] = num
         else:
             cols[c] = np.full(len(df), np.nan)
+    _motion_columns(p, df, cols)
     _check_pairs(p, cols["point"], cols["phase"])
     return TimedTable(p, tcol, tv, cols)
+
+
+def _motion_columns(path: str, df: pd.DataFrame, cols: dict[str, NDArray[Any]]) -> None:
+    """The motion of the oscillation rows (required there, empty elsewhere), into ``cols``."""
+    from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS
+    from cdpr.analysis.motion import MOTION_AXES
+    from cdpr.daq.vrig_events import MOTION_EVENT_FIELDS
+
+    moving = np.isin(cols["kind"], OSCILLATION_POINT_KINDS)
+    n = len(df)
+    for c in MOTION_EVENT_FIELDS:
+        have = c in df.columns
+        given = df[c].notna().to_numpy() if have else np.zeros(n, dtype=bool)
+        if have and df[c].dtype == object:
+            given &= df[c].astype(str).str.strip().ne("").to_numpy()
+        bad = np.flatnonzero(given & ~moving)
+        if bad.size:
+            i = int(bad[0])
+            raise ConfigError(path, f"row {i + 2}, column {c}",
+                              f"only an oscillation row has a motion (kind {cols['kind'][i]!r})")  # fmt: skip
+        need = moving & ~given
+        if c != "inertia_tare" and need.any():
+            i = int(np.flatnonzero(need)[0])
+            raise ConfigError(path, f"row {i + 2}, column {c}",
+                              f"an {cols['kind'][i]} row needs it")  # fmt: skip
+        if c in ("motion_axis", "inertia_tare"):
+            v = (df[c].astype(object).where(df[c].notna(), "").astype(str).str.strip()
+                 .to_numpy(dtype=object) if have else np.full(n, "", dtype=object))  # fmt: skip
+            if c == "motion_axis":
+                bad = np.flatnonzero(moving & ~np.isin(v, MOTION_AXES))
+                if bad.size:
+                    i = int(bad[0])
+                    raise ConfigError(path, f"row {i + 2}, column {c}",
+                                      f"expected one of {list(MOTION_AXES)}, got {v[i]!r}")  # fmt: skip
+            cols[c] = v
+            continue
+        num = pd.to_numeric(df[c], errors="coerce").to_numpy(np.float64) if have else np.full(
+            n, np.nan)  # fmt: skip
+        whole = c.endswith("cycles")
+        ok = np.isfinite(num) & (num >= 1 if whole else num > 0)
+        if whole:
+            ok &= num == np.round(num)
+        bad = np.flatnonzero(moving & ~ok)
+        if bad.size:
+            i = int(bad[0])
+            want = "a whole number >= 1" if whole else "a number > 0"
+            raise ConfigError(path, f"row {i + 2}, column {c}",
+                              f"expected {want}, got {_text(df[c].iloc[i])}")  # fmt: skip
+        cols[c] = num
 
 
 def _check_pairs(path: str, points: NDArray[Any], phases: NDArray[Any]) -> None:
@@ -297,5 +348,14 @@ def event_stream(
         for k in EVENT_TARGETS:
             x = float(c[k][i])
             values[k] = x if np.isfinite(x) else None
+        if c["motion_axis"][i]:  # an oscillation row: its motion (read_events_csv checked it)
+            values.update(
+                motion_axis=str(c["motion_axis"][i]),
+                motion_amplitude=float(c["motion_amplitude"][i]),
+                motion_frequency_Hz=float(c["motion_frequency_Hz"][i]),
+                motion_cycles=int(c["motion_cycles"][i]),
+                motion_settling_cycles=int(c["motion_settling_cycles"][i]),
+                inertia_tare=str(c["inertia_tare"][i]),
+            )
         out.append(Reading("events", int(t), values))
     return StreamDescription(dict(EVENT_FIELDS), 0.0, "Imported test-point events."), out

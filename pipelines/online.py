@@ -33,26 +33,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cdpr.analysis.aero import air_density
 from cdpr.analysis.balance import interpolate_at, sample_mask
-from cdpr.analysis.conventions import WRENCH_COLUMNS
-from cdpr.analysis.reduction import (
-    COEFFICIENTS,
-    flags_from_masks,
-    points_from_samples,
-    with_updates,
-)
+from cdpr.analysis.conventions import COEFFICIENTS, WRENCH_COLUMNS
+from cdpr.analysis.flow import air_density
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix
 
-from .analyze import (
-    AnalyzeOptions,
-    RunData,
-    _correction_inputs,
-    plan_points,
-    read_balance_calibration,
-)
-from .reduce import correction_stages, points_table, reduce_points, reduction_stages
+from .analyze import AnalyzeOptions, reduce_run
+from .run_arrays import RunData
 
 ONLINE_VALUE_COLUMNS: tuple[str, ...] = (
     "airspeed_mps", "density_kgpm3", "q_Pa", "aoa_rad", "sideslip_rad",
@@ -68,56 +56,11 @@ SPECTRUM_FLAGS = frozenset({"too_few_periods", "spectrum_peak_near_mode", "no_mo
 
 
 def reduce_session(run: RunData, opts: AnalyzeOptions) -> pd.DataFrame:
-    """The per-point table of ``run`` through the reduction core, as ``cdpr analyze`` runs it
-    (``analyze_arrays``): points from the test-point events, ``points_from_samples``, the run's
-    flags, the correction inputs, ``reduction_stages`` (with the correction stages when
-    ``opts.corrections``), ``reduce_points``, ``points_table``.  The one call into the core of the
-    on-line reduction; the spectrum check (which needs the whole run) is left out."""
-    rig = run.rig
-    plan = plan_points(run, opts.rule)
-    fallback = None if run.pose_cov is not None else np.array(opts.pose_sd_fallback)
-    airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
-    pts, extra = points_from_samples(
-        kind=plan.kind,
-        ranges=plan.ranges,
-        t_ns=run.t_ns,
-        tensions_N=run.tensions_N,
-        mask_bits=run.mask_bits,
-        airspeed_mps=airspeed,
-        density_kgpm3=density,
-        pose_t_ns=run.pose_t_ns,
-        poses=run.poses,
-        pose_cov=run.pose_cov,
-        pose_sd_fallback=fallback,
-        pose_bad=run.pose_bad,
-    )
-    words = [] if run.camera else ["no_pose_stream"]
-    if run.tunnel is None:
-        words.append("no_airspeed")
-    pts = flags_from_masks(pts, words=[";".join(filter(None, [f, *words])) for f in plan.flags])
-    K, second = read_balance_calibration(opts.balance_file)
-    corr = None
-    if opts.corrections:
-        pts = with_updates(pts, arrays=_correction_inputs(run, plan))
-        corr = correction_stages(
-            rig, opts.geometry, opts.tunnel, wind_off_mps=opts.reduce.wind_off_mps
-        )
-    stages = reduction_stages(
-        rig, opts.geometry, opts.reduce, interaction=K, second_order=second, extra=corr
-    )
-    out = reduce_points(pts, stages)
-    on = np.isin(out["kind"], ("wind_on", "unknown"))
-    if opts.geometry is None:
-        out = flags_from_masks(out, words=["no_geometry" if o else "" for o in on])
-    if not opts.corrections:
-        out = flags_from_masks(out, words=["uncorrected" if o else "" for o in on])
-    after = {
-        "start_ns": extra["start_ns"],
-        "stop_ns": extra["stop_ns"],
-        "n_samples": extra["n_samples"],
-        "n_masked": extra["n_masked"],
-    }
-    return points_table(out, rig, plan.labels, None, after)
+    """The per-point table of the session so far through the reduction core: ``cdpr analyze``'s
+    own :func:`cdpr.pipelines.analyze.reduce_run` on the live :class:`RunData`.  The one call into
+    the core of the on-line reduction."""
+    df, _ = reduce_run(run, opts)
+    return df
 
 
 class _Columns:
@@ -491,22 +434,13 @@ def _poses(tp: np.ndarray, rows: np.ndarray) -> tuple[Any, Any, Any, Any] | None
 
 def online_options(matrix_file: str | None) -> AnalyzeOptions:
     """The on-line reduction's options: with a test matrix, as ``cdpr analyze --matrix`` takes
-    them (geometry, corrections, the test section); without one, the balance values (no
-    geometry: no coefficients)."""
+    them (the model geometry, the corrections, the test section); without one, the balance
+    values (no geometry: no coefficients)."""
     if matrix_file is None:
         return AnalyzeOptions()
-    from cdpr.analysis.aero import ModelGeometry
-
     from .campaign import load_test_matrix
 
     m = load_test_matrix(matrix_file)
-    geometry = ModelGeometry(
-        area_m2=m.model.area_m2,
-        span_m=m.model.span_m,
-        chord_m=m.model.chord_m,
-        mrp_P_m=m.model.mrp_P_m,
-        source="test matrix",
-    )
     return AnalyzeOptions(
-        geometry=geometry, corrections=True, tunnel=m.tunnel, matrix_file=str(matrix_file)
+        geometry=m.model, corrections=True, tunnel=m.tunnel, matrix_file=str(matrix_file)
     )

@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cdpr.analysis.conventions import WRENCH_COLUMNS
-from cdpr.analysis.reduction import COEFFICIENTS, WIND_OFF_KINDS
+from cdpr.analysis.conventions import COEFFICIENTS, WIND_OFF_KINDS, WRENCH_COLUMNS
 
 COMPARED: tuple[str, ...] = (*WRENCH_COLUMNS, *COEFFICIENTS)
 """The values compared (names of ``points.csv``)."""

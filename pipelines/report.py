@@ -555,7 +555,7 @@ def spectrum_figure(
 
 
 SPECTRUM_FLAGS = ("too_few_periods", "spectrum_peak_near_mode", "no_modes")
-"""The spectrum check's flags (:func:`cdpr.pipelines.reduce.spectrum_stage`), shown per panel."""
+"""The spectrum check's flags (:func:`cdpr.analysis.stages.spectrum_stage`), shown per panel."""
 SPECTRA_PER_FIGURE = 24
 """Panels per small-multiples figure of the spectra (6 columns x 4 rows)."""
 

@@ -3,7 +3,8 @@
 
 The campaign file's loader calls :func:`tunnel_section_from_mapping` with the whole parsed file.
 ``[tunnel]`` belongs to this module (unknown keys are errors); from ``[model]`` only the keys below
-are read (the campaign owns the rest of that table).  Layout (all SI, frames as in DESIGN.md)::
+are read (the campaign owns the rest of that table).  Layout (all SI, frames as in
+:mod:`cdpr.analysis.conventions`)::
 
     [tunnel]
     kind = "closed"              # "closed" | "open_jet" (the jet is the nozzle's section carried on)

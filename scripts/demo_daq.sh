@@ -36,7 +36,14 @@ mkdir -p "$CRASH"
 "$CDPR" simulate --rig data_samples/flat_optimum.toml --schedule data_samples/schedule_demo.toml \
     --out "$CRASH" --transport slcan --label demo-kill9 --quiet > /dev/null &
 PID=$!
-sleep 6
+# kill it once it has recorded for a while: wait for the file (a loaded machine starts slowly),
+# then for about 4 s of recording
+for _ in $(seq 600); do
+    ls "$CRASH"/*_demo-kill9.mcap > /dev/null 2>&1 && break
+    kill -0 "$PID" 2> /dev/null || { echo "the recorder ended before its file appeared" >&2; exit 1; }
+    sleep 0.1
+done
+sleep 4
 CHILDREN=$(pgrep -P "$PID" || true)
 kill -9 "$PID"
 wait "$PID" 2> /dev/null || true

@@ -94,6 +94,66 @@ def test_import_tunnel_and_events_make_a_full_run(tmp_path: Path) -> None:
     assert {"tunnel/tunnel.csv", "events/events.csv"} <= names
 
 
+OSC_EVENTS = """t_s,point,phase,kind,target_aoa_deg,target_airspeed_mps,motion_axis,\
+motion_amplitude,motion_frequency_Hz,motion_cycles,motion_settling_cycles,inertia_tare
+0.05,zero,start,zero,0,0,,,,,,
+0.10,zero,end,zero,0,0,,,,,,
+0.15,ot,start,oscillation_tare,0,0,pitch,0.0873,2.0,60,2,
+0.25,ot,end,oscillation_tare,0,0,pitch,0.0873,2.0,60,2,
+0.30,o,start,oscillation,0,25.51,pitch,0.0873,2.0,60,2,ot
+0.55,o,end,oscillation,0,25.51,pitch,0.0873,2.0,60,2,ot
+"""  # the backslash joins the header's two lines
+
+
+def test_import_events_carry_an_oscillations_motion(tmp_path: Path) -> None:
+    (tmp_path / "events.csv").write_text(OSC_EVENTS)
+    out = tmp_path / "imported.mcap"
+    assert main(_argv(tmp_path, "--events", str(tmp_path / "events.csv"), "--out", str(out))) == 0
+    ev = [b for _, b in _read(out)["/events"]]
+    assert [(b["point"], b["kind"]) for b in ev[::2]] == [
+        ("zero", "zero"), ("ot", "oscillation_tare"), ("o", "oscillation"),
+    ]  # fmt: skip
+    assert "motion_axis" not in ev[0]  # a steady point has no motion
+    for b in ev[2:]:
+        assert (b["motion_axis"], b["motion_amplitude"], b["motion_frequency_Hz"]) == (
+            "pitch", 0.0873, 2.0,
+        )  # fmt: skip
+        assert (b["motion_cycles"], b["motion_settling_cycles"]) == (60, 2)
+    assert [b["inertia_tare"] for b in ev[2:]] == ["", "", "ot", "ot"]
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "where", "problem"),
+    [
+        ("0,0,pitch,0.0873,2.0,60,2,\n0.25", "0,0,,0.0873,2.0,60,2,\n0.25",
+         "row 4, column motion_axis", "needs it"),
+        ("0,0,pitch,0.0873,2.0,60,2,\n0.25", "0,0,twist,0.0873,2.0,60,2,\n0.25",
+         "row 4, column motion_axis", "expected one of"),
+        ("0,0,pitch,0.0873,2.0,60,2,\n0.25", "0,0,pitch,0.0873,2.0,60.5,2,\n0.25",
+         "row 4, column motion_cycles", "whole number"),
+        ("0,0,pitch,0.0873,2.0,60,2,\n0.25", "0,0,pitch,0.0873,0,60,2,\n0.25",
+         "row 4, column motion_frequency_Hz", "> 0"),
+        ("0.10,zero,end,zero,0,0,,,,,,", "0.10,zero,end,zero,0,0,pitch,,,,,",
+         "row 3, column motion_axis", "only an oscillation row"),
+    ],
+)  # fmt: skip
+def test_bad_oscillation_events_name_row_and_column(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    old: str,
+    new: str,
+    where: str,
+    problem: str,
+) -> None:
+    assert old in OSC_EVENTS
+    (tmp_path / "events.csv").write_text(OSC_EVENTS.replace(old, new, 1))
+    out = tmp_path / "imported.mcap"
+    assert main(_argv(tmp_path, "--events", str(tmp_path / "events.csv"), "--out", str(out))) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and where in err and problem in err, err
+    assert not out.exists()
+
+
 def test_import_tunnel_with_density_and_epoch_times(tmp_path: Path) -> None:
     t0 = T_LOG0_NS + 123
     (tmp_path / "tunnel.csv").write_text(

@@ -49,7 +49,7 @@ def test_live_view_test_points_go_on_the_topic_analyze_reads(tmp_path: Path) -> 
     from cdpr.daq.recorder import Recorder
     from cdpr.daq.run_reader import open_run
     from cdpr.daq.source import create_source
-    from cdpr.pipelines.analyze import _topic
+    from cdpr.pipelines.run_arrays import _topic
 
     src = create_source("manual_tunnel", "tun", {"airspeed_mps": 0.0, "rate_hz": 20.0})
     path = tmp_path / "run.mcap"

@@ -83,9 +83,11 @@ def test_decimation_keeps_power_and_the_peak() -> None:
 def test_180_points_in_a_few_seconds(tmp_path: Path) -> None:
     freqs, psd, modes = _spectra(180)
     flags = ["too_few_periods" if i % 7 == 0 else "" for i in range(180)]
-    t0 = time.perf_counter()
+    # CPU time of this process: what the figures cost, whatever else the machine runs (wall time
+    # under a load of 8 on two cores was 8.6 s for 1.5 s of work)
+    t0 = time.process_time()
     grid = spectra_grid_figures(tmp_path, [f"p{i}" for i in range(180)], flags, freqs, psd, modes)
-    took = time.perf_counter() - t0
+    took = time.process_time() - t0
     assert sum(grid.panels) == 180 and len(grid.figures) == int(np.ceil(180 / SPECTRA_PER_FIGURE))
-    print(f"180 points: {took:.2f} s")
-    assert took < 8.0  # about 1.5 s on an idle core; generous for a loaded machine
+    print(f"180 points: {took:.2f} s of CPU")
+    assert took < 6.0  # about 1.5 s on an idle core

@@ -196,7 +196,7 @@ def test_lone_end_overlapping_start_and_a_lost_line_are_kept_and_said(tmp_path: 
 
     import numpy as np
 
-    from cdpr.pipelines.analyze import plan_points
+    from cdpr.pipelines.point_plan import plan_points
 
     t_ev = sorted(ev.values())
     t_ns = np.arange(t_ev[0] - 10**9, t_ev[-1] + 10**9, 10**6, dtype=np.int64)

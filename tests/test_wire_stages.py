@@ -14,13 +14,13 @@ import pytest
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.reduction import new_points, with_updates
 from cdpr.analysis.rigs import paper_rigs
-from cdpr.pipelines.campaign import test_matrix_from_mapping
-from cdpr.pipelines.reduce import (
+from cdpr.analysis.stages import (
     repeatability_stage,
     wall_corrections_stage,
     windage_stage,
     zero_drift_stage,
 )
+from cdpr.pipelines.campaign import test_matrix_from_mapping
 from cdpr.pipelines.tunnel_section import tunnel_section_from_mapping
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,8 +39,8 @@ def _points(kind, t_s, T, V=None, aoa_rad=None):
         start_ns=(np.asarray(t_s) * S).astype(np.int64),
         tension_N=T,
         tension_cov_N2=np.broadcast_to(np.eye(m) * 1e-4, (s, m, m)),
-        pose=pose,
-        pose_cov=np.broadcast_to(np.eye(6) * 1e-10, (s, 6, 6)),
+        pose_O_m_rad=pose,
+        pose_cov_O_m_rad=np.broadcast_to(np.eye(6) * 1e-10, (s, 6, 6)),
         airspeed_mps=np.zeros(s) if V is None else V,
         density_kgpm3=np.full(s, 1.2),
     )
@@ -69,7 +69,7 @@ def _windage_points(kinds, V, aoa, W):
     m = paper_rigs()["flat_optimum"].n_cables
     p = _points(kinds, np.arange(len(kinds)), np.full((len(kinds), m), 150.0), V, aoa)
     mu = np.full(len(kinds), 1.81e-5)
-    return with_updates(p, arrays={"wrench_N": np.asarray(W, float), "viscosity_Pas": mu})
+    return with_updates(p, arrays={"wrench_P_O_N_Nm": np.asarray(W, float), "viscosity_Pas": mu})
 
 
 def test_windage_source_is_measured_then_modelled_then_none() -> None:
@@ -88,7 +88,7 @@ def test_windage_source_is_measured_then_modelled_then_none() -> None:
     # at 20 m/s the measured tare (the line above, by hand); at 30 m/s no tare: the model
     assert list(p["windage_source"][4:]) == ["measured", "model"]
     np.testing.assert_allclose(p["windage_N"][4, 0], 0.3 + 0.5 * aoa[4], atol=1e-9)
-    np.testing.assert_allclose(p["wrench_N"][4, 0], 2.0 - (0.3 + 0.5 * aoa[4]), atol=1e-9)
+    np.testing.assert_allclose(p["wrench_P_O_N_Nm"][4, 0], 2.0 - (0.3 + 0.5 * aoa[4]), atol=1e-9)
     assert p["windage_N"][5, 0] > 0.1  # the cables' drag at 30 m/s, tenths of a newton
     assert "windage_tare" in p.flags[4] and "windage_modelled" in p.flags[5]
     assert "windage_tare_missing" in p.flags[5]
@@ -107,7 +107,7 @@ def test_windage_source_is_measured_then_modelled_then_none() -> None:
         geometry=None,
     )  # fmt: skip
     assert q.flags[0] == ("no_windage_correction",) and q["windage_source"][0] == "none"
-    np.testing.assert_array_equal(q["wrench_N"], W[4:5])
+    np.testing.assert_array_equal(q["wrench_P_O_N_Nm"], W[4:5])
 
 
 def test_wall_corrections_without_a_section_are_flagged_and_repeatability_by_hand() -> None:
@@ -154,7 +154,8 @@ def test_the_test_matrix_carries_the_tunnel_section() -> None:
 
 
 def test_spectrum_flags_a_tension_peak_at_a_mode_and_a_short_window() -> None:
-    from cdpr.pipelines.reduce import point_spectra, spectrum_stage
+    from cdpr.analysis.stages import PointSamples, spectrum_stage
+    from cdpr.analysis.stiffness import point_spectra
 
     rig = paper_rigs()["flat_optimum"]
     rng = np.random.default_rng(4)
@@ -168,7 +169,8 @@ def test_spectrum_flags_a_tension_peak_at_a_mode_and_a_short_window() -> None:
     sp = point_spectra(rig, t_ns, T, ranges, pose)
     np.testing.assert_allclose(sp.modes_Hz[:, 0], 9.22, atol=0.01)
     p = _points(["wind_on"] * 3, [0.0, 3.0, 6.0], np.full((3, rig.n_cables), 150.0))
-    out = spectrum_stage(p, spectra=sp)
+    p = with_updates(p, arrays={"pose_O_m_rad": pose})
+    out = spectrum_stage(p, rig=rig, samples=PointSamples(t_ns, T, ranges))
     assert out.flags[0] == ()
     assert out.flags[1] == ("spectrum_peak_near_mode",)
     assert "too_few_periods" in out.flags[2]
@@ -188,7 +190,7 @@ def test_a_bad_reference_polar_names_the_file_row_and_column(tmp_path: Path) -> 
 
 
 def test_flow_conditions_by_hand_and_no_temperature_flagged() -> None:
-    from cdpr.pipelines.reduce import flow_conditions_stage
+    from cdpr.analysis.stages import flow_conditions_stage
 
     p = _points(["wind_on", "wind_on"], [0.0, 1.0], np.full((2, 2), 1.0), V=np.array([30.0, 30.0]))
     p = with_updates(p, arrays={"temperature_K": np.array([288.15, np.nan])})

@@ -156,9 +156,10 @@ def test_dynamic_option_on_a_static_series_changes_nothing(tmp_path: Path) -> No
     np.testing.assert_allclose(_read(tmp_path / "d.csv")[WCOLS].to_numpy(), expect, atol=1e-9)
 
 
-def test_dynamic_option_subtracts_m_a_of_an_accelerating_platform(tmp_path: Path) -> None:
+def test_dynamic_option_adds_m_a_of_an_accelerating_platform(tmp_path: Path) -> None:
     """Pure translation with constant acceleration a (no rotation, centre of mass at P): the inertia
-    wrench is (m a, 0) by hand, so --dynamic gives the absolute result minus m a at every row."""
+    wrench is (m a, 0) by hand, and Newton (A T + G + W_ext = m a) makes --dynamic give the
+    absolute result plus m a at every row."""
     a = np.array([0.8, -0.3, 0.5])  # m/s^2
     n, dt = 7, 0.01
     t = np.arange(n) * dt
@@ -174,7 +175,7 @@ def test_dynamic_option_subtracts_m_a_of_an_accelerating_platform(tmp_path: Path
     assert main([*args, "--dynamic", "--out", str(tmp_path / "d.csv")]) == 0
     G = np.array([0, 0, -MASS * G0, 0, 0, 0])
     absolute = np.array([-(_A(q[i]) @ T[i]) - G for i in range(n)])  # independent A
-    expect = absolute - np.concatenate([MASS * a, np.zeros(3)])
+    expect = absolute + np.concatenate([MASS * a, np.zeros(3)])
     got = _read(tmp_path / "d.csv")[WCOLS].to_numpy()
     np.testing.assert_allclose(got, expect, rtol=0, atol=1e-6)
     assert np.abs(absolute - expect).max() > 0.5  # the correction is really there (m a ~ 0.5 N)

@@ -137,11 +137,12 @@ def test_dynamic_correction_constant_acceleration_by_hand() -> None:
     poses[:, 2] = 1.0
     D = inertia_wrench_from_poses(m, np.zeros(3), np.eye(3) * 0.1, poses, t_ns)
     np.testing.assert_allclose(D, np.tile([m * a, 0, 0, 0, 0, 0], (50, 1)), atol=1e-6)
-    # a single vertical cable carrying the weight: W_ext = -A T - G - D = (-m a, 0, ...)
+    # a single vertical cable carrying the weight: nothing but the external load pushes the
+    # platform along x, so by Newton W_ext = m a x: W_ext = -A T - G + D = (m a, 0, ...)
     rig = _rig([[0.5, 0, 3.0]], [[0, 0, 0]], mass=m)
     A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, [0.5, 0, 1.0], np.eye(3))
     W = wrench_absolute(A, [m * G0], [0, 0, -m * G0, 0, 0, 0], D[0])
-    np.testing.assert_allclose(W, [-m * a, 0, 0, 0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(W, [m * a, 0, 0, 0, 0, 0], atol=1e-6)
 
 
 def test_dynamic_correction_centripetal_by_hand() -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-METHOD_NAMES = ("closed-form", "improved-closed-form", "penalty", "exact")
+from cdpr.analysis.conventions import TENSION_METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("runs", nargs="+", help="run files (.mcap) or folders holding them")
     p.add_argument("--out", required=True, help="output folder (one sub-folder per run + index.md)")
-    p.add_argument("--method", default="exact", choices=METHOD_NAMES, help="controller's method")
+    p.add_argument("--method", default="exact", choices=TENSION_METHODS, help="controller's method")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local cluster)")
     p.add_argument("--workers", type=int, default=2, help="local Dask workers (default 2)")
     p.add_argument(
@@ -118,9 +118,10 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cdpr.analysis.errors import ConfigError, InputError
+    from cdpr.analysis.stages import ReduceSettings
 
-    from ..analyze import AnalyzeOptions, analyze_runs
-    from ..reduce import ReduceSettings
+    from ..analyze import AnalyzeOptions
+    from ..batch import analyze_runs
 
     if args.workers < 1:
         raise InputError(f"--workers: expected >= 1, got {args.workers}")
@@ -135,20 +136,12 @@ def run(args: argparse.Namespace) -> int:
     lc_file: str | None = args.loadcell_calibration
     lc_from = "--loadcell-calibration"
     if args.matrix is not None:
-        from cdpr.analysis.aero import ModelGeometry
-
         from ..campaign import load_test_matrix
 
         if geometry is not None:
             raise InputError("--matrix gives the model geometry: drop --area-m2/--span-m/--chord-m")
         m = load_test_matrix(args.matrix)
-        geometry = ModelGeometry(
-            area_m2=m.model.area_m2,
-            span_m=m.model.span_m,
-            chord_m=m.model.chord_m,
-            mrp_P_m=m.model.mrp_P_m,
-            source="test matrix",
-        )
+        geometry = m.model
         tunnel = m.tunnel
         if m.loadcell_calibration is not None:
             if lc_file is None:

@@ -157,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.daq.live_server import DEFAULT_HOST, LiveAddress, LiveServer, parse_address
     from cdpr.daq.run_reader import open_run
 
-    from ..analyze import _run_rig
+    from ..run_arrays import _run_rig
 
     if not (math.isfinite(args.rate) and args.rate > 0):
         raise InputError(f"--rate must be > 0, got {args.rate}")

@@ -203,18 +203,14 @@ def _test_points(path: str) -> list[Any]:
     from cdpr.analysis.errors import ConfigError
 
     from ..campaign import load_test_matrix
+    from ..config import load_rig
+    from ..motion_plan import check_matrix_motion
 
-    points = [
-        {
-            "point": p.label,
-            "kind": p.kind,
-            "target_aoa_deg": p.aoa_deg,
-            "target_sideslip_deg": p.sideslip_deg,
-            "target_airspeed_mps": p.airspeed_mps,
-            "repeat_of": p.repeat_of,
-        }
-        for p in load_test_matrix(path).points
-    ]
+    matrix = load_test_matrix(path)
+    # before anything is recorded: an oscillation point the motion plan refuses is refused here
+    if any(p.oscillation is not None for p in matrix.points):
+        check_matrix_motion(matrix, load_rig(matrix.rig_path))
+    points = [p.event_fields() for p in matrix.points]
     if not points:
         raise ConfigError(path, "points", "no test points")
     return points

@@ -53,10 +53,18 @@ def run_show(args: argparse.Namespace) -> int:
     print(f"rig {rig.name}: {rig.n_cables} cables, mass {rig.mass_kg:g} kg")
     print(f"  reference pose: p = {rig.reference_position_O_m.tolist()} m")
     for i, name in enumerate(rig.cable_names):
+        winch = "".join(
+            f", {what} <= {v:g} {unit}"
+            for what, v, unit in (
+                ("speed", rig.cable_max_speed_mps[i], "m/s"),
+                ("acceleration", rig.cable_max_accel_mps2[i], "m/s^2"),
+            )
+            if np.isfinite(v)
+        )
         print(
             f"  {name:24s} b = {np.round(rig.anchors_O_m[i], 4).tolist()} m, "
             f"pp = {np.round(rig.attach_P_m[i], 4).tolist()} m, "
-            f"T in [{rig.t_min_N[i]:g}, {rig.t_max_N[i]:g}] N"
+            f"T in [{rig.t_min_N[i]:g}, {rig.t_max_N[i]:g}] N{winch}"
         )
     print(f"  singular values of A at the reference pose: {np.round(sv, 5).tolist()}")
     _print_modes(rig)
@@ -74,7 +82,7 @@ def _print_modes(rig: Rig) -> None:
 
     from cdpr.analysis.errors import InfeasibleError, InputError
     from cdpr.analysis.rotations import rotation_from_euler
-    from cdpr.analysis.stiffness import mass_matrix, rig_modes
+    from cdpr.analysis.stiffness import dominant_coordinates, mass_matrix, rig_modes
 
     R_ref = rotation_from_euler(rig.reference_euler_rad)
     try:
@@ -94,11 +102,9 @@ def _print_modes(rig: Rig) -> None:
         f"EA = {', '.join(f'{v:g}' for v in ea)} N{assumed}):"
     )
     M = mass_matrix(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, R_ref)
+    shares = dominant_coordinates(rm.modes.shapes, M)
     for k in range(6):
-        phi = rm.modes.shapes[:, k]
-        # each coordinate's share of the mode's kinetic energy (phi^T M phi = 1)
-        share = np.abs(phi * (M @ phi))
-        share = share / share.sum()
+        share = shares[:, k]  # each coordinate's share of the mode's kinetic energy
         parts = ", ".join(
             f"{_DOF_NAMES[j]} {share[j]:.0%}" for j in np.argsort(-share)[:2] if share[j] >= 0.05
         )

@@ -197,8 +197,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         if matrix is not None:
             from ..campaign import schedule_from_matrix
+            from ..motion_plan import check_matrix_motion
 
             schedule = schedule_from_matrix(matrix, rig, faults)
+            # an oscillation the plan refuses (slack, winch limits, a mode) is not run
+            check_matrix_motion(matrix, rig, schedule.method)
         else:
             schedule = schedule_from_mapping(sched_data, str(args.schedule), rig)
         vr = VirtualRig(rig, schedule, section=section)
@@ -208,6 +211,13 @@ def run(args: argparse.Namespace) -> int:
         from cdpr.analysis.errors import ConfigError
 
         raise ConfigError(args.rig, "cables", f"{rig.n_cables} cables: {exc}") from None
+    if schedule.pose_camera is not None and args.camera:
+        from cdpr.analysis.errors import ConfigError
+
+        raise ConfigError(
+            str(args.schedule), "pose_camera", "one camera: --camera (rendered frames) or a pose "
+            "camera ([pose_camera] / [virtual_rig.pose_camera]), not both",
+        )  # fmt: skip
     camera_model = layout = None
     if args.camera:  # checked before anything is created
         from ..vision_config import load_camera, load_marker_layout
@@ -284,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
                     "camera",
                     camera_model,
                     layout,
-                    pose_at=vr.true_pose_at,
+                    pose_at=vr.camera_pose_at,  # its clock's offset (schedule) included
                     rate_hz=args.camera_rate_hz,
                     image_rate_hz=args.image_rate_hz,
                     realtime=True,
@@ -296,6 +306,21 @@ def run(args: argparse.Namespace) -> int:
                 )
             )
             settings["camera"] = ("virtual_camera", sources[-1].settings())
+        elif schedule.pose_camera is not None:
+            from cdpr.daq.pose_camera import PoseCameraSource
+
+            pc = schedule.pose_camera
+            sources.append(
+                PoseCameraSource(
+                    "camera",
+                    pose_at=vr.camera_pose_at,  # the camera's clock offset included
+                    rate_hz=pc.rate_hz,
+                    position_sd_m=pc.position_sd_m,
+                    rotation_sd_rad=pc.rotation_sd_rad,
+                    seed=schedule.seed,
+                )
+            )
+            settings["camera"] = ("pose_camera", sources[-1].settings())
         events = vr.test_point_events()
         if events:
             from cdpr.daq.vrig_events import SCHEDULE_EVENT_NAME, TestPointEventSource

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-METHOD_NAMES = ("closed-form", "improved-closed-form", "penalty", "exact")
+from cdpr.analysis.conventions import TENSION_METHODS
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--rig", required=True, help="rig file (TOML)")
     p.add_argument("--poses", help="pose CSV (default: the rig's reference pose)")
     p.add_argument("--wrench", help="external wrench CSV (default: none, wind off)")
-    p.add_argument("--method", default="exact", choices=METHOD_NAMES)
+    p.add_argument("--method", default="exact", choices=TENSION_METHODS)
     p.add_argument("--out", required=True, help="output tension CSV")
     p.add_argument("--strict", action="store_true", help="exit 2 if any pose is infeasible")
     p.set_defaults(func=run)
@@ -36,7 +36,12 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.errors import ConfigError, InputError
     from cdpr.analysis.kinematics import cable_vectors, structure_matrix
     from cdpr.analysis.rotations import rotation_from_euler
-    from cdpr.analysis.tension import RANK_TOL, distribute, sigma_min_unit_rows
+    from cdpr.analysis.tension import (
+        STATUS_RANK_DEFICIENT,
+        distribute,
+        rank_floor,
+        sigma_min_unit_rows,
+    )
 
     from .. import __version__
     from ..config import (
@@ -68,14 +73,16 @@ def run(args: argparse.Namespace) -> int:
         )
     A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, poses[:, :3], R)
     sigma = sigma_min_unit_rows(A)  # the solvers' own rank test, pose by pose
-    rank_bad = np.flatnonzero(sigma < RANK_TOL)
+    floor = rank_floor(rig.t_min_N, rig.t_max_N)
+    rank_bad = np.flatnonzero(sigma < floor)
     if rank_bad.size:
         i = int(rank_bad[0])
         raise ConfigError(
             src,
             f"row {i + 2}",
             f"structure matrix loses rank at this pose (sigma_min of A with unit rows "
-            f"{sigma[i]:.2g} < {RANK_TOL:g}; {rank_bad.size} such poses)",
+            f"{sigma[i]:.2g} < {float(floor):.2g}, the floor for the rig's tension limits; "
+            f"{rank_bad.size} such poses)",
         )
     G = gravity_wrench(rig.mass_kg, rig.com_P_m, R, rig.gravity_O_mps2)
     W = read_wrenches(args.wrench, len(poses)) if args.wrench else np.zeros_like(G)
@@ -111,9 +118,16 @@ def run(args: argparse.Namespace) -> int:
     write_table(args.out, out, header)
     if n_bad:
         i = int(np.flatnonzero(~res.feasible)[0])
+        n_rank = int(np.sum(res.status == STATUS_RANK_DEFICIENT)) if res.status is not None else 0
+        why = (
+            f", {n_rank} of them because the structure matrix of the cables not at a limit "
+            "loses rank at the answer"
+            if n_rank
+            else ""
+        )
         print(
             f"cdpr solve: warning: {n_bad} of {len(poses)} poses infeasible "
-            f"(first: {src} row {i + 2}); flagged in column 'feasible'",
+            f"(first: {src} row {i + 2}){why}; flagged in column 'feasible'",
             file=sys.stderr,
         )
     print(f"cdpr solve: {len(poses)} poses, method {res.method}, wrote {args.out}")

@@ -5,8 +5,9 @@ Euler angles); a tension CSV with one ``T_<cable>_N`` column per cable of the ri
 pose; optionally wind-off tare tensions (same columns, one row for all poses or one per pose).
 
 Methods: with ``--tare`` the tare method ``W_ext = A (T0 - Tw)`` (paper eq. 7), otherwise the
-absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also subtracts the
-inertia wrench ``M qdd + C`` computed from the pose time series (needs an integer ``t_ns`` column).
+absolute method ``W_ext = -A Tw - G`` from the rig's mass model.  ``--dynamic`` also adds back the
+inertia wrench ``M qdd + C`` (Newton: ``A T + G + W_ext = M qdd + C``) computed from the pose time
+series (needs an integer ``t_ns`` column).
 
 Output: the pose table's columns, then ``fx_N, fy_N, fz_N, mx_Nm, my_Nm, mz_Nm`` (W_ext on the
 platform at P, {O} axes, moments about P) and their standard deviations ``sd_fx_N ... sd_mz_Nm``
@@ -76,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--dynamic",
         action="store_true",
-        help="subtract M qdd + C from the pose time series (needs a t_ns column)",
+        help="add M qdd + C from the pose time series back (Newton-Euler; needs a t_ns column)",
     )
     aero = p.add_argument_group("aerodynamic coefficients (optional)")
     aero.add_argument("--airspeed-mps", dest="airspeed_mps", type=float, help="free-stream speed")
@@ -109,8 +110,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 def _aero_setup(args: argparse.Namespace) -> tuple[float, str, float] | None:
     """Dynamic pressure (Pa), a provenance note and the density (kg/m^3), or None without
     ``--airspeed-mps``."""
-    from cdpr.analysis.aero import air_density, dynamic_pressure
+    from cdpr.analysis.aero import dynamic_pressure
     from cdpr.analysis.errors import ConfigError
+    from cdpr.analysis.flow import air_density
 
     given = [
         f
@@ -166,20 +168,19 @@ def _aero_setup(args: argparse.Namespace) -> tuple[float, str, float] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import functools
 
     import numpy as np
 
-    from cdpr.analysis.conventions import WRENCH_COLUMNS
+    from cdpr.analysis.conventions import COEFFICIENTS, WRENCH_COLUMNS
     from cdpr.analysis.errors import ConfigError
     from cdpr.analysis.kinematics import cable_vectors
-    from cdpr.analysis.reduction import COEFFICIENTS, new_points, subtract_wrench
+    from cdpr.analysis.reduction import POSE, POSE_COV, WRENCH, new_points, run_stages
     from cdpr.analysis.rotations import rotation_from_euler
-    from cdpr.analysis.wrench import inertia_wrench_from_poses
+    from cdpr.analysis.stages import ReduceSettings, core_stages
+    from cdpr.analysis.wrench import pose_derivatives
 
     from .. import __version__
     from ..config import file_sha256, load_rig, read_poses, read_tensions, write_table
-    from ..reduce import ReduceSettings, reduce_points, reduction_stages
     from .analyze import geometry_from_args
 
     for flag, v in (
@@ -228,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
             args.poses, f"row {i + 2}", f"cable {rig.cable_names[j]} has zero length at this pose"
         )
 
-    D = None
+    motion = None
     if args.dynamic:
         if "t_ns" not in table.columns:
             raise ConfigError(args.poses, "column t_ns", "missing (needed by --dynamic)")
@@ -241,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(args.poses, f"row {back[0] + 3}, column t_ns", "not increasing")
         if n < 3:
             raise ConfigError(args.poses, "rows", f"--dynamic needs at least 3 poses, got {n}")
-        D = inertia_wrench_from_poses(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, poses, t_ns)
+        motion = pose_derivatives(poses, t_ns)
 
     # every row is a test point; with --tare, its tare is a wind-off point at the same pose, placed
     # next to it in time so that the core pairs them (rows 3i and 3i + 1)
@@ -263,8 +264,7 @@ def run(args: argparse.Namespace) -> int:
         start_ns=start,
         tension_N=T_all,
         tension_cov_N2=np.broadcast_to(t_cov, (k, m, m)),
-        pose=q_all,
-        pose_cov=np.broadcast_to(pose_cov, (k, 6, 6)),
+        **{POSE: q_all, POSE_COV: np.broadcast_to(pose_cov, (k, 6, 6))},
         airspeed_mps=np.full(k, speed),
         density_kgpm3=np.full(k, rho),
     )
@@ -275,14 +275,17 @@ def run(args: argparse.Namespace) -> int:
         fit_weight_model=False,
         tare_shares_pose=True,
     )
-    extra = {}
-    if D is not None:
-        D_all = np.concatenate([D, np.zeros_like(D)]) if T0 is not None else D
-        extra["inertia"] = [functools.partial(subtract_wrench, what="inertia", wrench_N=D_all)]
-    stages = reduction_stages(rig, geometry, settings, extra=extra)  # type: ignore[arg-type]
-    res = reduce_points(pts, stages)
+    if motion is not None and T0 is not None:  # the tare rows are at rest
+        motion = (
+            np.concatenate([motion[0], np.zeros_like(motion[0])]),
+            np.concatenate([motion[1], np.zeros_like(motion[1])]),
+        )
+    res = run_stages(
+        pts,
+        core_stages(rig, geometry, settings, motion=motion, coefficients=aero is not None),  # type: ignore[arg-type]
+    )
     rows = np.arange(n)
-    W = res["wrench_N"][rows]
+    W = res[WRENCH][rows]
     sd = np.sqrt(np.clip(np.diagonal(res.wrench_cov[rows], axis1=1, axis2=2), 0.0, None))
 
     out = table.copy()
@@ -302,8 +305,8 @@ def run(args: argparse.Namespace) -> int:
         method = "tare: W_ext = A (T0 - Tw)"
     else:
         method = "absolute: W_ext = -A Tw - G with the rig file's mass (flag weight_nominal)"
-    if D is not None:
-        method += " - (M qdd + C)"
+    if motion is not None:
+        method += " + (M qdd + C)"
     header = {
         "cdpr": f"wrench {__version__}",
         "rig": f"{args.rig} sha256={file_sha256(args.rig)}",

@@ -1,0 +1,145 @@
+"""The inputs of the reduction core from sample streams: per-point means and their covariance.
+
+:func:`points_from_samples` turns the tension samples of a run (with their mask bits), its tunnel
+stream and its pose stream into one :class:`~cdpr.analysis.reduction.Points` row per test point,
+with the flag words of what was masked or missing (``input_flags``, raised by the core's first
+stage).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .balance import PointStats, mask_words, point_stats
+from .errors import InputError
+from .reduction import POSE, POSE_COV, Points, new_points
+
+FloatArray = NDArray[np.float64]
+
+
+def points_from_samples(
+    *,
+    kind: ArrayLike,
+    ranges: list[tuple[int, int]],
+    t_ns: ArrayLike,
+    tensions_N: ArrayLike,
+    mask_bits: ArrayLike,
+    airspeed_mps: ArrayLike | None,
+    density_kgpm3: ArrayLike | None,
+    pose_t_ns: ArrayLike,
+    poses: ArrayLike,
+    pose_cov: ArrayLike | None,
+    pose_sd_fallback: ArrayLike | None = None,
+    pose_bad: ArrayLike | None = None,
+) -> tuple[Points, dict[str, NDArray[Any]]]:
+    """Per-point inputs of the core from sample streams, and the point statistics.
+
+    kind: (s,) point kinds; ranges: (s) ``[start, stop)`` indices into the tension samples
+    (``t_ns`` (n,), ``tensions_N`` (n, m), ``mask_bits`` (n,) from
+    :func:`cdpr.analysis.balance.sample_mask`); airspeed_mps, density_kgpm3: (n,) on the tension
+    times, or None (no tunnel data: NaN, the coefficients stage flags ``no_airspeed``).
+    The pose stream is separate (``pose_t_ns`` (k,), ``poses`` (k, 6), ``pose_cov`` (k, 6, 6) as
+    the camera reports it per frame, ``pose_bad`` (k,) frames to drop): each point takes the frames
+    inside its time span; the covariance of its mean pose is the mean reported covariance over the
+    number of frames used.  Without a reported covariance, ``pose_sd_fallback`` (6,) is used and the
+    point flagged ``pose_cov_nominal``; with neither, an error.
+
+    Tension covariance: the squared standard errors of the per-cable means (independent cables).
+    Flag words (``input_flags``): ``masked`` plus the mask words, ``no_samples`` (nothing usable),
+    ``no_pose``, ``pose_flagged`` (some camera frames in the point dropped), ``pose_cov_nominal``.
+    Returns the points and a dict of extra per-point columns (counts, start/stop times).
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    T = np.asarray(tensions_N, dtype=np.float64)
+    bits = np.asarray(mask_bits, dtype=np.int64)
+    s = len(ranges)
+    st = point_stats(T, ranges, bits)
+    idx = np.asarray(ranges, dtype=np.int64).reshape(s, 2)
+    nonempty = idx[:, 1] > idx[:, 0]
+    start_ns = np.where(nonempty, t[np.minimum(idx[:, 0], len(t) - 1)], 0)
+    stop_ns = np.where(nonempty, t[np.maximum(idx[:, 1] - 1, 0)], 0)
+    n = t.shape[0]
+
+    def on_points(x: ArrayLike | None) -> FloatArray:
+        if x is None:
+            return np.full(s, np.nan)
+        v = np.asarray(x, dtype=np.float64)
+        if v.shape != (n,):
+            raise InputError(f"tunnel stream: expected ({n},) on the tension times, got {v.shape}")
+        return np.asarray(point_stats(v, ranges, bits).mean[:, 0], dtype=np.float64)
+
+    V, rho = on_points(airspeed_mps), on_points(density_kgpm3)
+    # pose stream: frames within each point's time span
+    tp = np.asarray(pose_t_ns, dtype=np.int64)
+    qp = np.asarray(poses, dtype=np.float64)
+    if qp.shape != (tp.shape[0], 6):
+        raise InputError(f"poses: expected ({tp.shape[0]}, 6), got {qp.shape}")
+    pbad = np.zeros(tp.shape[0], bool) if pose_bad is None else np.asarray(pose_bad, dtype=bool)
+    a = np.searchsorted(tp, start_ns, side="left")
+    b = np.searchsorted(tp, stop_ns, side="right")
+    pranges = [
+        (int(i), int(j)) if ok else (int(i), int(i))
+        for i, j, ok in zip(a, b, nonempty, strict=True)
+    ]
+    pbits = np.where(pbad, 1, 0).astype(np.int64)
+    ps = point_stats(qp, pranges, pbits)
+    nf = np.maximum(ps.n_used, 1).astype(np.float64)
+    nominal = np.zeros(s, bool)
+    if pose_cov is not None:
+        C = np.asarray(pose_cov, dtype=np.float64)
+        if C.shape != (tp.shape[0], 6, 6):
+            raise InputError(f"pose_cov: expected ({tp.shape[0]}, 6, 6), got {C.shape}")
+        cm = point_stats(C.reshape(-1, 36), pranges, pbits).mean.reshape(s, 6, 6)
+        pcov = cm / nf[:, None, None]
+    elif pose_sd_fallback is not None:
+        sd = np.asarray(pose_sd_fallback, dtype=np.float64)
+        if sd.shape != (6,):
+            raise InputError(f"pose_sd_fallback: expected (6,), got {sd.shape}")
+        pcov = np.broadcast_to(np.diag(sd**2), (s, 6, 6)) / nf[:, None, None]
+        nominal[:] = True
+    else:
+        raise InputError("pose_cov: no covariance in the pose stream and no fallback given")
+    tcov = st.sem[..., None] * np.eye(T.shape[1]) * st.sem[:, None, :]
+    pts = new_points(
+        kind=kind,
+        start_ns=start_ns,
+        tension_N=st.mean,
+        tension_cov_N2=tcov,
+        **{POSE: ps.mean, POSE_COV: np.array(pcov)},
+        airspeed_mps=V,
+        density_kgpm3=rho,
+        input_flags=_input_words(st, ps, nominal),
+    )
+    extra = {
+        "start_ns": start_ns,
+        "stop_ns": stop_ns,
+        "n_samples": st.n_samples,
+        "n_masked": st.n_masked,
+        "n_pose_frames": ps.n_used,
+        "tension_sd_N": st.sd,
+    }
+    return pts, extra
+
+
+def _input_words(st: PointStats, ps: PointStats, nominal: NDArray[np.bool_]) -> list[str]:
+    """The flag words of each point's inputs (masked samples and why, no samples, no pose,
+    dropped camera frames, a nominal pose covariance)."""
+    words = []
+    for i in range(len(nominal)):
+        w = []
+        if st.n_masked[i]:
+            w.append("masked")
+            w += mask_words(int(st.masked_bits[i]))
+        if st.n_used[i] < 2:
+            w.append("no_samples")
+        if ps.n_used[i] == 0:
+            w.append("no_pose")
+        elif ps.n_masked[i]:
+            w.append("pose_flagged")
+        if nominal[i]:
+            w.append("pose_cov_nominal")
+        words.append(";".join(w))
+    return words

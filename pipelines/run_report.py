@@ -1,0 +1,338 @@
+"""The report of one analysed run: ``report.md`` with its warnings, the per-point table, the
+corrections and the stage log, and its figures (tensions with the test points shaded, the wrench per
+point with ±2σ, the tension check, the tension spectra against the rig's modes).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cdpr.analysis.balance import interpolate_at
+from cdpr.analysis.conventions import MASK_NAMES, WRENCH_COLUMNS
+from cdpr.analysis.rotations import rotation_from_euler
+
+from .point_plan import PointPlan
+from .run_arrays import RunData
+
+
+def warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]:
+    """One sentence per run-level problem (the CLI and the report print them)."""
+    lines = []
+    if run.tunnel is None:
+        lines.append(
+            "no airspeed data in the run: no coefficient; "
+            + (
+                "points come from events"
+                if plan.source == "events"
+                else "wind-on and wind-off cannot be told apart, so no wrench is reported"
+            )
+        )
+    if "pose_cov_nominal" in words:
+        lines.append(
+            "the pose stream carries no covariance: pose σ from the configured constant "
+            "(flag pose_cov_nominal)"
+        )
+    if "no_pose_stream" in words:
+        lines.append("no pose stream: the rig's reference pose is used (flag no_pose_stream)")
+    if "no_tare" in words:
+        lines.append("wind-on points without a tare or weight model: no wrench (flag no_tare)")
+    if "masked" in words:
+        lines.append("samples masked (status bits, counter gaps, NaN): see n_masked and flags")
+    if "no_geometry" in words:
+        lines.append("no model geometry given: no coefficients (flag no_geometry)")
+    if "check_fail" in words:
+        lines.append("measured vs simulated tensions above the limit (flag check_fail)")
+    if "humidity_not_given" in words:
+        lines.append(
+            "wind-on points without a humidity reading in the tunnel stream: density of dry air "
+            "(up to about 1 % high; flag humidity_not_given)"
+        )
+    said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
+    said |= {"humidity_not_given"}
+    said |= {"no_airspeed"} | set(MASK_NAMES.values())
+    rest = [w for w in words if w not in said]
+    if rest:
+        lines.append(f"other flags: {', '.join(rest)} (see the flags column)")
+    return lines
+
+
+def camera_pose_error(run: RunData) -> dict[str, float] | None:
+    """RMS position (mm) and rotation (deg) error of the camera poses against the virtual rig's
+    truth, when the run has both."""
+    if not run.camera or run.truth is None or "position_O_m" not in run.truth:
+        return None
+    good = ~run.pose_bad
+    cam_t, cam_q = run.pose_t_ns[good], run.poses[good]
+    q_true = np.concatenate([run.truth["position_O_m"], run.truth["euler_rad"]], axis=1)
+    tq = interpolate_at(cam_t, run.truth["t_ns"], q_true)
+    pos_err = np.linalg.norm(cam_q[:, :3] - tq[:, :3], axis=1)
+    R_rel = np.swapaxes(rotation_from_euler(tq[:, 3:]), -1, -2) @ rotation_from_euler(cam_q[:, 3:])
+    cos = np.clip((np.trace(R_rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    ang = np.degrees(np.arccos(cos))
+    return {
+        "n_poses": int(len(pos_err)),
+        "position_rms_mm": float(1e3 * np.sqrt(np.mean(pos_err**2))),
+        "position_max_mm": float(1e3 * pos_err.max()),
+        "rotation_rms_deg": float(np.sqrt(np.mean(ang**2))),
+        "rotation_max_deg": float(ang.max()),
+    }
+
+
+def run_plots(run: RunData, df: pd.DataFrame, folder: Path) -> None:
+    """tensions.png (min/max envelope of every cable and of the airspeed, test points shaded),
+    wrench.png (per wind-on point, ±2σ), check.png (measured − expected tension per point).  The
+    cost does not grow with the number of samples: 2000 envelope bins, one shading collection per
+    kind; with many points the check plot draws markers and thins its labels."""
+    from .plotting import minmax_envelope, png_figure
+
+    t0 = run.t_ns[0]
+    t_s = (run.t_ns - t0) * 1e-9
+    # min/max envelope over 2000 bins (every spike stays visible), never every sample
+    ts, T_env = minmax_envelope(t_s, run.tensions_N)
+    tare = df.kind.isin(("tare", "zero")).to_numpy()
+    spans = np.column_stack(
+        [
+            (df.start_ns.to_numpy() - t0) * 1e-9,
+            (df.stop_ns.to_numpy() - df.start_ns.to_numpy()) * 1e-9,
+        ]
+    )
+    with png_figure(folder / "tensions.png", 2, 1, (10, 6), sharex=True, height_ratios=[3, 1]) as (
+        fig,
+        axes,
+    ):
+        ax = axes[:, 0]
+        for k, name in enumerate(run.rig.cable_names):
+            ax[0].plot(ts, T_env[:, k], lw=0.8, label=name)
+        for a in ax:  # one collection per kind of point, spanning the axes' height
+            for sel, color in ((tare, "0.9"), (~tare, "#dde8f7")):
+                if sel.any():
+                    a.broken_barh(
+                        spans[sel].tolist(), (0, 1), transform=a.get_xaxis_transform(),
+                        color=color, zorder=0,
+                    )  # fmt: skip
+        ax[0].set_ylabel("tension (N)")
+        ax[0].legend(fontsize=7, ncol=4, loc="upper left")
+        ax[0].set_title(
+            f"{run.path.name}: tensions (min/max envelope); shaded = test points "
+            f"({df['source'].iloc[0]}; grey: tares)"
+        )
+        if run.tunnel is not None:
+            tv, v_env = minmax_envelope(t_s, run.tunnel[0])
+            ax[1].plot(tv, v_env, color="k", lw=1)
+        else:
+            ax[1].text(0.5, 0.5, "no airspeed data", transform=ax[1].transAxes, ha="center")
+        ax[1].set_ylabel("airspeed (m/s)")
+        ax[1].set_xlabel("time (s)")
+
+    on = df[~df.kind.isin(("tare", "zero"))]
+    x = on["airspeed_mps"] if run.tunnel is not None else np.arange(len(on))
+    with png_figure(folder / "wrench.png", 2, 3, (11, 6)) as (fig, axes):
+        for k, c in enumerate(WRENCH_COLUMNS):
+            a = axes.flat[k]
+            a.errorbar(
+                x, on[c], yerr=2 * on[f"sd_{c}"], fmt="o", capsize=3, label="recovered (±2σ)"
+            )
+            if f"true_{c}" in on:
+                a.plot(x, on[f"true_{c}"], "x", color="C3", label="virtual-rig truth")
+            a.set_title(c)
+            a.set_xlabel("airspeed (m/s)" if run.tunnel is not None else "point")
+            a.grid(alpha=0.3)
+        axes.flat[0].legend(fontsize=7, loc="upper left")
+        fig.suptitle("Recovered aerodynamic wrench per test point (at the MRP, {O} axes)")
+
+    dcols = [f"dT_{n}_N" for n in run.rig.cable_names]
+    with png_figure(folder / "check.png", size=(10, 4)) as (fig, axes):
+        ax = axes[0, 0]
+        idx = np.arange(len(df))
+        if len(df) <= 40:
+            width = 0.8 / len(dcols)
+            for k, c in enumerate(dcols):
+                ax.bar(idx + (k - len(dcols) / 2) * width, df[c], width, label=c[3:-2])
+            ax.set_xticks(idx, df["point"], rotation=90, fontsize=6)
+        else:  # many points: one marker per cable and point, every k-th label
+            for c in dcols:
+                ax.plot(idx, df[c], ".", ms=3, label=c[3:-2])
+            step = int(np.ceil(len(df) / 40))
+            ax.set_xticks(idx[::step], df["point"].iloc[::step], rotation=90, fontsize=6)
+        ax.axhline(1.0, color="r", ls="--", lw=1)
+        ax.axhline(-1.0, color="r", ls="--", lw=1, label="±1 N (paper)")
+        ax.set_ylabel("measured − expected tension (N)")
+        ax.set_title("Measured vs simulated tensions (the paper's ≈1 N check)")
+        ax.legend(fontsize=7, ncol=5, loc="upper left")
+
+
+def spectrum_plots(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -> list[str]:
+    """``spectrum.png``: the tension spectra of the fastest wind-on point with the rig's modes
+    at its pose marked, and ``spectra.png`` (``spectra_1.png``, ... beyond 24 points): every
+    point's spectra as small multiples (when the spectrum check ran).  Returns the file names of
+    the small-multiples figures."""
+    from .report import spectra_grid_figures, spectrum_figure
+
+    if spectra is None:
+        return []
+    grid = spectra_grid_figures(
+        folder,
+        [str(x) for x in df["point"]],
+        [str(x) for x in df["flags"].fillna("")],
+        spectra.freqs_Hz,
+        spectra.psd,
+        spectra.modes_Hz,
+        run.rig.cable_names,
+    )
+    names = [f.name for f in grid.figures]
+    on = np.flatnonzero((df["kind"] == "wind_on").to_numpy())
+    on = [i for i in on if spectra.freqs_Hz[i].size]
+    if not on:
+        return names
+    i = max(on, key=lambda k: np.nan_to_num(df["airspeed_mps"].iloc[k]))
+    spectrum_figure(
+        folder / "spectrum.png",
+        spectra.freqs_Hz[i],
+        spectra.psd[i],
+        run.rig.cable_names,
+        spectra.modes_Hz[i],
+        f"Tension spectra of point {df['point'].iloc[i]} "
+        f"({df['airspeed_mps'].iloc[i]:.2f} m/s) with the rig's modes at its pose",
+    )
+    return names
+
+
+def _fmt(v: float, sd: float) -> str:
+    return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
+
+
+def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
+    red = summary["reduction"]
+    lines = [
+        f"# Analysis of `{run.path.name}`",
+        "",
+        f"- rig: **{run.rig.name}** ({run.rig.n_cables} cables); pose from: {run.pose_source}",
+        f"- {len(df)} test points from **{red['point_source']}**"
+        f" ({'the /events stream' if red['point_source'] == 'events' else 'steady-point detection'})"
+        f", {int(df.kind.isin(('tare', 'zero')).sum())} wind-off",
+        f"- measured vs simulated tensions: max |ΔT| = {summary['check_max_abs_dT_N']:.3f} N "
+        f"(paper: about 1 N) → **{'pass' if summary['check_pass'] else 'FAIL'}**",
+    ]
+    lc = summary["loadcell_calibration"]
+    if lc["applied"]:
+        worst = max((v for v in lc["max_abs_change_N"].values() if v is not None), default=0.0)
+        lines.append(
+            f"- tensions **re-derived from the recorded raw counts** with the load-cell "
+            f"calibration `{lc['name']}` (id `{lc['id']}`, created {lc['created_utc'] or 'not given'},"
+            f" sha256 `{lc['sha256']}`, given by {lc['given_by']}): T = (counts − offset) · gain; "
+            f"largest change against the recorded tensions {worst:.4g} N"
+        )
+    else:
+        lines.append("- tensions as recorded (no load-cell re-calibration)")
+    wm = red["weight_model"]
+    if wm:
+        lines.append(
+            f"- weight model from {wm['n_tares']} wind-off points: mass {wm['mass_kg']:.5f} kg, "
+            f"CoM_P {np.round(np.array(wm['com_P_m']) * 1e3, 3).tolist()} mm"
+            + (
+                f" (left to the prior: {', '.join(wm['left_to_prior'])})"
+                if wm["left_to_prior"]
+                else ""
+            )
+        )
+    if red["lines"]:
+        lines += ["", "**Warnings**", ""] + [f"- {w}" for w in red["lines"]]
+    lines += [
+        "",
+        "| point | kind | V (m/s) | Fx (N) | Fy (N) | Fz (N) | Mx (N m) | My (N m) | Mz (N m) "
+        "| CL | CD | max ΔT (N) | masked | flags |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for _, r in df.iterrows():
+        w = [_fmt(r[c], r["sd_" + c]) for c in WRENCH_COLUMNS]
+        coef = ["–" if not np.isfinite(r[c]) else f"{r[c]:.3f}" for c in ("CL", "CD")]
+        lines.append(
+            f"| {r.point} | {r.kind} | {r.airspeed_mps:.2f} | "
+            + " | ".join(w)
+            + " | "
+            + " | ".join(coef)
+            + f" | {r.check_max_abs_dT_N:.3f} | {int(r.n_masked)} | {r['flags']} |"
+        )
+    pe = summary.get("camera_pose_error_vs_truth")
+    if pe:
+        lines += [
+            "",
+            f"Camera pose against the virtual rig's truth ({pe['n_poses']} poses): position RMS "
+            f"{pe['position_rms_mm']:.3f} mm (max {pe['position_max_mm']:.3f}), rotation RMS "
+            f"{pe['rotation_rms_deg']:.4f}° (max {pe['rotation_max_deg']:.4f}°).",
+        ]
+    if "max_abs_error_vs_truth" in summary:
+        errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
+        lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
+    lines += _corrections_section(df, red)
+    if summary.get("online"):
+        lines += ["", "## On-line against final values", "", *(f"- {x}" for x in summary["online"])]
+    lines += ["", "Stages of the reduction:", ""]
+    for st in red["stages"]:
+        note = f": {st['note']}" if st["note"] else ""
+        lines.append(f"1. `{st['stage']}` — {st['points_flagged']} points flagged{note}")
+    lines += [
+        "",
+        "σ: load-cell noise (standard error of each point's mean), the pose covariance (the camera's "
+        "per frame, else the configured constant, flagged), the weight model's covariance and the "
+        "tare-to-point pose difference, linearised (`cdpr.analysis.reduction`).",
+        "",
+        "![tensions](tensions.png)",
+        "",
+        "![wrench](wrench.png)",
+        "",
+        "![check](check.png)",
+        "",
+        *(["![spectrum](spectrum.png)", ""] if "lowest_mode_Hz" in df else []),
+    ]
+    grids = summary.get("spectra_figures") or []
+    if grids:
+        lines += [
+            "Tension spectra of every point (one panel per point: label and spectrum flags in "
+            "its title, the rig's modes at its pose dashed):",
+            "",
+        ]
+        lines += [f"![spectra of every point]({g})\n" for g in grids]
+    return "\n".join(lines)
+
+
+def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
+    """The report's corrections: every record (name, source, values, flags) and per wind-on point
+    the size of each correction, the corrected beside the uncorrected coefficients, Re and Mach."""
+    recs = red.get("corrections")
+    if not isinstance(recs, list):
+        return ["", f"Corrections: {recs}."]
+    lines = ["", "## Corrections", ""]
+    for r in recs:
+        flags = f" — flags: {', '.join(r['flags'])}" if r["flags"] else ""
+        lines.append(f"- **{r['name']}** ({r['source']}){flags}")
+    on = df[df.kind == "wind_on"]
+    if on.empty or "corrections" not in on:
+        return lines
+    cols = [
+        ("point", "point", ""), ("V", "airspeed_mps", ".2f"),
+        ("ρ (kg/m³)", "density_kgpm3", ".5f"), ("ρ from", "density_source", ""),
+        ("RH", "relative_humidity", ".3f"), ("Re", "reynolds", ".3g"),
+        ("Mach", "mach", ".4f"), ("drift max (N)", "zero_drift_max_abs_N", ".4f"),
+        ("windage", "windage_source", ""), ("windage Fx (N)", "windage_fx_N", ".4f"),
+        ("CL", "CL", ".4f"), ("CL corr.", "CL_corrected", ".4f"), ("CD", "CD", ".5f"),
+        ("CD corr.", "CD_corrected", ".5f"), ("Cm", "Cm", ".5f"), ("Cm corr.", "Cm_corrected", ".5f"),
+        ("σ CL", "sd_CL", ".2g"), ("σ_repeat CL", "sd_repeat_CL", ".2g"),
+    ]  # fmt: skip
+    cols = [c for c in cols if c[1] in on]
+    lines += ["", "| " + " | ".join(c[0] for c in cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in on.iterrows():
+        cells = []
+        for _, key, f in cols:
+            v = r[key]
+            cells.append(
+                str(v) if not f else ("–" if not np.isfinite(float(v)) else format(float(v), f))
+            )
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Per point, what was applied and its source (the `corrections` column):", ""]
+    lines += [f"- {r.point}: {r.corrections or 'none'}" for r in on.itertuples()]
+    return lines
