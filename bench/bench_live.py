@@ -289,7 +289,7 @@ def run() -> dict[str, dict]:
             "ten_points_ms": round(cost["ten_s"] * 1e3, 2),
             "context": "one on-line update (the whole session's test points through the core) at "
             "the end of the sample campaign (data_samples/campaign_alpha_sweep.toml simulated at "
-            "4x, camera and corrections), median of 5; the live server runs it twice a second",
+            "4x, camera and corrections), median of 5; the live server runs it once a second",
         },
     }
 

@@ -56,8 +56,9 @@ QUEUE_BATCHES = 2048
 DISPLAY_PERIOD_NS = column_blocks.VIEW_PERIOD_NS
 """At most one message per stream in each 20 ms of sample time (the file's ``/tensions/view``)."""
 SCENE_HZ = 10.0
-ONLINE_PERIOD_S = 0.5
-"""The on-line reduction runs twice a second while a point is open (at least once a second)."""
+ONLINE_PERIOD_S = 1.0
+"""The on-line reduction runs once a second while a point is open (each update starts a period
+after the previous one started; an update that takes longer delays the next)."""
 CLIENT_BACKLOG = 1024
 """Messages the SDK buffers per client; a slow client loses the oldest (never the recorder)."""
 
@@ -578,7 +579,11 @@ class LiveServer:
                     self.published += 1
 
     def _online_loop(self) -> None:
-        while not self._stop.wait(self.online_period_s):
+        # one update every period, counted from the start of the last (not from its end): the
+        # update's own cost does not stretch the interval while it stays below the period
+        due = time.monotonic() + self.online_period_s
+        while not self._stop.wait(max(0.0, due - time.monotonic())):
+            due = max(due + self.online_period_s, time.monotonic())
             try:
                 self._online_step()
             except Exception as exc:
