@@ -102,6 +102,7 @@ def _child_live(out: str, duration_s: float, rate_hz: float, live: bool, go_file
             live_dropped_batches=server.dropped_batches,
             batches=server.batches_in,
             server_lag_ms=[(b - a) / 1e6 for a, b in server.view_lag],
+            publisher_cpu_s=dict(server.cpu_s),
         )
         time.sleep(0.5)  # the last messages on the wire
         server.stop()
@@ -251,6 +252,14 @@ def run() -> dict[str, dict]:
             "client_topics": probes["on"][0]["client_topics"],
             "probes_frames_per_s": {k: [round(r["rate"], 1) for r in v] for k, v in probes.items()},
             "latency_at_capacity_p99_ms": round(_pct(probe_lat, 99), 2),
+            "publisher_cpu_share": {
+                k: round(
+                    sum(r["publisher_cpu_s"][k] for r in probes["on"])
+                    / sum(r["cpu_s"] for r in probes["on"]),
+                    3,
+                )
+                for k in ("batches", "scene")
+            },  # fmt: skip
             "context": "recorder child pinned to one CPU (the SDK's server threads in it too), "
             "capacity probes at full speed (bus held back at 20k queued frames) off/on/off/on, "
             f"{PROBE_S:g} s each; the client subscribed to every topic in another process; "

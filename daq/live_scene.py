@@ -178,12 +178,15 @@ def scene_update(
 
     ts = Timestamp(*divmod(int(t_ns), 1_000_000_000))
 
+    identity = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
     def pose(at: Any, R: Any = None) -> Any:
-        x, y, z, w = _quat_xyzw(np.eye(3) if R is None else R)
-        return Pose(
-            position=Vector3(x=float(at[0]), y=float(at[1]), z=float(at[2])),
-            orientation=Quaternion(x=x, y=y, z=z, w=w),
-        )
+        if R is None:
+            q = identity
+        else:
+            x, y, z, w = _quat_xyzw(R)
+            q = Quaternion(x=x, y=y, z=z, w=w)
+        return Pose(position=Vector3(x=float(at[0]), y=float(at[1]), z=float(at[2])), orientation=q)
 
     def colour(rgba: Sequence[float]) -> Any:
         return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])

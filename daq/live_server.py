@@ -55,7 +55,7 @@ QUEUE_BATCHES = 2048
 """Batches held between the recorder's writer and the publisher; past that the oldest is dropped."""
 DISPLAY_PERIOD_NS = column_blocks.VIEW_PERIOD_NS
 """At most one message per stream in each 20 ms of sample time (the file's ``/tensions/view``)."""
-SCENE_HZ = 10.0
+SCENE_HZ = 5.0
 ONLINE_PERIOD_S = 1.0
 """The on-line reduction runs once a second while a point is open (each update starts a period
 after the previous one started; an update that takes longer delays the next)."""
@@ -198,6 +198,9 @@ class LiveServer:
         self.dropped_batches = 0
         self.published = 0
         self.online_costs_s: list[float] = []
+        #: CPU time of the publisher thread (s): the batches (decimation, encoding, the on-line
+        #: feed) and the scene (``/scene``, ``/tf``, ``/tensions/limits``)
+        self.cpu_s = {"batches": 0.0, "scene": 0.0}
         #: (log time, time handed to the SDK) of the last published ``/tensions/view`` messages,
         #: ns: the recorder's share of the latency (the bench)
         self.view_lag: deque[tuple[int, int]] = deque(maxlen=100_000)
@@ -470,6 +473,7 @@ class LiveServer:
             while not self._stop.is_set():
                 self._wake.wait(0.05)
                 self._wake.clear()
+                c0 = time.thread_time()
                 while q:
                     try:
                         batch = q.popleft()
@@ -477,6 +481,8 @@ class LiveServer:
                         break
                     self._batch(batch)
                     self.batches_done += 1
+                c1 = time.thread_time()
+                self.cpu_s["batches"] += c1 - c0
                 now = time.monotonic()
                 if self._ctx is not None and self.rig is not None and now >= next_scene:
                     next_scene = now + self.scene_period_s
@@ -484,6 +490,7 @@ class LiveServer:
                     if now >= next_limits:
                         next_limits = now + 1.0
                         self._publish_limits()
+                    self.cpu_s["scene"] += time.thread_time() - c1
         except Exception as exc:  # never take the recording down; say it
             self.error = f"{type(exc).__name__}: {exc}"
             if self._record_event is not None:
