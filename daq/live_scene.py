@@ -14,6 +14,7 @@ of the range) orange, saturated (above ``t_max_N``) red, a missing tension grey,
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -157,7 +158,9 @@ def scene_update(
     g: SceneGeometry, t_ns: int, cable_names: Sequence[str], frame_id: str = "O"
 ) -> Any:
     """The ``foxglove.SceneUpdate`` of :func:`scene_geometry`'s result: entity ``rig`` (anchors,
-    cables, platform box, tension labels), entity ``model`` (body axes, wind and force arrows)."""
+    cables, platform box, tension labels; its metadata: the pose it is drawn at,
+    ``position_O_m`` and ``quaternion_wxyz`` as JSON, and ``state_<cable>``), entity ``model``
+    (body axes, wind and force arrows)."""
     from foxglove.messages import (
         ArrowPrimitive,
         Color,
@@ -224,11 +227,16 @@ def scene_update(
         size=Vector3(x=float(g.box_size[0]), y=float(g.box_size[1]), z=float(g.box_size[2])),
         color=Color(r=0.8, g=0.8, b=0.85, a=0.6),
     )
+    x, y, z, w = _quat_xyzw(g.rotation)
+    where = [  # the pose the scene is drawn at
+        KeyValuePair(key="position_O_m", value=json.dumps([float(v) for v in g.position])),
+        KeyValuePair(key="quaternion_wxyz", value=json.dumps([w, x, y, z])),
+    ]
     rig_entity = SceneEntity(
         timestamp=ts, frame_id=frame_id, id="rig", lines=lines, texts=texts, spheres=spheres,
         cubes=[cube],
-        metadata=[KeyValuePair(key=f"state_{n}", value=s)
-                  for n, s in zip(cable_names, g.states, strict=True)],
+        metadata=where + [KeyValuePair(key=f"state_{n}", value=s)
+                          for n, s in zip(cable_names, g.states, strict=True)],
     )  # fmt: skip
 
     def arrow(at: Any, direction: Any, length: float, width: float, rgba: Sequence[float]) -> Any:

@@ -205,30 +205,35 @@ def test_live_values_are_the_files(session: dict[str, Any]) -> None:
 
 
 def test_scene_cable_ends_are_the_structure_matrix_points(session: dict[str, Any]) -> None:
-    """Each /scene message's cables run from p + R pp_i to b_i at the pose of the /tf message of
-    the same time: the directions and moment arms of the structure matrix at that pose."""
+    """Each /scene message's cables run from p + R pp_i to b_i at the pose it was drawn at (its
+    metadata; the /tf message published with it says the same): the directions and moment arms
+    of the structure matrix at that pose."""
     c = session["clients"]["first"]
     rig = load_rig(RIG)
-    tf = {r.log_time_ns: r.body.transforms[0] for r in c.of("/tf")}
     scenes = c.of("/scene")
-    assert len(scenes) > 20
+    tfs = c.of("/tf")
+    assert len(scenes) > 20 and len(tfs) == len(scenes)
     checked = 0
-    for s in scenes[:: max(1, len(scenes) // 15)]:
-        t = tf[s.log_time_ns]
-        p = np.array([t.translation.x, t.translation.y, t.translation.z])
-        q = np.array([t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z])
-        R = rotation_from_quaternion(q)
-        A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, p, R)
+    moved = 0
+    for s, tf in list(zip(scenes, tfs, strict=True))[:: max(1, len(scenes) // 15)]:
         (ent,) = [e for e in s.body.entities if e.id == "rig"]
+        meta = {kv.key: kv.value for kv in ent.metadata}
+        p = np.array(json.loads(meta["position_O_m"]))
+        q = np.array(json.loads(meta["quaternion_wxyz"]))
+        t = tf.body.transforms[0]  # published right after it, from the same pose
+        np.testing.assert_allclose([t.translation.x, t.translation.y, t.translation.z], p)
+        np.testing.assert_allclose([t.rotation.w, t.rotation.x, t.rotation.y, t.rotation.z], q)
+        A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, p, rotation_from_quaternion(q))
         for i, line in enumerate(ent.lines):
             a = np.array([line.points[0].x, line.points[0].y, line.points[0].z])
             b = np.array([line.points[1].x, line.points[1].y, line.points[1].z])
             u = (b - a) / np.linalg.norm(b - a)
-            np.testing.assert_allclose(u, A[:3, i], atol=1e-6)
-            np.testing.assert_allclose(np.cross(a - p, u), A[3:, i], atol=1e-6)
-            np.testing.assert_allclose(b, rig.anchors_O_m[i], atol=1e-9)
+            np.testing.assert_allclose(u, A[:3, i], atol=1e-9)
+            np.testing.assert_allclose(np.cross(a - p, u), A[3:, i], atol=1e-9)
+            np.testing.assert_allclose(b, rig.anchors_O_m[i], atol=1e-12)
         checked += 1
-    assert checked >= 10
+        moved += bool(np.abs(p - rig.reference_position_O_m).max() > 1e-5)
+    assert checked >= 10 and moved >= 5  # drawn at the camera's poses, not the reference
 
 
 def test_cable_states_and_scene_geometry_by_hand() -> None:
