@@ -1,7 +1,8 @@
 """Run files in MCAP, the raw side: the streaming reader (:func:`read_run`, every message as a
 dict, for tests and tools that look at message bodies) and truncated-file recovery
-(:func:`recover_run`).  The columnar reader is :func:`cdpr.daq.run_reader.open_run`; the writer and
-codecs are in :mod:`cdpr.daq.mcap_writer` (re-exported here for existing imports).
+(:func:`recover_run`).  The columnar reader is :func:`cdpr.daq.run_reader.open_run`; the writer is
+:mod:`cdpr.daq.mcap_writer` (its public names, with the codecs' of :mod:`cdpr.daq.mcap_codecs`,
+re-exported here for existing imports).
 """
 
 from __future__ import annotations

@@ -71,7 +71,9 @@ _WIND_OFF = (*WIND_OFF_KINDS, "oscillation_tare")
 """Kinds whose airspeed must be 0: the wind-off ones at rest and the inertia tare."""
 
 _TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig", "aero_estimate"}
-_CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
+_CAMPAIGN = {
+    "name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers", "pose_sd",
+}  # fmt: skip
 _MODEL = {"name", "area_m2", "span_m", "chord_m", "mrp_P_m", "volume_m3"}
 _MODEL_WALLS = {
     "blockage_K3",
@@ -194,6 +196,9 @@ class TestMatrix:
     tunnel: TunnelSection | None = None
     """The ``[tunnel]`` table with the wall-correction keys of ``[model]`` (None: no test section
     given: no wall corrections and no windage model, said by the reduction's flags)."""
+    pose_sd: tuple[float, ...] | None = None
+    """``campaign.pose_sd``: the camera's precision per frame (x, y, z in m; roll, pitch, yaw in
+    rad), used for runs whose pose stream carries no covariance (None: not stated)."""
     aero_estimate: Mapping[str, Any] | None = None
     """The ``[aero_estimate]`` table: the expected aerodynamic coefficients the motion planner
     loads the plan with (keys of the virtual rig's aero model, geometry from ``[model]``); None
@@ -321,6 +326,14 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
     }
     if (optional["camera"] is None) != (optional["markers"] is None):
         raise ConfigError(src, "campaign.camera", "camera and markers go together")
+    pose_sd = None
+    if "pose_sd" in camp:
+        v = camp["pose_sd"]
+        if not isinstance(v, list) or len(v) != 6:
+            raise ConfigError(
+                src, "campaign.pose_sd", "expected 6 numbers: x_m, y_m, z_m, roll, pitch, yaw (rad)"
+            )
+        pose_sd = tuple(_num(src, f"campaign.pose_sd[{i}]", x, 0.0, True) for i, x in enumerate(v))
 
     if "model" not in data:
         raise ConfigError(src, "model", "missing [model] table")
@@ -439,6 +452,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         virtual_rig=dict(vrig),
         tunnel=tunnel,
         aero_estimate=None if aero_estimate is None else dict(aero_estimate),
+        pose_sd=pose_sd,
         **optional,
     )
 

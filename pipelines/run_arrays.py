@@ -322,21 +322,9 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         if (~bad).any():
             eul[~bad] = euler_from_quaternion(quat[~bad])
         poses = np.concatenate([pos, eul], axis=1)
-        pose_cov = None
-        ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
-        if all(c in pose_df for c in ccols):
-            C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
-            # a frame without any covariance value: none for the run; a partly missing one
-            # (NaN recorded as null) marks its frame bad
-            if np.isfinite(C).any(axis=(1, 2)).all():
-                # the camera reports [position, rotation vector in {O}]; Euler angles:
-                # dpsi = H^-1 dtheta
-                Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-                J = np.zeros((len(tp), 6, 6))
-                J[:, :3, :3] = np.eye(3)
-                J[:, 3:, 3:] = Hinv
-                pose_cov = J @ C @ np.swapaxes(J, 1, 2)
-                bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
+        pose_cov = _pose_covariance(pose_df, eul, bad)
+        if pose_cov is not None:  # a partly missing one (NaN recorded as null): its frame is bad
+            bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
@@ -357,6 +345,23 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
         pressure_temperature, humidity, recal,
     )  # fmt: skip
+
+
+def _pose_covariance(pose_df: pd.DataFrame, eul: np.ndarray, bad: np.ndarray) -> np.ndarray | None:
+    """(k, 6, 6) covariance of the camera frames in [position, Euler angles], from the recorded
+    ``cov_00 .. cov_55`` ([position, rotation vector in {O}]: dpsi = H^-1 dtheta); None when the
+    stream has no covariance or a usable frame has none at all.  A frame without a pose (``bad``)
+    carries none and does not count: one lost frame must not cost the run its covariance."""
+    ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
+    if not all(c in pose_df for c in ccols):
+        return None
+    C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
+    if not np.isfinite(C[~bad]).any(axis=(1, 2)).all():
+        return None
+    J = np.zeros((len(C), 6, 6))
+    J[:, :3, :3] = np.eye(3)
+    J[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
+    return J @ C @ np.swapaxes(J, 1, 2)
 
 
 def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:
