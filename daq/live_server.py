@@ -17,7 +17,8 @@ on-line result computed after the live path dropped batches is flagged ``live_dr
 
 Topics and schema names are those of the run file (docs/recording.md): every declared stream
 ``/<stream>``, with Foxglove's well-known types as the SDK sends them (protobuf):
-``foxglove.PoseInFrame`` (``/pose``: only frames with a usable pose), ``foxglove.Log`` (``/event``,
+``foxglove.PoseInFrame`` (``/pose``: only frames with a pose; every frame's status, flags and
+covariance on ``/pose_status`` as JSON, as in the file), ``foxglove.Log`` (``/event``,
 ``/events``: fault events are the alarms; a Log message has no extra fields, so a test point's
 fields are appended to its text as ``key=value``), ``foxglove.CompressedImage``; our own schemas as
 JSON with the file's schema (``cdpr.<stream>``).  A stream the file stores as column blocks
@@ -132,6 +133,9 @@ class _Out:
     channel: Any
     encode: Callable[[Reading], Any] | None
     decimate: bool
+    #: the ``/<stream>_status`` channel and its encoder (a pose's status, flags, covariance: what
+    #: the well-known schema has no field for; one message per reading, as in the file)
+    status: tuple[Any, Callable[[Reading], Any]] | None = None
 
 
 def _finite(v: Any) -> bool:
@@ -335,9 +339,16 @@ class LiveServer:
         }
         if codec.schema_name in kinds:
             kind, cls = kinds[codec.schema_name]
+            status = None
+            st = getattr(codec, "status", None)
+            if st is not None:  # the file's /<stream>_status beside the well-known channel
+                smeta = {**meta, "stream": f"{stream}_status", "status_of": topic}
+                status = (self._json_channel(topic + "_status", st.schema_name, st.schema, smeta),
+                          st.encode)  # fmt: skip
             self._outs[stream] = _Out(
-                kind, cls(topic, context=self._ctx, metadata=meta), None, kind != "log"
-            )
+                kind, cls(topic, context=self._ctx, metadata=meta), codec.encode, kind != "log",
+                status,
+            )  # fmt: skip
             return
         if codec.schema_name == f"cdpr.{stream}" and column_blocks.uses_blocks(desc):
             # the file stores it as column blocks: live, its per-sample view (same decimation)
@@ -397,8 +408,12 @@ class LiveServer:
             body = out.encode(r)
             out.channel.log(body if type(body) is bytes else encode_json(body), log_time=r.t_ns)
         elif out.kind == "pose":
+            if out.status is not None:  # every frame, with or without a pose
+                ch, enc = out.status
+                ch.log(encode_json(enc(r)), log_time=r.t_ns)
+                self.published += 1
             msg = pose_message(r)
-            if msg is None:  # a frame without a usable pose is not a PoseInFrame
+            if msg is None:  # a frame without a pose is not a PoseInFrame (its status says why)
                 return
             out.channel.log(msg, log_time=r.t_ns)
         elif out.kind == "log":
@@ -628,8 +643,8 @@ def online_text(on: Mapping[str, Any]) -> str:
 
 
 def pose_message(r: Reading) -> Any:
-    """``foxglove.PoseInFrame`` of a pose reading, or None for a frame without a usable pose
-    (status not 0, or a non-finite position or orientation)."""
+    """``foxglove.PoseInFrame`` of a pose reading, or None for a frame without a pose (a
+    non-finite position or orientation), as the run file writes ``/pose``."""
     from foxglove.messages import PoseInFrame
 
     v = r.values
@@ -639,7 +654,7 @@ def pose_message(r: Reading) -> Any:
         q_xyzw = None if q is None else [q[1], q[2], q[3], q[0]]
     else:
         q_xyzw = v.get("quaternion_xyzw")
-    if r.status != 0 or p is None or q_xyzw is None or not (_finite(p) and _finite(q_xyzw)):
+    if p is None or q_xyzw is None or not (_finite(p) and _finite(q_xyzw)):
         return None
     return PoseInFrame(**_pose_fields(r.t_ns, str(v.get("frame_id", "O")), p, q_xyzw))
 

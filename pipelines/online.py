@@ -10,15 +10,16 @@ event on ``/events``, which ``cdpr analyze`` compares with its final values
 The session's samples (tensions with their status and counter, the camera's poses with their
 covariance, the tunnel conditions, the test-point events) are kept inside the test points (and
 the last few seconds), in bounded buffers; every update builds the same :class:`RunData` that
-``cdpr analyze`` reads from a run file and calls :func:`reduce_session`, the ONE function through
-which it runs the reduction core (``cdpr analyze``'s ``reduce_run``).  So the on-line values are the core's with what is known so far: weight tares
-and the weight model from the wind-off points already recorded, windage from the windage points
-already recorded (else the model), zero drift held from the last zero (flag
-``no_closing_zero``), q from the tunnel stream, body and wind axes at the model's moment reference
-point.  What the live session cannot know is said by flags, never filled in: no virtual-rig truth
-file (a run without a camera is reduced at the rig's reference pose, flag ``no_pose_stream``);
-the spectrum check's flags are left out (only the samples inside the points are kept, so the
-check's estimate of the run's sample rate is not the recording's).
+``cdpr analyze`` reads from a run file and calls :func:`reduce_session`, the ONE function
+through which it runs the reduction core (``cdpr analyze``'s ``reduce_run``).  So the on-line
+values are the core's with what is known so far: weight tares and the weight model from the
+wind-off points already recorded, windage from the windage points already recorded (else the
+model), zero drift held from the last zero (flag ``no_closing_zero``), q from the tunnel stream,
+body and wind axes at the model's moment reference point.  What the live session cannot know is
+said by flags, never filled in: no virtual-rig truth file (a run without a camera is reduced at
+the rig's reference pose, flag ``no_pose_stream``); the spectrum check's flags are left out (only
+the samples inside the points are kept, so the check's estimate of the run's sample rate is not
+the recording's).
 """
 
 from __future__ import annotations

@@ -179,8 +179,13 @@ def test_live_values_are_the_files(session: dict[str, Any]) -> None:
     live_view = c.of("/tensions/view")
     assert live_view and all(r.body in file_view[r.log_time_ns] for r in live_view)
     assert len(live_view) >= 0.95 * len(f["/tensions/view"])
-    # poses: one PoseInFrame per usable camera frame, equal to the file's
-    file_pose = {t: b for t, _, b in f["/pose"] if b["status"] == 0}
+    # poses: one PoseInFrame per camera frame with a pose, equal to the file's; every frame's
+    # status as the file's /pose_status
+    file_pose = {t: b for t, _, b in f["/pose"]}
+    file_status = _by_time(f["/pose_status"])
+    live_status = c.of("/pose_status")
+    assert len(live_status) >= 0.95 * len(f["/pose_status"])
+    assert all(r.body in file_status[r.log_time_ns] for r in live_status)
     live_pose = c.of("/pose")
     assert len(live_pose) >= 0.95 * len(file_pose) and len(file_pose) > 20
     for r in live_pose:

@@ -53,6 +53,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.set_defaults(func=run)
 
 
+def _derived(topic: str, info: Any) -> bool:
+    """Topics the live server makes itself from another stream (a view, a pose's status) or does
+    not replay (``/can_raw``)."""
+    return (
+        "view_of" in info.metadata
+        or "status_of" in info.metadata
+        or topic.rstrip("/").endswith("can_raw")
+    )
+
+
 def _descriptions(run: Any) -> dict[str, Any]:
     """A stream description per replayed topic, from the run's schemas (so the live server picks
     the same codec, schema name and view as the recorder did)."""
@@ -61,7 +71,7 @@ def _descriptions(run: Any) -> dict[str, Any]:
     dtypes = {"number": "float64", "integer": "int64", "string": "str", "boolean": "bool"}
     out = {}
     for topic, info in run.streams.items():
-        if "view_of" in info.metadata or topic.rstrip("/").endswith("can_raw"):
+        if _derived(topic, info):
             continue
         fields = {
             k: FieldDescription(f.unit, dtypes.get(f.type, "float64"), tuple(f.shape))
@@ -172,11 +182,7 @@ def run(args: argparse.Namespace) -> int:
     overlay = _overlay(args.analysis, path)
     with open_run(path) as rec:
         rig = _run_rig(rec, path)
-        topics = [
-            t
-            for t, i in rec.streams.items()
-            if "view_of" not in i.metadata and not t.rstrip("/").endswith("can_raw") and i.count
-        ]
+        topics = [t for t, i in rec.streams.items() if not _derived(t, i) and i.count]
         starts = [i.start_ns for t, i in rec.streams.items() if t in topics]
         stops = [i.stop_ns for t, i in rec.streams.items() if t in topics]
         if not starts:
