@@ -17,6 +17,9 @@ limits are given, from tensions (``T_<cable>_N`` fields) outside ``[t_min_N, t_m
   tensions below ``steady_sd_N``.
 - **Wrench**: ``W = -A T - G`` (absolute method, N and N m at P in {O} axes) from the mean tensions
   of that window, at the latest camera pose if there is one, else at the rig's reference pose.
+- **On-line**: with the on-line reduction (``online``: a callable giving its line, see
+  :mod:`cdpr.daq.live_server`), the open point's wrench and coefficients with σ from the reduction
+  core, at least once a second; ``final`` once the point has ended.
 - **Alarms**: sources that stalled or never delivered, and the faults seen so far.
 """
 
@@ -258,6 +261,7 @@ class LiveView:
         keys: bool = True,
         steady_window_s: float = 1.0,
         steady_sd_N: float = 0.5,
+        online: Any = None,
     ) -> None:
         if refresh_hz < 2.0:
             raise ValueError(f"refresh_hz must be >= 2, got {refresh_hz}")
@@ -282,6 +286,8 @@ class LiveView:
             else None
         )
         self._keys = _Keys(self._on_key) if keys and self.stepper is not None else None
+        #: () -> the on-line reduction's line (cdpr.daq.live_server.LiveServer.online_line)
+        self.online = online
 
     def _on_key(self, ch: str) -> None:
         assert self.stepper is not None
@@ -435,6 +441,9 @@ class LiveView:
         head.append(Text(steady, style="green" if steady.startswith("STEADY ") else "yellow"))
         if wrench:
             head.append(Text(wrench))
+        line = self.online() if self.online is not None else None
+        if line:
+            head.append(Text(line, style="bold magenta"))
         alarms = list(st.alarms)
         alarms += [f for f in st.faults if not any(f.startswith(a.split(":")[0]) for a in alarms)]
         if st.failure:

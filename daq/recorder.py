@@ -21,7 +21,7 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from cdpr.analysis.errors import InputError
 
@@ -31,6 +31,17 @@ from .mcap_io import McapRunWriter
 from .mcap_writer import is_frame_batch
 from .runs import iso_utc
 from .source import FieldDescription, Reading, Source, StreamDescription, now_ns
+
+
+class RecorderTap(Protocol):
+    """Something that sees what the writer wrote (a live server, :mod:`cdpr.daq.live_server`):
+    ``streams`` once the streams are declared (stream -> description), then every written batch
+    (and every batch of events), right after it was written, on the writer's thread.  A call must
+    return at once (put the batch on a bounded queue and go) and never block."""
+
+    def streams(self, descriptions: Mapping[str, StreamDescription]) -> None: ...
+
+    def __call__(self, batch: Sequence[Reading]) -> None: ...
 
 
 @dataclass
@@ -281,6 +292,8 @@ class Recorder:
         self.failure: str | None = None
         self._watch = DataWatch(self.event)
         self._os_error: OSError | None = None
+        self._taps: list[RecorderTap] = []
+        self._declared: dict[str, StreamDescription] = {}
 
     # lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -317,6 +330,16 @@ class Recorder:
                     self._writer.add_stream(ren.get(stream, stream), desc)
             for stream, desc in self._extra_streams.items():
                 self._writer.add_stream(stream, desc)
+            self._declared = {
+                "event": StreamDescription({}, 0.0, "Run events."),
+                "recorder": self._recorder_description(),
+                **{
+                    self._renames[n].get(k, k): d
+                    for n in described
+                    for k, d in described[n].items()
+                },
+                **self._extra_streams,
+            }
             self._health = HealthMonitor(
                 {n: [d.rate_hz for d in described[n].values()] for n in described},
                 self.event,
@@ -329,6 +352,8 @@ class Recorder:
             self._writer.finish()
             self.path.unlink(missing_ok=True)
             raise
+        for tap in self._taps:
+            tap.streams(dict(self._declared))
         if o.capture_logs:
             self._log_handler = _EventLogHandler(self, o.max_log_events_per_s)
             logging.getLogger(o.capture_logs).addHandler(self._log_handler)
@@ -435,11 +460,30 @@ class Recorder:
         """Whether ``stream`` is one of the ``extra_streams`` (events may go on it)."""
         return stream in self._extra_streams
 
+    def add_tap(self, tap: RecorderTap) -> None:
+        """Show ``tap`` every batch the writer writes (see :class:`RecorderTap`); before
+        :meth:`start`.  A tap that raises is removed (an error event says so): the recording
+        goes on."""
+        if self._writer is not None:
+            raise InputError("add_tap: add taps before start()")
+        self._taps.append(tap)
+
+    def _tap(self, batch: Sequence[Reading]) -> None:
+        for tap in list(self._taps):
+            try:
+                tap(batch)
+            except Exception as exc:  # the writer's path: a tap's bug never stops the recording
+                self._taps.remove(tap)
+                self.event(f"live tap removed: {type(exc).__name__}: {exc}", level="error")
+
     def stream_event(self, stream: str, message: str, level: str = "info", **extra: Any) -> None:
-        """Record an event on ``stream`` (declared in ``extra_streams``; e.g. the live view's
-        ``test_point`` events on ``/events``, the topic ``cdpr analyze`` reads) with the current
-        time; never dropped."""
-        if stream != "event" and stream not in self._extra_streams:
+        """Record an event on ``stream`` (declared in ``extra_streams``, or a source's event
+        stream such as the virtual rig's ``events``; e.g. the live view's ``test_point`` events
+        on ``/events``, the topic ``cdpr analyze`` reads) with the current time; never dropped."""
+        declared = stream in self._extra_streams or (
+            stream in self._declared and stream.rsplit("/", 1)[-1].startswith("event")
+        )
+        if stream != "event" and not declared:
             raise InputError(f"stream_event: {stream!r} is not declared in extra_streams")
         self._events.append(
             Reading(stream, now_ns(), {"message": message, "level": level, **extra})
@@ -543,11 +587,16 @@ class Recorder:
     def _drain(self, w: McapRunWriter) -> int:
         n = 0
         latest = self._latest
+        taps = self._taps
+        events: list[Reading] = []
         while self._events:
             r = self._events.popleft()
             w.write(r)
             latest[r.stream] = r
+            events.append(r)
             n += 1
+        if taps and events:
+            self._tap(events)
         write_many = w.write_many
         for q in self._queues.values():
             batches = q.take_all()
@@ -557,6 +606,8 @@ class Recorder:
             for batch in batches:
                 n += write_many(batch)
                 watch(batch)
+                if taps:
+                    self._tap(batch)
                 latest_of = getattr(batch, "latest", None)
                 if latest_of is not None:  # a CAN frame batch knows its latest readings
                     latest.update(latest_of())
@@ -652,7 +703,10 @@ class Recorder:
                     f"{name}_reopened": c.reopened,
                 }
             )
-        w.write(Reading("recorder", now_ns(), values, 1 if self.dropped else 0))
+        r = Reading("recorder", now_ns(), values, 1 if self.dropped else 0)
+        w.write(r)
+        if self._taps:
+            self._tap([r])
 
     def _end_metadata(self, stop_ns: int) -> dict[str, Any]:
         st = self.status()

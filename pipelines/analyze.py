@@ -36,6 +36,7 @@ from cdpr.analysis.stages import Corrections, PointSamples, ReduceSettings, core
 from . import __version__
 from .config import file_sha256, read_balance_calibration
 from .freshness import fingerprint
+from .online_compare import compare_online
 from .point_plan import PointPlan, plan_points, point_conditions
 from .points_table import points_table, steps_log
 from .run_arrays import RunData, check_recalibration, load_run
@@ -288,6 +289,7 @@ def analyze_run(
             lc_file = read_calibration_file(opts.loadcell_calibration_file)
         run = load_run(path, lc_file)
         df, red = reduce_run(run, opts)
+        df, online = compare_online(path, df)  # the on-line results kept in the run
         lc = loadcell_provenance(run, opts)
         df.insert(int(df.columns.get_loc("source")) + 1, "tensions_from", lc["tensions_from"])
     except ConfigError:
@@ -317,6 +319,7 @@ def analyze_run(
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
             "reduction": {k: v for k, v in red.items() if k != "_spectra"},
+            "online": online,
         }
         pose_err = camera_pose_error(run)
         if pose_err is not None:

@@ -864,9 +864,13 @@ def report_content(
         )
     cols = [c for c in SUMMARY_COLUMNS if c in df.columns]
     shown = df[cols].assign(warnings=table.warning_words())
+    from .online_compare import online_section
+
+    online = online_section(df)
     return ReportContent(
-        title, warnings, shown, figures, dict(provenance), truth_table(df), correction_sections(df)
-    )
+        title, warnings, shown, figures, dict(provenance), truth_table(df),
+        correction_sections(df) + ([online] if online is not None else []),
+    )  # fmt: skip
 
 
 def html_report(rc: ReportContent) -> str:

@@ -268,58 +268,15 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         pose_df = _slim_table(run, pose_topic, _POSE_COLUMNS) if pose_topic else None
         ev_topic = _topic(run, "events")
         ev_df = run.table(ev_topic) if ev_topic else None
-    if not np.all(np.diff(t_ns) > 0):  # the reader sorts; a repeated time keeps its first sample
-        order = np.argsort(t_ns, kind="stable")
-        t_ns, T, st = t_ns[order], T[order], st[order]
-        keep = np.concatenate([[True], np.diff(t_ns) > 0])
-        t_ns, T, st = t_ns[keep], T[keep], st[keep]
-        if seq is not None:
-            seq = seq[order][keep]
-    counter = seq
-    bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
-    clock = "reception times (the stream has no sample counter)"
-    if seq is not None and len(seq) > 1 and np.all(np.diff(seq) > 0):
-        # the sampling instants from the sample counter, not the host's reception bursts
-        sc = sample_clock(t_ns, seq)
-        t_ns = sc.t_ns
-        clock = (
-            f"the sample counter (sample period {sc.period_ns / 1e6:.4f} ms; reception came up to "
-            f"{np.max(sc.latency_ns) / 1e6:.1f} ms after the sampling instant)"
-        )
+    t_ns, T, bits, seq, clock = tension_arrays(t_ns, T, st, seq)
 
-    tunnel = None
-    pressure_temperature: Any = None
-    humidity = None
+    tunnel = pressure_temperature = humidity = None
     if tun is not None and len(tun):
-        tt = tun["t_ns"].to_numpy(np.int64)
-        v = _column(tun, "airspeed_mps")
-        rho_src = _column(tun, "density_kgpm3")
-        need = ~np.isfinite(rho_src)
-        if need.any():
-            ps, tk = _column(tun, "static_pressure_Pa"), _column(tun, "temperature_K")
-            ok = need & (ps > 0) & (tk > 0)  # NaN compares False
-            rho_src[ok] = air_density(ps[ok], tk[ok])  # dry air: RH 0
-        good = np.isfinite(v)
-        if good.sum() >= 1:
-            vi = interpolate_at(t_ns, tt[good], v[good])
-            rg = np.isfinite(rho_src)
-            ri = (
-                interpolate_at(t_ns, tt[rg], rho_src[rg])
-                if rg.any()
-                else np.full(len(t_ns), np.nan)
-            )
-            tunnel = (vi, ri)
-        pT = [_column(tun, k) for k in ("static_pressure_Pa", "temperature_K")]
-        if all(np.isfinite(x).any() for x in pT):
-            pressure_temperature = tuple(
-                interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in pT
-            )
-        rh = _column(tun, "relative_humidity")
-        if np.isfinite(rh).any():
-            # held from the last message, never interpolated across a message without it: a
-            # point that meets a gap gets NaN (flag humidity_not_given), not a bridged value
-            j = np.clip(np.searchsorted(tt, t_ns, side="right") - 1, 0, len(tt) - 1)
-            humidity = rh[j]
+        tunnel, pressure_temperature, humidity = tunnel_on(
+            t_ns, tun["t_ns"].to_numpy(np.int64),
+            *(_column(tun, c) for c in ("airspeed_mps", "density_kgpm3", "static_pressure_Pa",
+                                        "temperature_K", "relative_humidity")),
+        )  # fmt: skip
 
     truth = None
     truth_path = p.with_name(p.name.removesuffix(".mcap") + ".truth.npz")
@@ -330,17 +287,18 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
     events = _events(ev_df)
     if pose_df is not None and len(pose_df):
         tp = pose_df["t_ns"].to_numpy(np.int64)
-        pos = np.column_stack([_column(pose_df, c) for c in ("x_m", "y_m", "z_m")])
-        quat = np.column_stack([_column(pose_df, c) for c in ("qw", "qx", "qy", "qz")])
-        bad = ~(np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1))
-        bad |= np.nan_to_num(_column(pose_df, "status", 0.0)) != 0
-        eul = np.full((len(tp), 3), np.nan)
-        if (~bad).any():
-            eul[~bad] = euler_from_quaternion(quat[~bad])
-        poses = np.concatenate([pos, eul], axis=1)
-        pose_cov = _pose_covariance(pose_df, eul, bad)
-        if pose_cov is not None:  # a partly missing one (NaN recorded as null): its frame is bad
-            bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
+        ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
+        cov6 = (
+            np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
+            if all(c in pose_df for c in ccols)
+            else None
+        )
+        poses, pose_cov, bad = camera_poses(
+            np.column_stack([_column(pose_df, c) for c in ("x_m", "y_m", "z_m")]),
+            np.column_stack([_column(pose_df, c) for c in ("qw", "qx", "qy", "qz")]),
+            cov6,
+            np.nan_to_num(_column(pose_df, "status", 0.0)),
+        )
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
@@ -363,18 +321,100 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
     )  # fmt: skip
 
 
-def _pose_covariance(pose_df: pd.DataFrame, eul: np.ndarray, bad: np.ndarray) -> np.ndarray | None:
-    """(k, 6, 6) covariance of the camera frames in [position, Euler angles], from the recorded
-    ``cov_00 .. cov_55`` ([position, rotation vector in {O}]: dpsi = H^-1 dtheta); None when the
-    stream has no covariance or a usable frame has none at all.  A frame without a pose (``bad``)
-    carries none and does not count: one lost frame must not cost the run its covariance."""
-    ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
-    if not all(c in pose_df for c in ccols):
-        return None
-    C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
-    if not np.isfinite(C[~bad]).any(axis=(1, 2)).all():
-        return None
-    return pose_cov_to_euler(np.nan_to_num(eul), C)
+def tension_arrays(
+    t_ns: np.ndarray, T: np.ndarray, status: np.ndarray, seq: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, str]:
+    """The tension samples as the reduction takes them, from the recorded times (n,) int ns,
+    tensions (n, m) N, status words (n,) and sample counter (n,) or None: sorted by time (a
+    repeated time keeps its first sample), the mask bits (:func:`sample_mask`: status, counter
+    gaps, NaN), and the sampling instants from the counter (:func:`sample_clock`) when it rises
+    throughout.  Returns ``(t_ns, T, bits, seq, clock)``, ``clock`` saying where the times come
+    from.  One copy for a run file (:func:`load_run`) and the live session
+    (:mod:`cdpr.pipelines.online`)."""
+    t_ns, T, st = np.asarray(t_ns, np.int64), np.asarray(T, np.float64), np.asarray(status)
+    if len(t_ns) > 1 and not np.all(np.diff(t_ns) > 0):
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, T, st = t_ns[order], T[order], st[order]
+        keep = np.concatenate([[True], np.diff(t_ns) > 0])
+        t_ns, T, st = t_ns[keep], T[keep], st[keep]
+        if seq is not None:
+            seq = seq[order][keep]
+    bits = sample_mask(T, status=st, counter=seq, counter_modulus=2**62)
+    clock = "reception times (the stream has no sample counter)"
+    if seq is not None and len(seq) > 1 and np.all(np.diff(seq) > 0):
+        # the sampling instants from the sample counter, not the host's reception bursts
+        sc = sample_clock(t_ns, seq)
+        t_ns = sc.t_ns
+        clock = (
+            f"the sample counter (sample period {sc.period_ns / 1e6:.4f} ms; reception came up to "
+            f"{np.max(sc.latency_ns) / 1e6:.1f} ms after the sampling instant)"
+        )
+    return t_ns, T, bits, seq, clock
+
+
+def tunnel_on(
+    t_ns: np.ndarray,
+    tt: np.ndarray,
+    airspeed: np.ndarray,
+    density: np.ndarray,
+    static_pressure: np.ndarray,
+    temperature: np.ndarray,
+    humidity: np.ndarray,
+) -> tuple[Any, Any, np.ndarray | None]:
+    """The tunnel conditions on the tension times ``t_ns`` from the tunnel messages at ``tt``
+    (airspeed m/s, density kg/m^3, static pressure Pa, temperature K, relative humidity 0..1,
+    NaN where a message has none): ``((airspeed, density), (pressure, temperature), humidity)``
+    with None for what no message gives.  Density missing from a message is the dry air of its
+    pressure and temperature; airspeed, density, pressure and temperature are interpolated,
+    humidity is held from the last message (a point that meets a message without it gets NaN,
+    flag ``humidity_not_given``, never a bridged value)."""
+    if not len(tt) or not len(t_ns):
+        return None, None, None
+    v, rho, ps, tk, rh = (np.array(x, np.float64) for x in
+                          (airspeed, density, static_pressure, temperature, humidity))  # fmt: skip
+    need = ~np.isfinite(rho)
+    ok = need & (ps > 0) & (tk > 0)  # NaN compares False
+    rho[ok] = air_density(ps[ok], tk[ok])  # dry air: RH 0
+    tunnel = None
+    good = np.isfinite(v)
+    if good.any():
+        rg = np.isfinite(rho)
+        ri = interpolate_at(t_ns, tt[rg], rho[rg]) if rg.any() else np.full(len(t_ns), np.nan)
+        tunnel = (interpolate_at(t_ns, tt[good], v[good]), ri)
+    pT = None
+    if np.isfinite(ps).any() and np.isfinite(tk).any():
+        pT = tuple(interpolate_at(t_ns, tt[np.isfinite(x)], x[np.isfinite(x)]) for x in (ps, tk))
+    held = None
+    if np.isfinite(rh).any():
+        j = np.clip(np.searchsorted(tt, t_ns, side="right") - 1, 0, len(tt) - 1)
+        held = rh[j]
+    return tunnel, pT, held
+
+
+def camera_poses(
+    position_O_m: np.ndarray,
+    quaternion_wxyz: np.ndarray,
+    cov_rotvec: np.ndarray | None,
+    status: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """The camera's poses as the reduction takes them: ``(poses (k, 6) [position m, Euler rad],
+    covariance (k, 6, 6) in those coordinates or None, bad (k,) bool)`` from the reported
+    positions (k, 3), quaternions (k, 4), covariances (k, 6, 6) [position, rotation vector in
+    {O}] or None, and status words (k,).  A frame is bad without a finite pose, with a status,
+    or with a partly missing covariance; the covariance is None when a usable frame has none at
+    all (one lost frame must not cost the run its covariance)."""
+    pos = np.asarray(position_O_m, np.float64)
+    quat = np.asarray(quaternion_wxyz, np.float64)
+    bad = ~(np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1))
+    bad |= np.asarray(status) != 0
+    eul = np.full((len(pos), 3), np.nan)
+    if (~bad).any():
+        eul[~bad] = euler_from_quaternion(quat[~bad])
+    cov = None
+    if cov_rotvec is not None and np.isfinite(cov_rotvec[~bad]).any(axis=(1, 2)).all():
+        cov = pose_cov_to_euler(np.nan_to_num(eul), cov_rotvec)
+        bad = bad | ~np.isfinite(cov).all(axis=(1, 2))
+    return np.concatenate([pos, eul], axis=1), cov, bad
 
 
 def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:

@@ -277,6 +277,8 @@ def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         errs = ", ".join(f"{c} {v:.3g}" for c, v in summary["max_abs_error_vs_truth"].items())
         lines += ["", f"Against the virtual rig's true aerodynamic wrench, max |error|: {errs}."]
     lines += _corrections_section(df, red)
+    if summary.get("online"):
+        lines += ["", "## On-line against final values", "", *(f"- {x}" for x in summary["online"])]
     lines += ["", "Stages of the reduction:", ""]
     for st in red["stages"]:
         note = f": {st['note']}" if st["note"] else ""

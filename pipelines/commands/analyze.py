@@ -225,6 +225,8 @@ def run(args: argparse.Namespace) -> int:
             )
             for line in red["lines"]:
                 print(f"  warning: {line}")
+            for line in r.get("online", []):
+                print(f"  {line}")
             warned |= bool(red["warnings"])
             continue
         print(
@@ -234,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
         )
         for line in red["lines"]:
             print(f"  warning: {line}")
+        for line in r.get("online", []):  # on-line against final values, per point
+            print(f"  {line}")
         warned |= bool(red["warnings"])
     print(f"index: {Path(args.out) / 'index.md'}")
     return 2 if bad else (1 if warned else 0)

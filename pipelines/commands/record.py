@@ -40,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "SPACE starts and ends the current one (a 'test_point' event each); refused with a "
         "serial_tunnel source that reads the controller's test points (test_points = true)",
     )
+    add_live_argument(p)
     p.add_argument(
         "--allow-degraded",
         action="store_true",
@@ -47,6 +48,59 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "(default: stop); the run still exits 3",
     )
     p.set_defaults(func=run)
+
+
+def add_live_argument(p: argparse.ArgumentParser) -> None:
+    """``--live-server [HOST:]PORT`` (``record``, ``simulate``, ``play``)."""
+    p.add_argument(
+        "--live-server",
+        metavar="[HOST:]PORT",
+        help="serve the run to Foxglove over a WebSocket (foxglove-sdk) on PORT, bound to "
+        "127.0.0.1 unless HOST is given (0.0.0.0: every interface); 0 picks a free port. Same "
+        "topics and schema names as the run file, plus /scene, /tf and the on-line reduction "
+        "(/online); docs/live.md. Off by default",
+    )
+
+
+def start_live(
+    text: str | None,
+    rig: Any,
+    *,
+    matrix_file: str | None = None,
+    terminal: bool = False,
+    name: str = "cdpr record",
+) -> Any:
+    """The live server of ``--live-server`` (started: a port in use is a ``ConfigError`` here,
+    before anything is recorded) with the on-line reduction when the rig is known; without
+    ``--live-server``, the on-line reduction alone for the terminal view (``terminal``); None when
+    neither is wanted.  Prints the server's address."""
+    from cdpr.daq.live_server import LiveServer, parse_address
+
+    address = parse_address(text) if text is not None else None
+    if address is None and not (terminal and rig is not None):
+        return None
+    online = None
+    opts = None
+    if rig is not None:
+        from ..online import OnlineReduction, online_options
+
+        opts = online_options(matrix_file)
+        online = OnlineReduction(rig, opts)
+    live = LiveServer(
+        address,
+        rig=rig,
+        geometry=None if opts is None else opts.geometry,
+        online=online,
+        name=name,
+    )
+    live.start()
+    if live.url is not None:
+        print(
+            f"live server {live.url} (Foxglove: Open connection -> Foxglove WebSocket; layout "
+            "data_samples/foxglove_layout.json)",
+            flush=True,
+        )
+    return live
 
 
 def record_run(
@@ -64,6 +118,7 @@ def record_run(
     nice: int | None = None,
     rig: Any = None,
     test_points: Sequence[Any] | None = None,
+    live: Any = None,
 ) -> Any:
     """Run a :class:`~cdpr.daq.recorder.Recorder` until ``duration_s``, SIGINT or SIGTERM.
 
@@ -73,6 +128,9 @@ def record_run(
     through in the live view (``test_point`` events).
     ``nice``: the process priority to ask for (e.g. -10: ahead of ordinary processes, so a busy
     machine does not starve the acquisition); refused (no privilege) it is an event, not an error.
+    ``live``: a started :class:`~cdpr.daq.live_server.LiveServer` (:func:`start_live`) fed from
+    the recorder; its on-line results of ended points are recorded before the file is finished,
+    and it is stopped on every exit path.
     Returns the recorder's final status.
     """
     from cdpr.daq.recorder import Recorder
@@ -91,6 +149,8 @@ def record_run(
         options=options,
         extra_streams=extra,
     )
+    if live is not None:
+        live.attach(rec)
 
     def handler(signum: int, frame: Any) -> None:
         rec.request_stop(signal.Signals(signum).name)
@@ -108,16 +168,24 @@ def record_run(
         if not quiet and sys.stdout.isatty():
             from cdpr.daq.live import LiveView
 
-            with LiveView(rec, t_min_N=t_min_N, t_max_N=t_max_N, rig=rig, test_points=test_points):
+            online = None if live is None or live.online is None else live.online_line
+            with LiveView(
+                rec, t_min_N=t_min_N, t_max_N=t_max_N, rig=rig, test_points=test_points,
+                online=online,
+            ):  # fmt: skip
                 rec.wait(duration_s)
         else:
             rec.wait(duration_s)
     finally:
         try:
+            if live is not None:  # the on-line results of ended points go into the file
+                live.finish_points()
             rec.stop()
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
+            if live is not None:
+                live.stop()
     st = rec.status()
     n = sum(v for k, v in st.counts.items() if k not in ("recorder", "event"))
     drops = sum(c.dropped for c in st.sources.values())
@@ -214,6 +282,10 @@ def run(args: argparse.Namespace) -> int:
 
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     rig = load_rig(cfg.rig) if cfg.rig is not None else None
+    if args.live_server is not None:
+        from cdpr.daq.live_server import parse_address
+
+        parse_address(args.live_server)  # bad input before anything opens
     point = {
         "airspeed_mps": args.airspeed,
         "static_pressure_Pa": args.pressure,
@@ -274,6 +346,13 @@ def run(args: argparse.Namespace) -> int:
         notes=notes,
         extra={"command": "record"},
     )
+    # the live server binds its port before the run file exists (a port in use: exit 2)
+    live = start_live(
+        args.live_server,
+        rig,
+        matrix_file=args.test_matrix,
+        terminal=not args.quiet and sys.stdout.isatty(),
+    )
     options = RecorderOptions(
         queue_readings=cfg.queue_readings,
         chunk_size=cfg.chunk_size,
@@ -283,20 +362,25 @@ def run(args: argparse.Namespace) -> int:
         stall_timeout_s=cfg.stall_timeout_s,
         allow_degraded=args.allow_degraded,
     )
-    st = record_run(
-        sources,
-        path,
-        metadata=md,
-        attachments=attachments,
-        options=options,
-        duration_s=args.duration,
-        quiet=args.quiet,
-        t_min_N=list(rig.t_min_N) if rig else None,
-        t_max_N=list(rig.t_max_N) if rig else None,
-        nice=cfg.nice,
-        rig=rig,
-        test_points=test_points,
-    )
+    try:
+        st = record_run(
+            sources,
+            path,
+            metadata=md,
+            attachments=attachments,
+            options=options,
+            duration_s=args.duration,
+            quiet=args.quiet,
+            t_min_N=list(rig.t_min_N) if rig else None,
+            t_max_N=list(rig.t_max_N) if rig else None,
+            nice=cfg.nice,
+            rig=rig,
+            test_points=test_points,
+            live=live,
+        )
+    finally:
+        if live is not None:
+            live.stop()
     return 3 if st.failure or st.faults else 0
 
 

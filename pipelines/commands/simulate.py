@@ -76,6 +76,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--camera-rate-hz", type=float, default=5.0, help="camera frame rate (default 5)"
     )
+    from .record import add_live_argument
+
+    add_live_argument(p)
     p.add_argument(
         "--image-rate-hz",
         type=float,
@@ -118,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import __version__
     from ..config import file_sha256, load_rig, load_toml
-    from .record import record_run
+    from .record import record_run, start_live
 
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
@@ -231,6 +234,14 @@ def run(args: argparse.Namespace) -> int:
 
         raise ConfigError(str(path.parent), "", f"cannot create: {exc.strerror or exc}") from None
 
+    # the live server binds its port before anything runs (a port in use: exit 2, no run file)
+    live = start_live(
+        args.live_server,
+        rig,
+        matrix_file=args.campaign,
+        terminal=not args.quiet and sys.stdout.isatty(),
+        name="cdpr simulate",
+    )
     work = Path(tempfile.mkdtemp(prefix="cdpr-sim-"))
     child: subprocess.Popen[str] | None = None
     rig_run: Any = None
@@ -438,8 +449,11 @@ def run(args: argparse.Namespace) -> int:
             t_min_N=list(rig.t_min_N),
             t_max_N=list(rig.t_max_N),
             on_started=watch,
+            live=live,
         )
     finally:
+        if live is not None:
+            live.stop()
         if rig_run is not None:
             rig_run.stop()
             if path.exists():
