@@ -215,26 +215,34 @@ class FramePoseEstimator:
             blobs = detect_blobs(gray, self._blob, None)
         res = self._pm.match(blobs)
         if self._blob.shape_check and not res.flags & FLAG_NO_POSE:
-            # compare each blob with its mark's projected disk: a damaged blob (a cable across
-            # the mark) is dropped and the pose refitted; a damaged or lost mark is flagged
-            chk = check_blob_shapes(
-                gray,
-                self.layout,
-                self.camera,
-                res.pose.rvec_C,
-                res.pose.tvec_C_m,
-                res.labels,
-                self._blob,
-            )
-            if len(chk.damaged):
-                res = self._pm.drop_marks(res, blobs, chk.damaged)
-            if len(chk.damaged) or len(chk.lost):
+            # compare each blob with its mark's projected disk: the most damaged blob (a cable
+            # across the mark) is dropped, the pose refitted and the others checked again at the
+            # new pose, until none is damaged (a damaged blob drawn into the pose can push intact
+            # marks off their outlines); a damaged or lost mark is flagged
+            first, dropped = res, np.zeros(0, np.int64)
+            while True:
+                chk = check_blob_shapes(
+                    gray,
+                    self.layout,
+                    self.camera,
+                    res.pose.rvec_C,
+                    res.pose.tvec_C_m,
+                    first.labels,
+                    self._blob,
+                )
+                worse = chk.damaged[~np.isin(chk.damaged, dropped)]
+                if not len(worse) or res.flags & FLAG_NO_POSE:
+                    break
+                dropped = np.append(dropped, worse[0])
+                res = self._pm.drop_marks(first, blobs, dropped)
+            if len(dropped) or len(chk.lost):
                 res.pose.flags |= FLAG_OCCLUDED_MARK
-            dev = np.abs(chk.flux_deviation[np.isfinite(chk.flux_deviation)])
-            res.pose.extra["flux_deviation_max"] = float(dev.max()) if dev.size else float("nan")
+            for key, v in (("notch_max", np.abs(chk.notch_depth)), ("bias_max_px", chk.bias_px)):
+                v = v[np.isfinite(v)]
+                res.pose.extra[key] = float(v.max()) if v.size else float("nan")
             rim = chk.rim_residual_px[np.isfinite(chk.rim_residual_px)]
             res.pose.extra["rim_residual_max_px"] = float(rim.max()) if rim.size else float("nan")
-            res.pose.extra["occluded_marks"] = float(len(chk.damaged) + len(chk.lost))
+            res.pose.extra["occluded_marks"] = float(len(dropped) + len(chk.lost))
         return res.pose
 
 
