@@ -71,18 +71,26 @@ def refine_marker_corners(
     camera: CameraModel,
     iterations: int = 1,
     samples_per_side: int = 16,
-) -> tuple[F64, NDArray[np.bool_]]:
+) -> tuple[F64, NDArray[np.bool_], F64]:
     """Refine (N, 4, 2) marker corners by line fits to the outer edges (see the module docstring).
 
-    ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).  Returns the
-    refined corners and a mask of markers whose refinement succeeded (others keep their input).
+    ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).
+    ``iterations``: at most this many passes, each sampling the edges around the last corners
+    (from a detector's corners a fraction of a pixel off, the profile window is off the edge and
+    each pass moves part of the way: a blurred small marker needs several); stops when no corner
+    moves by 0.002 px.  Returns the refined corners, a mask of markers whose refinement succeeded
+    (others keep their input), and per marker ``[RSS, dof, rho]`` (N, 3) of the edge samples
+    about their four lines (px^2 across the edge; dof = samples used - 8; rho the correlation of
+    neighbouring samples' residuals, clipped to [0, 0.9]): the edge-sample noise this frame
+    shows, whose propagation to the corners is :func:`edge_fit_corner_covariance`.
     All markers and sides are processed at once (vectorised).
     """
     C0 = np.asarray(corners_px, np.float64).reshape(-1, 4, 2)
     N = len(C0)
     ok = np.ones(N, dtype=bool)
+    noise = np.full((N, 3), np.nan)
     if N == 0:
-        return C0.copy(), ok
+        return C0.copy(), ok, noise
     C = C0.copy()
     T = samples_per_side
     ts = np.linspace(0.12, 0.88, T)
@@ -102,7 +110,7 @@ def refine_marker_corners(
             base[:, :, :, None, :] + ss[:, :, None, :, None] * nrm[:, :, None, None, :]
         )  # (N,4,T,Q,2)
         prof = bilinear(gray, P[..., 0], P[..., 1])
-        g = np.abs(np.diff(prof, axis=-1))
+        g = np.clip(-np.diff(prof, axis=-1), 0.0, None)  # the falling edge only (white -> black)
         gmax = g.max(axis=-1, keepdims=True)
         wgt = np.clip(g - 0.25 * gmax, 0, None)
         sw = wgt.sum(axis=-1)
@@ -134,10 +142,26 @@ def refine_marker_corners(
             N, 4, 2
         )
         ok &= good
+        # the samples' distances to their lines (normalised units -> px by the focal length)
+        off = (np.einsum("nstp,nsp->nst", xn, n_line) - dist_line[..., None]) * wu
+        pair = wu[..., 1:] * wu[..., :-1]
+        c1 = np.sum(off[..., 1:] * off[..., :-1] * pair, axis=(1, 2)) / np.maximum(
+            pair.sum(axis=(1, 2)), 1
+        )
+        c0 = np.sum(off**2, axis=(1, 2)) / np.maximum(cnt.sum(axis=1), 1)
+        rho = np.clip(c1 / np.maximum(c0, 1e-30), 0.0, 0.9)
+        noise = np.stack(
+            [np.sum(off**2, axis=(1, 2)) * camera.K[0, 0] ** 2, cnt.sum(axis=1) - 8.0, rho],
+            axis=1,
+        )
+        step = np.abs(np.where(ok[:, None, None], newC - C, 0.0)).max()
         C = np.where(ok[:, None, None], newC, C)
+        if step < 0.002:  # converged
+            break
     moved = np.abs(C - C0).reshape(N, -1).max(axis=1)
     ok &= np.all(np.isfinite(C.reshape(N, -1)), axis=1) & (moved < 3.0)
-    return np.where(ok[:, None, None], C, C0), ok
+    noise[~ok] = np.nan
+    return np.where(ok[:, None, None], C, C0), ok, noise
 
 
 SATURATION_MAX_FRACTION = 0.10
@@ -249,10 +273,14 @@ class FiducialDetector:
         )
         self._known = set(int(i) for i in self.layout.ids)
         self._frames = 0
+        self.edge_noise = np.zeros((0, 3))
+        """Per marker of the last :meth:`detect`, ``[RSS px^2, dof, rho]`` of its edge samples
+        about their lines (:func:`refine_marker_corners`; NaN when not edge-refined)."""
         self._cells = cv.dictionary_marker_cells(self.layout.dictionary) + 2
 
     def detect(self, gray: NDArray[np.uint8], predicted: F64 | None = None) -> tuple[I64, F64]:
-        """Markers of the layout in ``gray``: ids (N,) and corners (N, 4, 2) px.
+        """Markers of the layout in ``gray``: ids (N,) and corners (N, 4, 2) px (and
+        :attr:`edge_noise` of each).
 
         predicted: optional (M, 4, 2) corners of every layout marker (layout order) from the last
         pose(s).  Tracking then fits the edges directly around the predicted corners (no decoding)
@@ -267,10 +295,13 @@ class FiducialDetector:
         if predicted is not None and self.edge_refine and self._frames % self.redecode_every:
             pred = np.asarray(predicted, np.float64).reshape(-1, 4, 2)
             if np.all(np.isfinite(pred)):
-                c, ok = refine_marker_corners(gray, pred, self._cells, self.camera, iterations=2)
+                c, ok, noise = refine_marker_corners(
+                    gray, pred, self._cells, self.camera, iterations=2
+                )
                 size = np.linalg.norm(pred[:, 0] - pred[:, 2], axis=1) / np.sqrt(2)
                 move = np.abs(c - pred).reshape(len(c), -1).max(axis=1)
                 if ok.all() and np.all(move < self.track_max_move_cells * size / self._cells):
+                    self.edge_noise = noise
                     return self.layout.ids.copy(), c
         if predicted is not None:
             ids, corners = self._detect_windows(gray, predicted)
@@ -278,8 +309,11 @@ class FiducialDetector:
                 ids, corners = self._full(gray)
         else:
             ids, corners = self._full(gray)
+        self.edge_noise = np.full((len(ids), 3), np.nan)
         if self.edge_refine and len(ids):
-            corners, _ = refine_marker_corners(gray, corners, self._cells, self.camera)
+            corners, _, self.edge_noise = refine_marker_corners(
+                gray, corners, self._cells, self.camera, iterations=12
+            )
         return ids, corners
 
     def _full(self, gray: NDArray[np.uint8]) -> tuple[I64, F64]:
@@ -540,9 +574,7 @@ def blob_parts(gray: NDArray[np.uint8], xy_px: ArrayLike, radius_px: float, thr:
     x0, y0, x1, y1 = xi - hw, yi - hw, xi + hw + 1, yi + hw + 1
     if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
         return 0
-    n, _, _ = cv.connected_components(
-        cv.threshold(np.ascontiguousarray(gray[y0:y1, x0:x1]), thr)
-    )
+    n, _, _ = cv.connected_components(cv.threshold(np.ascontiguousarray(gray[y0:y1, x0:x1]), thr))
     return int(n - 1)
 
 

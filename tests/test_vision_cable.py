@@ -108,7 +108,12 @@ def _err(est, p, R) -> tuple[float, float, np.ndarray]:
 
 @pytest.mark.parametrize(
     "which,marks,seed",
-    [("second", "even", 21), ("render", "even", 22), ("second", "varied", 26), ("render", "varied", 27)],
+    [
+        ("second", "even", 21),
+        ("render", "even", 22),
+        ("second", "varied", 26),
+        ("render", "varied", 27),
+    ],
 )
 def test_a_cable_across_a_mark_is_flagged_or_harmless(which: str, marks: str, seed: int) -> None:
     """40 poses, a band 1-3 px wide across one mark at any angle, its centre line within the
