@@ -88,3 +88,46 @@ def ippe_square_poses(
             "corners_px": c.reshape(4, 2).astype(np.float64),
         }
     return out
+
+
+def charuco_calibration(
+    files: list[Path],
+    squares_xy: tuple[int, int],
+    square_m: float,
+    marker_m: float,
+    dictionary: str,
+) -> dict[str, Any]:
+    """OpenCV's own ChArUco calibration of ``files``, as its calibrate_camera_charuco sample does
+    it: ``CharucoDetector`` (default parameters) ``detectBoard``, ``matchImagePoints``, then
+    ``calibrateCameraExtended`` with default flags (k1 k2 p1 p2 k3).  Keys as
+    :func:`tutorial_calibration`, plus ``n_corners`` per view."""
+    board = cv2.aruco.CharucoBoard(
+        squares_xy,
+        square_m,
+        marker_m,
+        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)),
+    )
+    det = cv2.aruco.CharucoDetector(board)
+    obj, img, n, size = [], [], [], None
+    for f in files:
+        gray = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        corners, ids, _, _ = det.detectBoard(gray)
+        assert ids is not None and len(ids) >= 6, f"OpenCV finds no ChArUco board in {f}"
+        o, i = board.matchImagePoints(corners, ids)
+        obj.append(o)
+        img.append(i)
+        n.append(len(ids))
+        size = gray.shape[::-1]
+    rms, K, dist, _, _, std, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None)
+    std = std.ravel()
+    return {
+        "rms_px": float(rms),
+        "fx": float(K[0, 0]),
+        "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+        "std": {"fx": float(std[0]), "fy": float(std[1]), "cx": float(std[2]), "cy": float(std[3])},
+        "per_view_rms_px": per_view.ravel().astype(float).tolist(),
+        "dist": dist.ravel().tolist(),
+        "n_corners": n,
+    }
