@@ -697,17 +697,17 @@ def blob_profile(
             use = np.abs(res) <= 3.0 * noise
         use_all[:] = True
         use_all[sel] = use
-        if it == 2:
-            break
         # the profile shifted by s changes a pixel by -slope(e) (u . s): fit s to the residuals
         slope = (coef[1:nk] - coef[: nk - 1]) / PROFILE_KNOT_PX
         rd = np.maximum(dist, 1e-9)
-        G = np.column_stack([-slope[k] * dx / rd, -slope[k] * dy / rd])[use]
-        step = np.linalg.lstsq(G, res[use], rcond=None)[0]
-        shift += np.clip(step, -1.0, 1.0)
-        if np.hypot(*step) < 0.002:
-            it = 2  # noqa: PLW2901 - converged: one more fit at this shift is not needed
+        G = np.column_stack([-slope[k] * dx / rd, -slope[k] * dy / rd])
+        step = np.linalg.lstsq(G[use], res[use], rcond=None)[0]
+        if np.hypot(*step) < 0.05 or it == 2:  # small: applied to the residuals (linear)
+            res = res - G @ step
+            shift += step
+            dx, dy = dx - step[0], dy - step[1]
             break
+        shift += np.clip(step, -1.0, 1.0)  # a pose off by more: the profile refitted there
     light = float(np.sum(I - res - bg))  # the fitted mark's light above the background
     if light <= 0:
         return nan
