@@ -32,6 +32,12 @@ def tutorial_calibration(
         obj.append(objp)
         img.append(corners)
         size = gray.shape[::-1]
+    return _calibrate(obj, img, size)
+
+
+def _calibrate(obj: list[Any], img: list[Any], size: Any) -> dict[str, Any]:
+    """``calibrateCameraExtended`` with default flags: fx, fy, cx, cy, their standard deviations,
+    RMS, per-view RMS (px) and the distortion."""
     rms, K, dist, _, _, std, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None)
     std = std.ravel()
     return {
@@ -118,16 +124,4 @@ def charuco_calibration(
         img.append(i)
         n.append(len(ids))
         size = gray.shape[::-1]
-    rms, K, dist, _, _, std, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None)
-    std = std.ravel()
-    return {
-        "rms_px": float(rms),
-        "fx": float(K[0, 0]),
-        "fy": float(K[1, 1]),
-        "cx": float(K[0, 2]),
-        "cy": float(K[1, 2]),
-        "std": {"fx": float(std[0]), "fy": float(std[1]), "cx": float(std[2]), "cy": float(std[3])},
-        "per_view_rms_px": per_view.ravel().astype(float).tolist(),
-        "dist": dist.ravel().tolist(),
-        "n_corners": n,
-    }
+    return {**_calibrate(obj, img, size), "n_corners": n}

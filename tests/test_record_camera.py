@@ -26,6 +26,19 @@ CAM = ROOT / "data_samples" / "camera_virtual.json"
 FPS = 10.0
 
 
+def _record(tmp_path: Path, cfg: dict, duration_s: float) -> Path:
+    """``cdpr record`` of the config ``cfg`` (written beside its frames) for ``duration_s``: the
+    run file (exit 0 asserted)."""
+    p = tmp_path / "rec.toml"
+    p.write_bytes(tomli_w.dumps(cfg).encode())
+    out = tmp_path / "runs"
+    argv = ["record", "--config", str(p), "--out", str(out), "--duration", str(duration_s)]
+    res = subprocess.run([*CDPR, *argv, "--quiet"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    (path,) = sorted(out.glob(f"*_{cfg['run']['label']}.mcap"))
+    return path
+
+
 def test_record_a_camera_folder(tmp_path: Path) -> None:
     vc = VirtualCamera(camera_from_mapping(json.loads(CAM.read_text())))
     rng = np.random.default_rng(4)
@@ -55,17 +68,7 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
             }
         },
     }
-    p = tmp_path / "cam.toml"
-    p.write_bytes(tomli_w.dumps(cfg).encode())
-    out = tmp_path / "runs"
-    res = subprocess.run(
-        [*CDPR, "record", "--config", str(p), "--out", str(out), "--duration", "2.5", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert res.returncode == 0, res.stderr
-    (path,) = sorted(out.glob("*_cam.mcap"))
+    path = _record(tmp_path, cfg, 2.5)
     node = node_read(path)
     assert node["complete"]
     n_pose, n_img = node["topics"]["/pose"], node["topics"]["/image"]
@@ -74,7 +77,7 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
     t_img = np.array([t for t, _ in rc.messages["/image"]])
     assert n_img >= 1 and np.all(np.diff(t_img) >= 0.5e9 - 1)  # at most 2 images per second
     assert {a["name"] for a in node["attachments"]} == {
-        "config/cam.toml",
+        "config/rec.toml",
         "calibration/camera_virtual.json",
         "calibration/markers_flat_aruco.toml",
     }
@@ -123,17 +126,7 @@ def test_record_ir_marks_with_the_detectors_settings(tmp_path: Path) -> None:
             }
         },
     }
-    p = tmp_path / "ir.toml"
-    p.write_bytes(tomli_w.dumps(cfg).encode())
-    out = tmp_path / "runs"
-    res = subprocess.run(
-        [*CDPR, "record", "--config", str(p), "--out", str(out), "--duration", "1.5", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert res.returncode == 0, res.stderr
-    (path,) = sorted(out.glob("*_ir.mcap"))
+    path = _record(tmp_path, cfg, 1.5)
     rc = read_run(path)
     blobs = json.loads(rc.metadata["run"]["config"])["sources"]["camera"]["blobs"]
     assert blobs["threshold_dn"] == 40.0 and blobs["notch_tolerance"] == 0.1
