@@ -71,18 +71,26 @@ def refine_marker_corners(
     camera: CameraModel,
     iterations: int = 1,
     samples_per_side: int = 16,
-) -> tuple[F64, NDArray[np.bool_]]:
+) -> tuple[F64, NDArray[np.bool_], F64]:
     """Refine (N, 4, 2) marker corners by line fits to the outer edges (see the module docstring).
 
-    ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).  Returns the
-    refined corners and a mask of markers whose refinement succeeded (others keep their input).
+    ``cells``: cells per side including the black border (e.g. 6 for a 4x4 dictionary).
+    ``iterations``: at most this many passes, each sampling the edges around the last corners
+    (from a detector's corners a fraction of a pixel off, the profile window is off the edge and
+    each pass moves part of the way: a blurred small marker needs several); stops when no corner
+    moves by 0.002 px.  Returns the refined corners, a mask of markers whose refinement succeeded
+    (others keep their input), and per marker ``[RSS, dof, rho]`` (N, 3) of the edge samples
+    about their four lines (px^2 across the edge; dof = samples used - 8; rho the correlation of
+    neighbouring samples' residuals, clipped to [0, 0.9]): the edge-sample noise this frame
+    shows, whose propagation to the corners is :func:`edge_fit_corner_covariance`.
     All markers and sides are processed at once (vectorised).
     """
     C0 = np.asarray(corners_px, np.float64).reshape(-1, 4, 2)
     N = len(C0)
     ok = np.ones(N, dtype=bool)
+    noise = np.full((N, 3), np.nan)
     if N == 0:
-        return C0.copy(), ok
+        return C0.copy(), ok, noise
     C = C0.copy()
     T = samples_per_side
     ts = np.linspace(0.12, 0.88, T)
@@ -102,7 +110,7 @@ def refine_marker_corners(
             base[:, :, :, None, :] + ss[:, :, None, :, None] * nrm[:, :, None, None, :]
         )  # (N,4,T,Q,2)
         prof = bilinear(gray, P[..., 0], P[..., 1])
-        g = np.abs(np.diff(prof, axis=-1))
+        g = np.clip(-np.diff(prof, axis=-1), 0.0, None)  # the falling edge only (white -> black)
         gmax = g.max(axis=-1, keepdims=True)
         wgt = np.clip(g - 0.25 * gmax, 0, None)
         sw = wgt.sum(axis=-1)
@@ -134,10 +142,26 @@ def refine_marker_corners(
             N, 4, 2
         )
         ok &= good
+        # the samples' distances to their lines (normalised units -> px by the focal length)
+        off = (np.einsum("nstp,nsp->nst", xn, n_line) - dist_line[..., None]) * wu
+        pair = wu[..., 1:] * wu[..., :-1]
+        c1 = np.sum(off[..., 1:] * off[..., :-1] * pair, axis=(1, 2)) / np.maximum(
+            pair.sum(axis=(1, 2)), 1
+        )
+        c0 = np.sum(off**2, axis=(1, 2)) / np.maximum(cnt.sum(axis=1), 1)
+        rho = np.clip(c1 / np.maximum(c0, 1e-30), 0.0, 0.9)
+        noise = np.stack(
+            [np.sum(off**2, axis=(1, 2)) * camera.K[0, 0] ** 2, cnt.sum(axis=1) - 8.0, rho],
+            axis=1,
+        )
+        step = np.abs(np.where(ok[:, None, None], newC - C, 0.0)).max()
         C = np.where(ok[:, None, None], newC, C)
+        if step < 0.002:  # converged
+            break
     moved = np.abs(C - C0).reshape(N, -1).max(axis=1)
     ok &= np.all(np.isfinite(C.reshape(N, -1)), axis=1) & (moved < 3.0)
-    return np.where(ok[:, None, None], C, C0), ok
+    noise[~ok] = np.nan
+    return np.where(ok[:, None, None], C, C0), ok, noise
 
 
 SATURATION_MAX_FRACTION = 0.10
@@ -249,10 +273,14 @@ class FiducialDetector:
         )
         self._known = set(int(i) for i in self.layout.ids)
         self._frames = 0
+        self.edge_noise = np.zeros((0, 3))
+        """Per marker of the last :meth:`detect`, ``[RSS px^2, dof, rho]`` of its edge samples
+        about their lines (:func:`refine_marker_corners`; NaN when not edge-refined)."""
         self._cells = cv.dictionary_marker_cells(self.layout.dictionary) + 2
 
     def detect(self, gray: NDArray[np.uint8], predicted: F64 | None = None) -> tuple[I64, F64]:
-        """Markers of the layout in ``gray``: ids (N,) and corners (N, 4, 2) px.
+        """Markers of the layout in ``gray``: ids (N,) and corners (N, 4, 2) px (and
+        :attr:`edge_noise` of each).
 
         predicted: optional (M, 4, 2) corners of every layout marker (layout order) from the last
         pose(s).  Tracking then fits the edges directly around the predicted corners (no decoding)
@@ -267,10 +295,13 @@ class FiducialDetector:
         if predicted is not None and self.edge_refine and self._frames % self.redecode_every:
             pred = np.asarray(predicted, np.float64).reshape(-1, 4, 2)
             if np.all(np.isfinite(pred)):
-                c, ok = refine_marker_corners(gray, pred, self._cells, self.camera, iterations=2)
+                c, ok, noise = refine_marker_corners(
+                    gray, pred, self._cells, self.camera, iterations=2
+                )
                 size = np.linalg.norm(pred[:, 0] - pred[:, 2], axis=1) / np.sqrt(2)
                 move = np.abs(c - pred).reshape(len(c), -1).max(axis=1)
                 if ok.all() and np.all(move < self.track_max_move_cells * size / self._cells):
+                    self.edge_noise = noise
                     return self.layout.ids.copy(), c
         if predicted is not None:
             ids, corners = self._detect_windows(gray, predicted)
@@ -278,8 +309,11 @@ class FiducialDetector:
                 ids, corners = self._full(gray)
         else:
             ids, corners = self._full(gray)
+        self.edge_noise = np.full((len(ids), 3), np.nan)
         if self.edge_refine and len(ids):
-            corners, _ = refine_marker_corners(gray, corners, self._cells, self.camera)
+            corners, _, self.edge_noise = refine_marker_corners(
+                gray, corners, self._cells, self.camera, iterations=12
+            )
         return ids, corners
 
     def _full(self, gray: NDArray[np.uint8]) -> tuple[I64, F64]:
@@ -316,16 +350,33 @@ class FiducialDetector:
 # ------------------------------------------------------------------------------------ blobs
 @dataclass
 class BlobSettings:
-    """Blob detection: threshold (DN), area limits (px at full resolution), coarse downsampling."""
+    """IR-mark detection and its shape check (every field is a key of a camera source's
+    ``[sources.<name>.blobs]`` table and of ``cdpr pose --blobs``: docs/vision.md)."""
 
     threshold_dn: float = 100.0
+    """A blob is the pixels above this level (DN; the background must stay below it)."""
     min_area_px: float = 6.0
+    """Blobs of fewer pixels above the threshold are noise."""
     max_area_px: float = 5000.0
+    """Blobs of more pixels are not marks (a lamp, a reflection)."""
     coarse_factor: int = 4
-    window_px: int = 0  # half-size of the search window around predictions (0: automatic)
-    shape_check: bool = True  # compare labelled blobs with the projected disks (check_blob_shapes)
-    flux_tolerance: float = 0.015  # |flux per projected area / frame median - 1| allowed
-    rim_tolerance_px: float = 0.2  # largest rim deviation from the projected outline allowed
+    """Downsampling of the whole-frame search (1: none)."""
+    window_px: int = 0
+    """Half-size of the search window around predicted marks (0: 24 px)."""
+    shape_check: bool = True
+    """Compare each labelled blob with its mark's projected disk (:func:`check_blob_shapes`)."""
+    notch_tolerance: float = 0.08
+    """A straight band darker (or brighter) than the mark's own profile by more than this
+    fraction of its peak makes the mark damaged (:func:`blob_profile`)."""
+    notch_sigma: float = 6.0
+    """... and only if that band's mean is this many standard errors from zero (pixel noise)."""
+    notch_margin_px: float = 0.75
+    """Pixels at least this far inside the projected outline enter the band search."""
+    bias_tolerance_px: float = 0.06
+    """Light that does not fit the mark's own image and moves its centroid by more than this
+    (px) makes the mark damaged (:func:`blob_profile`: a band grazing the rim)."""
+    rim_tolerance_px: float = 0.2
+    """Largest deviation (px) of the blob's rim from the projected outline."""
 
 
 def _centroid(
@@ -513,50 +564,187 @@ def blob_edge_residual(gray: NDArray[np.uint8], centre_px: F64, outline_px: F64)
     return float(np.max(np.abs(smooth)))
 
 
-def blob_photometry(
-    gray: NDArray[np.uint8], xy_px: ArrayLike, radius_px: float, thr: float
-) -> tuple[float, int]:
-    """Flux and number of parts of the blob around ``xy_px`` in a window of half-size
-    ``radius_px + 4``: flux = sum of ``I - background`` over the pixels above ``thr`` dilated by 2 px
-    (background = mean of the window outside them dilated by 4 px; the optical blur keeps the flux
-    of the disk); parts =
-    connected components above ``thr`` (a cable across a disk splits it in two).  (nan, 0) if the
-    window leaves the image."""
+def blob_parts(gray: NDArray[np.uint8], xy_px: ArrayLike, radius_px: float, thr: float) -> int:
+    """Number of connected parts above ``thr`` in the window of half-size ``radius_px + 4`` around
+    ``xy_px`` (a cable across a disk splits it in two); 0 if the window leaves the image."""
     h, w = gray.shape
     x, y = np.asarray(xy_px, np.float64)
     hw = int(np.ceil(radius_px)) + 4
     xi, yi = int(round(x)), int(round(y))
     x0, y0, x1, y1 = xi - hw, yi - hw, xi + hw + 1, yi + hw + 1
     if x0 < 0 or y0 < 0 or x1 > w or y1 > h:
-        return float("nan"), 0
-    win = gray[y0:y1, x0:x1].astype(np.float64)
-    binary = cv.threshold(np.ascontiguousarray(gray[y0:y1, x0:x1]), thr)
-    n, _, _ = cv.connected_components(binary)
-    grown = [binary > 0]
-    for _ in range(4):
-        m = grown[-1]
-        d = m.copy()
-        d[1:] |= m[:-1]
-        d[:-1] |= m[1:]
-        d[:, 1:] |= m[:, :-1]
-        d[:, :-1] |= m[:, 1:]
-        grown.append(d)
-    if grown[4].all():
-        return float("nan"), int(n - 1)
-    bg = float(np.mean(win[~grown[4]]))
-    flux = float(np.sum(win[grown[2]] - bg))
-    return flux, int(n - 1)
+        return 0
+    n, _, _ = cv.connected_components(cv.threshold(np.ascontiguousarray(gray[y0:y1, x0:x1]), thr))
+    return int(n - 1)
+
+
+NOTCH_ANGLES = 24
+"""Directions (over 180 degrees, 7.5 degrees apart) of the lines :func:`blob_profile` averages
+along."""
+PROFILE_KNOT_PX = 0.5
+"""Knot spacing (px) of the mark's own radial profile in :func:`blob_profile`."""
+NOTCH_MIN_PIXELS = 3
+"""Least number of pixels on a line for its mean to count."""
+
+
+def _fit_profile(k: I64, g0: F64, g1: F64, X: F64, y: F64, nk: int) -> F64:
+    """Least squares of ``y ~ c[k] g0 + c[k+1] g1 + X c[nk:]`` (a piecewise-linear profile on
+    ``nk`` knots, the pixel at weights ``g0``, ``g1`` between knots ``k`` and ``k + 1``, plus the
+    columns of ``X`` (n, q)) through its normal equations summed per knot (the profile's block is
+    tridiagonal); a knot without pixels stays 0."""
+    q = X.shape[1]
+    H = np.zeros((nk + q, nk + q))
+    d = np.arange(nk)
+    H[d, d] = np.bincount(k, g0 * g0, nk) + np.bincount(k + 1, g1 * g1, nk) + 1e-9
+    off = np.bincount(k, g0 * g1, nk)[: nk - 1]
+    H[d[:-1], d[:-1] + 1] = off
+    H[d[:-1] + 1, d[:-1]] = off
+    for j in range(q):
+        col = np.bincount(k, g0 * X[:, j], nk) + np.bincount(k + 1, g1 * X[:, j], nk)
+        H[:nk, nk + j] = col
+        H[nk + j, :nk] = col
+    H[nk:, nk:] = X.T @ X
+    b = np.concatenate([np.bincount(k, g0 * y, nk) + np.bincount(k + 1, g1 * y, nk), X.T @ y])
+    return np.linalg.solve(H, b)
+
+
+@dataclass
+class BlobProfile:
+    """Result of :func:`blob_profile` for one blob.
+
+    ``notch``: the largest mean residual along a line relative to the mark's own peak (signed:
+    < 0 a dark band, > 0 a bright streak; 0 when no line is significant); ``bias_px``: how far
+    the light that does not fit the mark's own image moves its intensity-weighted centroid (px:
+    what a damaged blob does to the pose); ``shift_px`` (2,): the intact image's offset from the
+    projected centre; ``peak_dn``: the mark's plateau above the background; ``noise_dn``: the
+    pixel noise from the residuals."""
+
+    notch: float
+    bias_px: float
+    shift_px: F64
+    peak_dn: float
+    noise_dn: float
+
+
+def blob_profile(
+    gray: NDArray[np.uint8],
+    centre_px: ArrayLike,
+    outline_px: F64,
+    margin_px: float = 0.75,
+    min_sigma: float = 6.0,
+) -> BlobProfile:
+    """Damage to a blob found from its *shape*, whatever its brightness (see :func:`check_blob_shapes`).
+
+    Every pixel up to 3 px outside the projected ``outline_px`` (around ``centre_px``) gets its
+    signed distance ``e`` to the outline along the ray from the centre.  The mark's own image is
+    fitted as a radial profile of ``e`` (piecewise linear, knots every :data:`PROFILE_KNOT_PX`:
+    any blur, any brightness, clipped tops included), plus a plane (a smooth illumination
+    gradient), then plus a shift of the profile (its slope along the ray times the ray's
+    direction: where the intact image is), by least squares with pixels beyond 3 robust sigma
+    left out, twice per stage (a band's pixels do not bend the profile).  What does not fit:
+
+    - *notch*: the residuals of the pixels at least ``margin_px`` inside the outline, averaged
+      along lines 1 px wide in :data:`NOTCH_ANGLES` directions (a cable is a straight dark band:
+      its line's mean is a large fraction of the peak, while noise averages out); a line counts
+      when its mean is ``min_sigma`` standard errors from zero (noise from the residuals' MAD);
+    - *bias*: the first moment of all residuals over the fitted mark's light: how far the missing
+      (or added) light moves the centroid from the intact image's centre (a band grazing the rim
+      hardly darkens the plateau but pulls the centroid by a tenth of a pixel).
+
+    NaN fields if the window leaves the image or the mark has no plateau."""
+    nan = BlobProfile(float("nan"), float("nan"), np.full(2, np.nan), float("nan"), float("nan"))
+    h, w = gray.shape
+    c0 = np.asarray(centre_px, np.float64)
+    d = outline_px - c0
+    rho = np.linalg.norm(d, axis=1)
+    R = int(np.ceil(rho.max())) + 4
+    xi, yi = int(round(c0[0])), int(round(c0[1]))
+    if xi - R < 0 or yi - R < 0 or xi + R + 1 > w or yi + R + 1 > h:
+        return nan
+    I_all = gray[yi - R : yi + R + 1, xi - R : xi + R + 1].astype(np.float64).ravel()
+    g = np.arange(-R, R + 1, dtype=np.float64)
+    px = np.tile(g + xi, 2 * R + 1)  # pixel coordinates of the window
+    py = np.repeat(g + yi, 2 * R + 1)
+    # the outline's radius in each direction (periodic linear interpolation over the rays)
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    order = np.argsort(ang)
+    a_ext = np.concatenate([ang[order] - 2 * np.pi, ang[order], ang[order] + 2 * np.pi])
+    r_ext = np.tile(rho[order], 3)
+    shift = np.zeros(2)
+    use_all = np.ones(len(I_all), dtype=bool)
+    for it in range(3):
+        # the outline moved by the shift found so far (where the intact image is)
+        dx_all, dy_all = px - c0[0] - shift[0], py - c0[1] - shift[1]
+        dist_all = np.hypot(dx_all, dy_all)
+        e_all = dist_all - np.interp(np.arctan2(dy_all, dx_all), a_ext, r_ext)
+        outside = e_all > 3.0
+        if outside.sum() < 8:
+            return nan
+        bg = float(np.median(I_all[outside]))
+        sel = ~outside
+        I, dx, dy, e, dist = I_all[sel], dx_all[sel], dy_all[sel], e_all[sel], dist_all[sel]
+        use = use_all[sel]
+        u = (e - e.min()) / PROFILE_KNOT_PX
+        k = np.floor(u).astype(np.int64)
+        f = u - k
+        g0, g1 = 1.0 - f, f  # the pixel's weights on knots k and k + 1 (linear interpolation)
+        nk = int(k.max()) + 2
+        X = np.column_stack([dx, dy])
+        for _ in range(2):
+            coef = _fit_profile(k[use], g0[use], g1[use], X[use], I[use], nk)
+            res = I - (coef[k] * g0 + coef[k + 1] * g1 + X @ coef[nk:])
+            noise = max(1.4826 * float(np.median(np.abs(res[use]))), 0.5)
+            use = np.abs(res) <= 3.0 * noise
+        use_all[:] = True
+        use_all[sel] = use
+        # the profile shifted by s changes a pixel by -slope(e) (u . s): fit s to the residuals
+        slope = (coef[1:nk] - coef[: nk - 1]) / PROFILE_KNOT_PX
+        rd = np.maximum(dist, 1e-9)
+        G = np.column_stack([-slope[k] * dx / rd, -slope[k] * dy / rd])
+        step = np.linalg.lstsq(G[use], res[use], rcond=None)[0]
+        if np.hypot(*step) < 0.05 or it == 2:  # small: applied to the residuals (linear)
+            res = res - G @ step
+            shift += step
+            dx, dy = dx - step[0], dy - step[1]
+            break
+        shift += np.clip(step, -1.0, 1.0)  # a pose off by more: the profile refitted there
+    light = float(np.sum(I - res - bg))  # the fitted mark's light above the background
+    if light <= 0:
+        return nan
+    bias = np.array([res @ dx, res @ dy]) / light
+    inner = e <= -margin_px
+    if inner.sum() < NOTCH_MIN_PIXELS:
+        return nan
+    peak = float(np.median(I[inner] - X[inner] @ coef[nk:])) - bg
+    if peak <= 0:
+        return nan
+    r = res[inner]
+    th = np.arange(NOTCH_ANGLES) * np.pi / NOTCH_ANGLES
+    P = np.floor(np.outer(-np.sin(th), dx[inner]) + np.outer(np.cos(th), dy[inner]) + 0.5)
+    P = (P - P.min()).astype(np.int64)
+    m = int(P.max()) + 1
+    idx = (np.arange(NOTCH_ANGLES)[:, None] * m + P).ravel()
+    cnt = np.bincount(idx, minlength=NOTCH_ANGLES * m)
+    tot = np.bincount(idx, weights=np.tile(r, NOTCH_ANGLES), minlength=NOTCH_ANGLES * m)
+    ok = cnt >= NOTCH_MIN_PIXELS
+    mean = np.where(ok, tot / np.maximum(cnt, 1), 0.0)
+    sig = ok & (np.abs(mean) * np.sqrt(cnt) >= min_sigma * noise)
+    notch = float(mean[sig][np.argmax(np.abs(mean[sig]))] / peak) if sig.any() else 0.0
+    return BlobProfile(notch, float(np.hypot(*bias)), shift.copy(), peak, noise)
 
 
 @dataclass
 class BlobShapeCheck:
-    """Result of :func:`check_blob_shapes`, per layout mark: the relative flux deviation and the
-    rim residual (px; nan when not measured), the number of parts; and the marks whose blob is
-    damaged or lost."""
+    """Result of :func:`check_blob_shapes`, per layout mark: the notch depth (relative to the
+    mark's own peak, :func:`blob_notch`) and the rim residual (px; nan when not measured), the
+    number of parts, the score (the worst test over its tolerance: > 1 damaged, inf split, nan
+    not measured); and the marks whose blob is damaged (worst first) or lost."""
 
-    flux_deviation: F64
+    notch_depth: F64
+    bias_px: F64
     rim_residual_px: F64
     parts: I64
+    score: F64
     damaged: I64
     lost: I64
 
@@ -572,35 +760,36 @@ def check_blob_shapes(
 ) -> BlobShapeCheck:
     """Compare each labelled blob with the mark's expected image at the estimated pose.
 
-    The projected disk of the mark's known radius gives its outline and area A_m (px^2).  Three
-    tests, any failing makes the mark *damaged*: (1) the blob's flux F_m (:func:`blob_photometry`)
-    over A_m is the same for every intact mark (same spot brightness; the blur moves light, it does
-    not remove it), so F/A is compared with the frame's median (needs 3 marks) within
-    ``flux_tolerance`` (a dark band across the disk; a reflection merged into it); (2) the blob is
-    in one part (a cable across the middle splits it); (3) its rim follows the projected outline
-    (:func:`blob_edge_residual`) within ``rim_tolerance_px`` (a band grazing the rim).  A mark whose
-    disk faces the camera and lies inside the image (with a margin) but has no label is *lost*."""
+    The projected disk of the mark's known radius gives its outline.  Three tests of the blob's
+    shape, each against the mark itself (never against the other marks: retro-reflective marks
+    differ by tens of percent in brightness, and the lighting varies over the frame); any failing
+    makes the mark *damaged*: (1) no straight band darker (or brighter) than the mark's own
+    profile by ``notch_tolerance`` of its peak (:func:`blob_notch`: a cable across the disk);
+    (2) the blob is in one part (a cable across the middle splits it); (3) its rim follows the
+    projected outline (:func:`blob_edge_residual`) within ``rim_tolerance_px`` (a band grazing
+    the rim).  A mark whose disk faces the camera and lies inside the image (with a margin) but
+    has no label is *lost*."""
     s = settings or BlobSettings()
     M = len(layout.points)
-    areas, centres, outlines = projected_disks_px(layout, camera, rvec, tvec)
+    _, centres, outlines = projected_disks_px(layout, camera, rvec, tvec)
     radii = np.max(np.linalg.norm(outlines - centres[:, None, :], axis=2), axis=1)
-    dev = np.full(M, np.nan)
+    notch = np.full(M, np.nan)
+    bias = np.full(M, np.nan)
     rim = np.full(M, np.nan)
     parts = np.zeros(M, np.int64)
-    ratio = np.full(M, np.nan)
     for m in range(M):
         if labels[m] >= 0:
-            flux, parts[m] = blob_photometry(gray, centres[m], radii[m], s.threshold_dn)
-            ratio[m] = flux / areas[m]
-            if np.isfinite(flux):
+            parts[m] = blob_parts(gray, centres[m], radii[m], s.threshold_dn)
+            if parts[m]:
+                prof = blob_profile(gray, centres[m], outlines[m], s.notch_margin_px, s.notch_sigma)
+                notch[m], bias[m] = prof.notch, prof.bias_px
                 rim[m] = blob_edge_residual(gray, centres[m], outlines[m])
-    ok = np.isfinite(ratio)
-    if ok.sum() >= 3:
-        med = float(np.median(ratio[ok]))
-        if med > 0:
-            dev[ok] = ratio[ok] / med - 1.0
-    bad = (np.abs(dev) > s.flux_tolerance) | (parts > 1) | (rim > s.rim_tolerance_px)
-    damaged = np.flatnonzero(bad & (labels >= 0))
+    with np.errstate(invalid="ignore"):
+        score = np.fmax(np.abs(notch) / s.notch_tolerance, rim / s.rim_tolerance_px)
+        score = np.fmax(score, bias / s.bias_tolerance_px)
+    score[parts > 1] = np.inf
+    damaged = np.flatnonzero((score > 1.0) & (labels >= 0))
+    damaged = damaged[np.argsort(-score[damaged], kind="stable")]
     R = cv.rodrigues(rvec)
     pc = layout.point_centers_m @ R.T + tvec
     facing = np.einsum("ij,ij->i", layout.point_normals @ R.T, pc) < 0
@@ -612,7 +801,9 @@ def check_blob_shapes(
         & (centres[:, 1] + radii + 4 < h)
     )
     lost = np.flatnonzero((labels < 0) & facing & inside)
-    return BlobShapeCheck(dev, rim, parts, damaged.astype(np.int64), lost.astype(np.int64))
+    return BlobShapeCheck(
+        notch, bias, rim, parts, score, damaged.astype(np.int64), lost.astype(np.int64)
+    )
 
 
 # ------------------------------------------------------------------------------------ labelling

@@ -252,11 +252,18 @@ def estimate_pose_single_marker(
 ) -> PoseEstimate:
     """Pose of {P} from the four corners of one square marker (``(4, 3)`` in {P}, ``(4, 2)`` px).
 
-    Four coplanar points allow two poses (the planar "flip": both IPPE solutions of
-    ``cv.solve_pnp_planar_all``, and the tracking ``guess`` if given, are each refined by
-    :func:`estimate_pose`).  The lowest residual wins; every solution that is a different pose
-    (> 1 mm or > 0.5 deg away) must fit worse by ``margin_min`` in units of the winner's ``s^2``,
-    else the pose is flagged ``FLAG_AMBIGUOUS`` (``extra["planar_margin"]`` holds the margin).
+    Four coplanar points allow two poses (the planar "flip": IPPE's two solutions,
+    ``cv.solve_pnp_planar_all``, each refined by :func:`estimate_pose`).  They are told apart by:
+
+    1. the fit: the lower residual wins when the other solution (a different pose: > 1 mm or
+       > 0.5 deg away) fits worse by ``margin_min`` in units of the noise ``s^2``
+       (``extra["planar_margin"]``);
+    2. else, in a sequence, the previous frame: ``guess`` (the pose predicted from the last
+       ones) picks the solution within a quarter of the two solutions' angle from it, if the
+       other is beyond three quarters (``extra["planar_by_previous"]`` = 1);
+    3. else the frame is flagged ``FLAG_AMBIGUOUS`` and the covariance covers both solutions:
+       ``Sigma + d d^T`` with ``d`` the other solution's offset (it lies within one sigma).
+
     ``prior_dof`` None means ``sigma_px`` is only nominal (not measured on this camera): the margin
     is then in units of the larger of ``s^2`` and the 95 % upper bound of the noise from the four
     corners alone (``RSS / chi2_2(0.05)``), since a nominal value far below the real noise would
@@ -270,16 +277,13 @@ def estimate_pose_single_marker(
     img = np.asarray(corners_px, np.float64).reshape(-1, 2)
     if len(obj) != 4:
         return failed_pose(FLAG_FEW_POINTS | FLAG_SINGLE_MARKER)
-    starts = cv.solve_pnp_planar_all(obj, img, camera.K, camera.dist)
-    if guess is not None:
-        starts.append((np.asarray(guess[0], np.float64), np.asarray(guess[1], np.float64)))
     cands = [
         e
         for e in (
             estimate_pose(
                 obj, img, camera, sigma_px, guess=g, prior_dof=prior_dof, noise_shape=noise_shape
             )
-            for g in starts
+            for g in cv.solve_pnp_planar_all(obj, img, camera.K, camera.dist)
         )
         if not (e.flags & FLAG_NO_POSE)
     ]
@@ -291,16 +295,33 @@ def estimate_pose_single_marker(
     s2 = best.extra["sigma_px"] ** 2
     if prior_dof is None:  # the noise is not known: its 95 % upper bound from the 2 residual dof
         s2 = max(s2, rss[order[0]] / CHI2_2DOF_Q05)
-    margin = float("inf")
+    other, margin = None, float("inf")
     for k in order[1:]:
         d = pose_error(cands[k].position_O_m, cands[k].R_O_P, best.position_O_m, best.R_O_P)
         if np.linalg.norm(d[:3]) > 1e-3 or np.linalg.norm(d[3:]) > np.deg2rad(0.5):
-            margin = min(margin, (rss[k] - rss[order[0]]) / max(s2, 1e-30))
-    best.flags |= FLAG_SINGLE_MARKER
-    if margin < margin_min:
-        best.flags |= FLAG_AMBIGUOUS
-    best.extra["planar_margin"] = float(margin)
-    return best
+            other, margin = cands[k], (rss[k] - rss[order[0]]) / max(s2, 1e-30)
+            break
+    chosen = best
+    by_previous = False
+    if other is not None and margin < margin_min and guess is not None:
+        R_guess = cv.rodrigues(np.asarray(guess[0], np.float64))
+
+        def angle(e: PoseEstimate) -> float:
+            return float(np.linalg.norm(cv.rotation_vector(cv.rodrigues(e.rvec_C) @ R_guess.T)))
+
+        flip = float(np.linalg.norm(cv.rotation_vector(other.R_O_P @ best.R_O_P.T)))
+        near, far = (best, other) if angle(best) <= angle(other) else (other, best)
+        if angle(near) < 0.25 * flip and angle(far) > 0.75 * flip:
+            chosen, by_previous = near, True
+    chosen.flags |= FLAG_SINGLE_MARKER
+    chosen.extra["planar_margin"] = float(margin)
+    chosen.extra["planar_by_previous"] = float(by_previous)
+    if other is not None and margin < margin_min and not by_previous:
+        chosen.flags |= FLAG_AMBIGUOUS
+        alt = best if chosen is other else other
+        d = pose_error(alt.position_O_m, alt.R_O_P, chosen.position_O_m, chosen.R_O_P)
+        chosen.covariance = chosen.covariance + np.outer(d, d)
+    return chosen
 
 
 def pose_error(

@@ -50,6 +50,9 @@ class RenderSettings:
     spot_dn: float = 235.0
     ir_background_dn: float = 12.0
     jitter: bool = True
+    illumination_gradient: tuple[float, float] = (0.0, 0.0)
+    """(gx, gy): a smooth illumination field multiplying the whole scene,
+    ``1 + gx (u - W/2) / W + gy (v - H/2) / H`` (uneven lighting; (0, 0): even)."""
 
 
 _MAP_CACHE: dict[
@@ -99,21 +102,30 @@ class VirtualCamera:
         R_O_P: ArrayLike,
         rng: np.random.Generator | None = None,
         spurious_C: ArrayLike | None = None,
+        spot_dn: ArrayLike | None = None,
     ) -> NDArray[np.uint8]:
         """Frame of IR disks (a ``"points"`` layout) at the platform pose.
 
         ``spurious_C``: optional (K, 4) extra disks ``[x, y, z, radius]`` in the camera frame
-        (reflections, facing the camera) for robustness tests.
+        (reflections, facing the camera) for robustness tests.  ``spot_dn``: optional level of
+        each disk (M,), DN (retro-reflective marks differ by tens of percent with the angle and
+        distance they are seen at; above 255 the sensor clips); default ``settings.spot_dn``.
         """
         R_C_F, t_C_F = self._layout_pose(layout, position_O_m, R_O_P)
+        levels = np.broadcast_to(
+            np.asarray(self.settings.spot_dn if spot_dn is None else spot_dn, np.float64),
+            (len(layout.points),),
+        )
         patches = [
-            self._disk_patch(R_C_F @ p.center_m + t_C_F, R_C_F @ p.normal, p.radius_m)
-            for p in layout.points
+            self._disk_patch(R_C_F @ p.center_m + t_C_F, R_C_F @ p.normal, p.radius_m, level)
+            for p, level in zip(layout.points, levels, strict=True)
         ]
         if spurious_C is not None:
             for x, y, z, r in np.asarray(spurious_C, np.float64).reshape(-1, 4):
                 c = np.array([x, y, z])
-                patches.append(self._disk_patch(c, -c / np.linalg.norm(c), r))
+                patches.append(
+                    self._disk_patch(c, -c / np.linalg.norm(c), r, self.settings.spot_dn)
+                )
         return self._render(patches, self.settings.ir_background_dn, rng)
 
     def render_board(
@@ -230,14 +242,13 @@ class VirtualCamera:
         outline = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
         return _Patch(R_C_F @ f.center_m + t_C_F, R[:, 0], R[:, 1], R[:, 2], outline, shader)
 
-    def _disk_patch(self, center_C: F64, normal_C: F64, radius_m: float) -> _Patch:
+    def _disk_patch(self, center_C: F64, normal_C: F64, radius_m: float, level: float) -> _Patch:
         n = normal_C / np.linalg.norm(normal_C)
         a = np.cross(n, [1.0, 0.0, 0.0])
         if np.linalg.norm(a) < 1e-6:
             a = np.cross(n, [0.0, 1.0, 0.0])
         a /= np.linalg.norm(a)
         b = np.cross(n, a)
-        level = self.settings.spot_dn
         r2 = radius_m**2
 
         def shader(x: F64, y: F64) -> tuple[F64, F64]:
@@ -256,6 +267,11 @@ class VirtualCamera:
         W, H = self.camera.image_size_px
         canvas = np.full((H, W), background, dtype=np.float32)
         rois = [r for p in patches if (r := self._draw(canvas, p, rng)) is not None]
+        gx, gy = s.illumination_gradient
+        if gx or gy:
+            u = (np.arange(W, dtype=np.float32) - W / 2) / W
+            v = (np.arange(H, dtype=np.float32) - H / 2) / H
+            canvas *= np.float32(1.0) + np.float32(gx) * u[None, :] + np.float32(gy) * v[:, None]
         if s.blur_sigma_px > 0:
             # the background is uniform: blurring each drawn region (grown by the kernel radius) is
             # the same as blurring the whole frame, and much cheaper

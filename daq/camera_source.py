@@ -21,8 +21,9 @@ unreadable files in a folder count as lost.
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -58,8 +59,9 @@ from cdpr.calibration.pose import (
 from cdpr.calibration.render import RenderSettings, VirtualCamera
 
 from .pose_camera import pose_stream
+from .schema import parse, plain
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, Source, StreamDescription, now_ns
-from .vision_files import load_camera, load_marker_layout
+from .vision_files import BlobDetection, load_camera, load_marker_layout
 
 PoseAt = Callable[[int], tuple[ArrayLike, ArrayLike]]
 
@@ -118,6 +120,11 @@ class FramePoseEstimator:
             self._pm = PointMatcher(layout, camera, ref, sigma_px=self.sigma_px)
             self._blob = blob_settings or BlobSettings()
 
+    @property
+    def blob_settings(self) -> BlobSettings | None:
+        """The IR-mark detector's settings (None for a fiducial layout)."""
+        return self._blob if self.layout.kind == "points" else None
+
     def _learn_noise(self, est: PoseEstimate) -> None:
         """Pool a good multi-marker frame's residuals into the running corner-noise estimate."""
         self._noise_rss_px2 += est.extra["sigma_px"] ** 2 * est.extra["dof"]
@@ -128,15 +135,33 @@ class FramePoseEstimator:
             self._noise_dof *= k
 
     def _single_marker(
-        self, obj: NDArray[np.float64], img: NDArray[np.float64], guess: Any, shape: Any
+        self,
+        obj: NDArray[np.float64],
+        img: NDArray[np.float64],
+        guess: Any,
+        shape: Any,
+        edge_noise: NDArray[np.float64],
     ) -> PoseEstimate:
         """One marker's pose (flagged ``single_marker``; ``ambiguous`` if the planar flip is not
         ruled out).  The 2-dof noise estimate is pooled with the corner noise measured on this
         camera's earlier multi-marker frames (up to ``SINGLE_PRIOR_DOF`` dof) when there are some,
-        else with the nominal ``sigma_px`` (``extra["sigma_prior_dof"]`` = 0 says so)."""
+        else with the corner noise its own edge samples show (``edge_noise`` ``[RSS, dof, rho]``
+        of the samples about their lines and the correlation of neighbouring ones, through
+        ``shape``, the corners' covariance per unit sample variance), else with the nominal
+        ``sigma_px`` (``extra["sigma_prior_dof"]`` = 0)."""
+        rss_e, dof_e, rho = (float(x) for x in np.asarray(edge_noise).reshape(3))
+        # neighbouring edge samples err alike (pixel phase, blur): a line's offset and angle then
+        # vary by (1 + rho) / (1 - rho) more than independent samples' would (AR(1) errors)
+        rss_e *= (1.0 + rho) / (1.0 - rho)
         if self._noise_dof >= 10:
             prior_px = float(np.sqrt(self._noise_rss_px2 / self._noise_dof))
             prior_dof = min(self._noise_dof, SINGLE_PRIOR_DOF)
+            est = estimate_pose_single_marker(
+                obj, img, self.camera, prior_px, guess, prior_dof, noise_shape=shape
+            )
+        elif np.isfinite(rss_e) and dof_e >= 10:
+            prior_px = float(np.sqrt(rss_e / dof_e * np.mean(np.diag(shape))))
+            prior_dof = EDGE_PRIOR_DOF
             est = estimate_pose_single_marker(
                 obj, img, self.camera, prior_px, guess, prior_dof, noise_shape=shape
             )
@@ -186,7 +211,9 @@ class FramePoseEstimator:
             obj = self._corners[[self._pos[int(i)] for i in ids]].reshape(-1, 3)
             shape = block_diag(*edge_fit_corner_covariance(corners))
             if len(ids) == 1:
-                est = self._single_marker(obj, corners.reshape(-1, 2), guess, shape)
+                est = self._single_marker(
+                    obj, corners.reshape(-1, 2), guess, shape, self._fid.edge_noise[0]
+                )
             else:
                 est = estimate_pose(
                     obj,
@@ -216,26 +243,34 @@ class FramePoseEstimator:
             blobs = detect_blobs(gray, self._blob, None)
         res = self._pm.match(blobs)
         if self._blob.shape_check and not res.flags & FLAG_NO_POSE:
-            # compare each blob with its mark's projected disk: a damaged blob (a cable across
-            # the mark) is dropped and the pose refitted; a damaged or lost mark is flagged
-            chk = check_blob_shapes(
-                gray,
-                self.layout,
-                self.camera,
-                res.pose.rvec_C,
-                res.pose.tvec_C_m,
-                res.labels,
-                self._blob,
-            )
-            if len(chk.damaged):
-                res = self._pm.drop_marks(res, blobs, chk.damaged)
-            if len(chk.damaged) or len(chk.lost):
+            # compare each blob with its mark's projected disk: the most damaged blob (a cable
+            # across the mark) is dropped, the pose refitted and the others checked again at the
+            # new pose, until none is damaged (a damaged blob drawn into the pose can push intact
+            # marks off their outlines); a damaged or lost mark is flagged
+            first, dropped = res, np.zeros(0, np.int64)
+            while True:
+                chk = check_blob_shapes(
+                    gray,
+                    self.layout,
+                    self.camera,
+                    res.pose.rvec_C,
+                    res.pose.tvec_C_m,
+                    first.labels,
+                    self._blob,
+                )
+                worse = chk.damaged[~np.isin(chk.damaged, dropped)]
+                if not len(worse) or res.flags & FLAG_NO_POSE:
+                    break
+                dropped = np.append(dropped, worse[0])
+                res = self._pm.drop_marks(first, blobs, dropped)
+            if len(dropped) or len(chk.lost):
                 res.pose.flags |= FLAG_OCCLUDED_MARK
-            dev = np.abs(chk.flux_deviation[np.isfinite(chk.flux_deviation)])
-            res.pose.extra["flux_deviation_max"] = float(dev.max()) if dev.size else float("nan")
+            for key, v in (("notch_max", np.abs(chk.notch_depth)), ("bias_max_px", chk.bias_px)):
+                v = v[np.isfinite(v)]
+                res.pose.extra[key] = float(v.max()) if v.size else float("nan")
             rim = chk.rim_residual_px[np.isfinite(chk.rim_residual_px)]
             res.pose.extra["rim_residual_max_px"] = float(rim.max()) if rim.size else float("nan")
-            res.pose.extra["occluded_marks"] = float(len(chk.damaged) + len(chk.lost))
+            res.pose.extra["occluded_marks"] = float(len(dropped) + len(chk.lost))
         return res.pose
 
 
@@ -244,6 +279,14 @@ NOISE_DOF_MAX = 400.0
 
 SINGLE_PRIOR_DOF = 60.0
 """At most this many prior degrees of freedom pooled into a single-marker pose's noise estimate."""
+
+EDGE_PRIOR_DOF = 4.0
+"""Degrees of freedom given to a lone marker's own edge-sample noise as the prior of its corner
+noise (with the corners' 2 residual dof: 6, as ``pose.MIN_NOISE_DOF`` fills in).  Not the samples'
+56: their scatter about straight lines misses what errs alike along a whole edge (the blur of a
+neighbouring edge one cell away, pixel phase), which only the corners' own residuals can show;
+weighted by 56 it made the covariance too small (on rendered markers at the scale of OpenCV's
+tutorial photo, 80-83 % of NEES within the chi-square 99 % bound; with 4, 88-90 %)."""
 
 FIDUCIAL_SIGMA_PX = 0.020
 """Effective corner noise (px) of the edge-refined fiducial corners on our rendered frames, the value
@@ -311,10 +354,25 @@ class _PoseSourceBase(Source):
         sigma_px: float | None = None,
         reference: tuple[ArrayLike, ArrayLike] | None = None,
         track: bool = True,
+        blobs: BlobSettings | Mapping[str, Any] | None = None,
+        origin: str = "<config>",
     ) -> None:
         super().__init__(name)
         self.camera = _camera(camera)
         self.layout = _layout(layout)
+        blob_settings = None
+        if isinstance(blobs, BlobSettings):
+            blob_settings = blobs
+        elif blobs is not None:  # a config's table
+            table = parse(BlobDetection, plain(blobs), origin, f"sources.{name}.blobs")
+            blob_settings = table.settings()
+        if blob_settings is not None and self.layout.kind != "points":
+            raise ConfigError(
+                origin,
+                f"sources.{name}.blobs",
+                f"the marker layout is {self.layout.kind}: the blob detector's settings apply "
+                "to IR marks (a points layout)",
+            )
         # image_format jpeg | png and the ranges: cdpr.daq.source_schema.CameraSettings
         self.image_every = int(image_every)
         self.image_rate_hz = float(image_rate_hz)
@@ -322,9 +380,14 @@ class _PoseSourceBase(Source):
         self.image_format = image_format
         self.jpeg_quality = int(jpeg_quality)
         self.estimator = FramePoseEstimator(
-            self.camera, self.layout, sigma_px, reference, track=track
+            self.camera, self.layout, sigma_px, reference, blob_settings, track=track
         )
         self.frame_index = 0
+
+    def _blob_settings(self) -> dict[str, Any]:
+        """``{"blobs": {...}}``, the IR-mark detector's settings in use (points layouts)."""
+        blob = self.estimator.blob_settings
+        return {} if blob is None else {"blobs": dataclasses.asdict(blob)}
 
     def _readings(self, t_ns: int, gray: NDArray[np.uint8]) -> list[Reading]:
         est = self.estimator.estimate(gray)
@@ -365,6 +428,8 @@ class CameraSource(_PoseSourceBase):
     ``realtime``: a folder or video is delivered at its frame rate, frame ``k`` not before the open
     time plus ``k / fps`` (a recording of a folder then lasts as long as the folder; default True);
     False delivers frames as fast as the pose estimator goes (post-hoc processing).
+    ``blobs``: IR marks, the detector's settings (a :class:`BlobSettings`, or a config's
+    ``[sources.<name>.blobs]`` table checked by :class:`cdpr.daq.vision_files.BlobDetection`).
     """
 
     kind = "camera"
@@ -388,7 +453,7 @@ class CameraSource(_PoseSourceBase):
             raise ConfigError(
                 origin, f"sources.{name}", "give exactly one of device, video, folder"
             )
-        super().__init__(name, camera, layout, **kwargs)
+        super().__init__(name, camera, layout, origin=origin, **kwargs)
         self.realtime = bool(realtime)
         self.device, self.video, self.folder = device, video, folder
         self.fps = float(fps)
@@ -411,6 +476,7 @@ class CameraSource(_PoseSourceBase):
             "sigma_px": self.estimator.sigma_px,
             "track": self.estimator.track,
             "realtime": self.realtime,
+            **self._blob_settings(),
         }
 
     @property
@@ -549,6 +615,7 @@ class VirtualCameraSource(_PoseSourceBase):
             "image_format": self.image_format,
             "sigma_px": self.estimator.sigma_px,
             "seed": self.seed,
+            **self._blob_settings(),
         }
 
     def describe(self) -> dict[str, StreamDescription]:

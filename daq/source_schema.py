@@ -22,6 +22,7 @@ from pydantic_core import PydanticCustomError
 from cdpr.analysis.errors import ConfigError
 
 from .schema import Schema, Text, config_error, plain
+from .vision_files import BlobDetection
 
 CAN_BITRATES = (
     10_000,
@@ -160,6 +161,8 @@ class CameraSettings(Schema):
     jpeg_quality: Annotated[int, Field(ge=0, le=100)] = 85
     sigma_px: Annotated[float, Field(gt=0.0, le=1e3)] | None = None
     track: bool = True
+    blobs: BlobDetection = Field(default_factory=BlobDetection)
+    """IR marks: the detector's settings (``[sources.<name>.blobs]``; docs/vision.md)."""
 
 
 SourceSettings = Annotated[

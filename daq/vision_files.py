@@ -1,5 +1,6 @@
-"""Schemas of the vision files a camera source reads: the camera model (JSON) and the marker
-layout (TOML).
+"""Schemas of the vision files a camera source reads: the camera model (JSON), the marker
+layout (TOML) and the IR-mark detector's settings (a camera source's ``blobs`` table, or
+``cdpr pose --blobs FILE``: :class:`BlobDetection`).
 
 The camera file's keys, types, shapes and ranges are :class:`CameraFile`'s (the schema library:
 :mod:`cdpr.daq.schema`); :func:`cdpr.calibration.camera_model.camera_from_mapping` then checks what
@@ -15,14 +16,15 @@ import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 
 from cdpr.analysis.errors import ConfigError
 from cdpr.calibration.camera_model import CameraModel, camera_from_mapping
+from cdpr.calibration.detect import BlobSettings
 from cdpr.calibration.markers import MarkerLayout, layout_from_mapping
 
 from .files import load_json, load_toml
-from .schema import Schema, Text, Vec3_m, parse
+from .schema import Schema, Text, Vec3_m, parse, rule_error
 
 MAX_PIXELS = 100_000
 """Largest image side (px)."""
@@ -126,3 +128,45 @@ def load_marker_layout(path: str | os.PathLike[str]) -> MarkerLayout:
         except Exception as exc:  # noqa: BLE001 - OpenCV raises its own error type
             raise ConfigError(src, "dictionary", str(exc)) from None
     return layout
+
+
+_Px = Annotated[float, Field(gt=0.0, le=100.0)]
+
+
+class BlobDetection(Schema):
+    """The IR-mark detector's settings (:class:`cdpr.calibration.detect.BlobSettings`, whose
+    defaults these are): a camera source's ``[sources.<name>.blobs]`` table, or the ``[blobs]``
+    table of a ``cdpr pose --blobs`` file.  Meanings and defaults: docs/vision.md."""
+
+    threshold_dn: Annotated[float, Field(gt=0.0, lt=255.0)] = BlobSettings.threshold_dn
+    min_area_px: Annotated[float, Field(ge=1.0, le=1e8)] = BlobSettings.min_area_px
+    max_area_px: Annotated[float, Field(ge=1.0, le=1e8)] = BlobSettings.max_area_px
+    coarse_factor: Annotated[int, Field(ge=1, le=64)] = BlobSettings.coarse_factor
+    window_px: Annotated[int, Field(ge=0, le=MAX_PIXELS)] = BlobSettings.window_px
+    shape_check: bool = BlobSettings.shape_check
+    notch_tolerance: Annotated[float, Field(gt=0.0, le=1.0)] = BlobSettings.notch_tolerance
+    notch_sigma: Annotated[float, Field(gt=0.0, le=1e3)] = BlobSettings.notch_sigma
+    notch_margin_px: Annotated[float, Field(ge=0.0, le=100.0)] = BlobSettings.notch_margin_px
+    bias_tolerance_px: _Px = BlobSettings.bias_tolerance_px
+    rim_tolerance_px: _Px = BlobSettings.rim_tolerance_px
+
+    @model_validator(mode="after")
+    def _areas(self) -> BlobDetection:
+        if self.min_area_px > self.max_area_px:
+            raise rule_error(f"expected <= max_area_px ({self.max_area_px:g})", "min_area_px")
+        return self
+
+    def settings(self) -> BlobSettings:
+        return BlobSettings(**self.model_dump())
+
+
+class BlobsFile(Schema):
+    """A ``cdpr pose --blobs`` file: one ``[blobs]`` table (:class:`BlobDetection`)."""
+
+    blobs: BlobDetection = Field(default_factory=BlobDetection)
+
+
+def load_blob_settings(path: str | os.PathLike[str]) -> BlobSettings:
+    """The IR-mark detector's settings from a TOML file's ``[blobs]`` table (keys and ranges of
+    :class:`BlobDetection`; an unknown table or key is an error naming the file and the key)."""
+    return parse(BlobsFile, load_toml(path), str(path)).blobs.settings()

@@ -2,8 +2,8 @@
 
 The board file is checked by :class:`BoardFile` and the schema of its ``type`` (the schema library:
 :mod:`cdpr.daq.schema`).  Every error is a :class:`~cdpr.analysis.errors.ConfigError` naming the
-file, the key and the problem.  The camera and marker-layout loaders are
-:mod:`cdpr.daq.vision_files`' (a camera source reads those files too), here for the commands.
+file, the key and the problem.  The camera, marker-layout and IR-detector (``--blobs``) loaders
+are :mod:`cdpr.daq.vision_files`' (a camera source reads those files too), here for the commands.
 """
 
 from __future__ import annotations
@@ -18,11 +18,18 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.calibration.intrinsics import BoardSpec, CalibrationSettings
 from cdpr.calibration.markers import MarkerLayout
 from cdpr.daq.schema import Euler_rad, Schema, Text, Vec3_m, parse
-from cdpr.daq.vision_files import load_camera, load_marker_layout
+from cdpr.daq.vision_files import load_blob_settings, load_camera, load_marker_layout
 
 from .config import load_toml
 
-__all__ = ["BoardFile", "layout_toml", "load_board", "load_camera", "load_marker_layout"]
+__all__ = [
+    "BoardFile",
+    "layout_toml",
+    "load_blob_settings",
+    "load_board",
+    "load_camera",
+    "load_marker_layout",
+]
 
 _Count = Annotated[int, Field(ge=3, le=1000)]
 _Size_m = Annotated[float, Field(gt=0.0, le=10.0)]

@@ -26,6 +26,19 @@ CAM = ROOT / "data_samples" / "camera_virtual.json"
 FPS = 10.0
 
 
+def _record(tmp_path: Path, cfg: dict, duration_s: float) -> Path:
+    """``cdpr record`` of the config ``cfg`` (written beside its frames) for ``duration_s``: the
+    run file (exit 0 asserted)."""
+    p = tmp_path / "rec.toml"
+    p.write_bytes(tomli_w.dumps(cfg).encode())
+    out = tmp_path / "runs"
+    argv = ["record", "--config", str(p), "--out", str(out), "--duration", str(duration_s)]
+    res = subprocess.run([*CDPR, *argv, "--quiet"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    (path,) = sorted(out.glob(f"*_{cfg['run']['label']}.mcap"))
+    return path
+
+
 def test_record_a_camera_folder(tmp_path: Path) -> None:
     vc = VirtualCamera(camera_from_mapping(json.loads(CAM.read_text())))
     rng = np.random.default_rng(4)
@@ -55,17 +68,7 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
             }
         },
     }
-    p = tmp_path / "cam.toml"
-    p.write_bytes(tomli_w.dumps(cfg).encode())
-    out = tmp_path / "runs"
-    res = subprocess.run(
-        [*CDPR, "record", "--config", str(p), "--out", str(out), "--duration", "2.5", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert res.returncode == 0, res.stderr
-    (path,) = sorted(out.glob("*_cam.mcap"))
+    path = _record(tmp_path, cfg, 2.5)
     node = node_read(path)
     assert node["complete"]
     n_pose, n_img = node["topics"]["/pose_status"], node["topics"]["/image"]  # frames, images
@@ -74,7 +77,7 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
     t_img = np.array([t for t, _ in rc.messages["/image"]])
     assert n_img >= 1 and np.all(np.diff(t_img) >= 0.5e9 - 1)  # at most 2 images per second
     assert {a["name"] for a in node["attachments"]} == {
-        "config/cam.toml",
+        "config/rec.toml",
         "calibration/camera_virtual.json",
         "calibration/markers_flat_aruco.toml",
     }
@@ -95,3 +98,45 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
     t = np.array([t for t, _ in got])
     assert np.all(np.diff(t) > 0)
     assert rc.channels["/image"].schema_name == "foxglove.CompressedImage"
+
+
+def test_record_ir_marks_with_the_detectors_settings(tmp_path: Path) -> None:
+    """``[sources.camera.blobs]`` through ``cdpr record``: IR marks at 80 DN (under the default
+    threshold of 100 DN) recorded with ``threshold_dn = 40`` give right poses, and the run's
+    config snapshot carries the settings the detector used."""
+    from cdpr.calibration.markers import flat_prototype_points_layout
+
+    vc = VirtualCamera(camera_from_mapping(json.loads(CAM.read_text())))
+    rng = np.random.default_rng(6)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    pose = (np.array([0.503, -0.002, 0.361]), rotation_from_euler(np.deg2rad([0.5, -1.0, 2.0])))
+    img = vc.render_points(flat_prototype_points_layout(), *pose, rng, spot_dn=np.full(6, 80.0))
+    for k in range(30):
+        cv.write_image(frames / f"f{k:03d}.png", img)
+    cfg = {
+        "run": {"label": "ir"},
+        "recorder": {"startup_timeout_s": 20.0},
+        "sources": {
+            "camera": {
+                "kind": "camera",
+                "camera": str(CAM),
+                "layout": str(ROOT / "data_samples" / "markers_flat_ir6.toml"),
+                "folder": "frames",
+                "fps": FPS,
+                "blobs": {"threshold_dn": 40.0, "notch_tolerance": 0.1},
+            }
+        },
+    }
+    path = _record(tmp_path, cfg, 1.5)
+    rc = read_run(path)
+    blobs = json.loads(rc.metadata["run"]["config"])["sources"]["camera"]["blobs"]
+    assert blobs["threshold_dn"] == 40.0 and blobs["notch_tolerance"] == 0.1
+    assert blobs["rim_tolerance_px"] == 0.2  # a key not given: the default, recorded
+    status = rc.messages["/pose_status"]  # every frame's flags; its pose on /pose
+    assert len(status) >= 3 and all(b["flags"] == 0 for _, b in status)
+    got = rc.messages["/pose"]
+    assert len(got) == len(status)
+    for _, b in got:
+        pp = b["pose"]["position"]
+        assert np.linalg.norm(np.array([pp["x"], pp["y"], pp["z"]]) - pose[0]) < 2e-4

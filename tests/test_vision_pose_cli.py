@@ -182,3 +182,78 @@ def test_pose_from_a_video(scene, tmp_path: Path) -> None:
     t = [int(r["t_ns"]) for r in rows]
     assert all(b > a for a, b in zip(t, t[1:], strict=False))
     _check_rows(rows, truth)  # MJPEG-compressed, still within 1 mm / 0.2 deg
+
+
+def _ir_frames(cam, n: int, seed: int, spots, gradient=(0.0, 0.0)):
+    """``n`` frames of the IR layout (second renderer), each mark at ``spots(rng)`` DN."""
+    layout = flat_prototype_points_layout()
+    rng = np.random.default_rng(seed)
+    truth, frames = [], []
+    for _ in range(n):
+        p = P0 + rng.uniform(-0.02, 0.02, 3)
+        R = rotation_from_euler(np.deg2rad(rng.uniform(-6, 6, 3)))
+        R_C_O = cam.R_O_C.T
+        X = (p + layout.point_centers_m @ R.T - cam.position_O_m) @ R_C_O.T
+        N = layout.point_normals @ R.T @ R_C_O.T
+        img = render_ir_disks(
+            cam.K, cam.image_size_px, X, N, 0.004, rng, spot_dn=spots(rng), gradient=gradient
+        )
+        frames.append(img)
+        truth.append((p, R))
+    return truth, frames
+
+
+def test_marks_of_different_brightness_give_poses(scene, tmp_path: Path, capsys) -> None:
+    """Issue 19 §1: marks spread over 170-300 DN (retro-reflectors seen at different angles and
+    distances; the brighter ones clip at 255) under a lighting gradient.  Before: exit 3, "0
+    usable poses", every row NaN (a mark brighter than the frame's median by 1.5 % was dropped)."""
+    d, cam, _truth, _frames = scene
+    truth, frames = _ir_frames(cam, 6, 32, lambda r: r.uniform(170.0, 300.0, 6), (0.3, 0.15))
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for i, img in enumerate(frames):
+        cv.write_image(shots / f"shot_{i}.png", img)
+    out = tmp_path / "poses.csv"
+    argv = ["pose", str(shots), "--camera", str(d / "camera.json"), "--markers"]
+    assert main([*argv, str(d / "marks.toml"), "--out", str(out)]) == 0
+    assert "6 usable poses" in capsys.readouterr().out
+    rows = _read(out)
+    _check_rows(rows, truth)
+    assert all(r["flag_names"] == "" for r in rows)  # no mark dropped as occluded
+
+
+def test_the_blobs_file_sets_the_ir_detector(scene, tmp_path: Path, capsys) -> None:
+    """``--blobs FILE`` (a ``[blobs]`` table, the keys of a camera source's ``blobs``): marks
+    at 80 DN, under the default threshold of 100 DN, give no pose; with ``threshold_dn = 40``
+    every frame's pose is right.  A bad key: one line naming the file and the key, exit 2."""
+    d, cam, _truth, _frames = scene
+    truth, frames = _ir_frames(cam, 3, 33, lambda r: np.full(6, 80.0))
+    shots = tmp_path / "dim"
+    shots.mkdir()
+    for i, img in enumerate(frames):
+        cv.write_image(shots / f"dim_{i}.png", img)
+    out = tmp_path / "poses.csv"
+    argv = ["pose", str(shots), "--camera", str(d / "camera.json"), "--out", str(out)]
+    marks = ["--markers", str(d / "marks.toml")]
+    assert main([*argv, *marks]) == 3
+    assert "3 of 3 frames have no usable pose" in capsys.readouterr().err
+    blobs = tmp_path / "blobs.toml"
+    blobs.write_text("[blobs]\nthreshold_dn = 40.0\nnotch_tolerance = 0.1\n")
+    assert main([*argv, *marks, "--blobs", str(blobs)]) == 0
+    _check_rows(_read(out), truth)
+    out.unlink()
+    for text, key in (
+        ("[blobs]\nthreshold = 40.0\n", "blobs.threshold"),
+        ("[blobs]\nthreshold_dn = 400.0\n", "blobs.threshold_dn"),
+        ("[blobs]\nmin_area_px = 50.0\nmax_area_px = 40.0\n", "blobs.min_area_px"),
+        ("[blob]\nthreshold_dn = 40.0\n", "blob"),
+    ):
+        blobs.write_text(text)
+        assert main([*argv, *marks, "--blobs", str(blobs)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "blobs.toml" in err and key in err, err
+        assert not out.exists()
+    blobs.write_text("[blobs]\nthreshold_dn = 40.0\n")
+    aruco = ["--markers", str(ROOT / "data_samples/markers_flat_aruco.toml")]
+    assert main([*argv, *aruco, "--blobs", str(blobs)]) == 2
+    assert "fiducial layout, not IR marks" in capsys.readouterr().err

@@ -258,3 +258,66 @@ def test_apriltag_layout() -> None:
     est = FramePoseEstimator(cam, lay).estimate(img)
     assert est.ok and est.n_points == 24
     assert np.linalg.norm(est.position_O_m - p) < 1e-4
+
+
+def _dim_ir_folder(tmp_path: Path, n: int = 3) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``n`` frames of the IR marks at 80 DN (under the default threshold of 100 DN)."""
+    cam, layout = _cam(), flat_prototype_points_layout()
+    vc = VirtualCamera(cam)
+    rng = np.random.default_rng(5)
+    (tmp_path / "frames").mkdir()
+    truth = [_traj(k) for k in range(n)]
+    for k, (p, R) in enumerate(truth):
+        img = vc.render_points(layout, p, R, rng, spot_dn=np.full(6, 80.0))
+        cv.write_image(tmp_path / "frames" / f"f{k:03d}.png", img)
+    return truth
+
+
+def test_blob_settings_from_a_daq_config(tmp_path: Path) -> None:
+    """``[sources.<name>.blobs]`` reaches the IR detector: dim marks give no pose with the
+    defaults and right poses with ``threshold_dn = 40``; the source reports the settings it
+    uses.  Unknown keys, bad ranges and a blobs table on a fiducial layout name the key."""
+    import shutil
+
+    from cdpr.pipelines.daq_config import build_sources, load_daq_config
+
+    truth = _dim_ir_folder(tmp_path)
+    for f in ("camera_virtual.json", "markers_flat_ir6.toml", "markers_flat_aruco.toml"):
+        shutil.copy(ROOT / "data_samples" / f, tmp_path / f)
+    base = (
+        '[sources.cam]\nkind = "camera"\ncamera = "camera_virtual.json"\n'
+        'layout = "markers_flat_ir6.toml"\nfolder = "frames"\nrealtime = false\ntrack = false\n'
+    )
+
+    def poses(text: str):
+        cfg_path = tmp_path / "c.toml"
+        cfg_path.write_text(text)
+        (src,) = build_sources(load_daq_config(cfg_path))
+        out = []
+        with src:
+            while not src.finished:
+                out += [r for r in src.read() if r.stream == "pose"]
+        return src, out
+
+    src, got = poses(base)
+    assert src.settings()["blobs"]["threshold_dn"] == 100.0  # the default, reported
+    assert len(got) == 3 and all(r.status == STATUS_BAD_FRAME for r in got)
+    src, got = poses(base + "[sources.cam.blobs]\nthreshold_dn = 40.0\nrim_tolerance_px = 0.25\n")
+    assert src.settings()["blobs"]["threshold_dn"] == 40.0
+    assert src.settings()["blobs"]["rim_tolerance_px"] == 0.25
+    assert src.settings()["blobs"]["notch_tolerance"] == 0.08  # the rest: the defaults
+    assert len(got) == 3
+    for r, (p, R) in zip(got, truth, strict=True):
+        assert r.status == 0 and r.values["flags"] == 0
+        assert np.linalg.norm(np.array(r.values["position_O_m"]) - p) < 2e-4
+        assert _rot_err_deg(r.values["quaternion_wxyz"], R) < 0.05
+    for extra, key in (
+        ("[sources.cam.blobs]\nbogus = 1\n", "sources.cam.blobs.bogus: unknown key"),
+        ("[sources.cam.blobs]\nthreshold_dn = -5.0\n", "sources.cam.blobs.threshold_dn"),
+        ("[sources.cam.blobs]\nshape_check = 1\n", "sources.cam.blobs.shape_check"),
+    ):
+        with pytest.raises(ConfigError, match=key):
+            poses(base + extra)
+    fid = base.replace("markers_flat_ir6.toml", "markers_flat_aruco.toml")
+    with pytest.raises(ConfigError, match=r"sources\.cam\.blobs: the marker layout is fiducial"):
+        poses(fid + "[sources.cam.blobs]\nthreshold_dn = 40.0\n")

@@ -77,16 +77,28 @@ def render_ir_disks(
     blur_px: float = 0.8,
     noise_dn: float = 1.5,
     background_dn: float = 12.0,
-    spot_dn: float = 235.0,
+    spot_dn: float | NDArray[np.float64] = 235.0,
+    gradient: tuple[float, float] = (0.0, 0.0),
+    background_ramp_dn: tuple[float, float] = (0.0, 0.0),
 ) -> NDArray[np.uint8]:
     """Gray IR frame of bright flat disks (centres (N, 3) and unit normals (N, 3) in the camera
     frame, m) on a dark background, through a distortion-free pinhole camera ``K``: every sample
-    ray is intersected with each disk's plane, coverage per pixel, Gaussian optical blur, noise."""
+    ray is intersected with each disk's plane, coverage per pixel, Gaussian optical blur, noise.
+
+    The world's mess: ``spot_dn`` one level for every disk or one per disk (retro-reflectors seen
+    at different angles and distances differ by tens of percent; levels above 255 clip, as a
+    saturated sensor does); ``gradient`` (gx, gy) a smooth illumination field multiplying the
+    scene, ``1 + gx (u - w/2) / w + gy (v - h/2) / h`` (uneven IR lighting: ``(0.3, 0)`` is 30 %
+    brighter at the right edge than at the left); ``background_ramp_dn`` (rx, ry) an additive
+    background ramp over the frame, DN from the centre to the right / bottom edge (stray light)."""
     w, h = size_wh
+    n_disks = len(np.asarray(centres_C_m))
+    spots = np.broadcast_to(np.asarray(spot_dn, np.float64), (n_disks,))
+    scene = np.zeros((h, w))  # spot level above the background, per pixel (coverage-weighted)
     cover = np.zeros((h, w))
     Ki = np.linalg.inv(K)
     off = (np.arange(ss) + 0.5) / ss - 0.5
-    for c, n in zip(np.asarray(centres_C_m), np.asarray(normals_C), strict=True):
+    for c, n, spot in zip(np.asarray(centres_C_m), np.asarray(normals_C), spots, strict=True):
         u0, v0 = (K @ c)[:2] / c[2]
         rpx = K[0, 0] * radius_m / c[2] + 3
         x0, x1 = int(max(np.floor(u0 - rpx), 0)), int(min(np.ceil(u0 + rpx) + 1, w))
@@ -100,8 +112,17 @@ def render_ir_disks(
         s = (n @ c) / (d @ n)
         X = d * s[..., None]
         inside = np.sum((X - c) ** 2, axis=-1) <= radius_m**2
-        cover[y0:y1, x0:x1] = np.maximum(cover[y0:y1, x0:x1], inside.mean(axis=(2, 3)))
-    img = background_dn + (spot_dn - background_dn) * cover
+        cov = inside.mean(axis=(2, 3))
+        region = scene[y0:y1, x0:x1]
+        nearer = cov > cover[y0:y1, x0:x1]
+        region[nearer] = (spot - background_dn) * cov[nearer]
+        cover[y0:y1, x0:x1] = np.maximum(cover[y0:y1, x0:x1], cov)
+    vv, uu = np.mgrid[0:h, 0:w]
+    field = 1.0 + gradient[0] * (uu - w / 2) / w + gradient[1] * (vv - h / 2) / h
+    ramp = background_ramp_dn[0] * (uu - w / 2) / (w / 2) + background_ramp_dn[1] * (vv - h / 2) / (
+        h / 2
+    )
+    img = (background_dn + scene) * field + ramp
     if blur_px > 0:
         img = _blur(img, blur_px)
     img = img + rng.normal(0.0, noise_dn, img.shape)

@@ -14,6 +14,10 @@ from the frame's residuals), ``n_points``, ``flags`` (bit field) and ``flag_name
 covariance ``cov_00 .. cov_55`` row-major in the order ``[position_O_m, rotation_O_rad]``.  A frame
 without a usable pose keeps its row (NaN pose, its flags).
 
+IR marks: ``--blobs FILE.toml`` gives the detector's settings, a ``[blobs]`` table with the keys of
+a camera source's ``[sources.<name>.blobs]`` (threshold_dn, shape_check, notch_tolerance, ...;
+defaults in docs/vision.md).
+
 Exit code: 0 when every frame has a usable pose; 3 when the CSV is written but some frames have none
 (their count and flags are printed on stderr); 2 on bad input (one line naming the file and the
 problem, nothing written): an unreadable image, an image whose size differs from the camera's, a run
@@ -58,6 +62,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
         help="nominal pose in {O} (m, rad) to acquire IR marks around (default: the camera's "
         "looks_at_O_m, level)",
+    )
+    p.add_argument(
+        "--blobs",
+        metavar="FILE.toml",
+        help="IR marks: the detector's settings, a [blobs] table (threshold_dn, notch_tolerance, "
+        "..., docs/vision.md; the keys of a camera source's [sources.<name>.blobs])",
     )
     p.set_defaults(func=run_pose)
 
@@ -164,19 +174,26 @@ def run_pose(args: argparse.Namespace) -> int:
     from cdpr.daq.camera_source import FramePoseEstimator
 
     from ..config import atomic_output
-    from ..vision_config import load_camera, load_marker_layout
+    from ..vision_config import load_blob_settings, load_camera, load_marker_layout
 
     cam = load_camera(args.camera)
     layout = load_marker_layout(args.markers)
     if layout.frame != "P":
         raise ConfigError(args.markers, "frame", "expected a layout on the platform (frame = 'P')")
+    blobs = None
+    if args.blobs is not None:
+        blobs = load_blob_settings(args.blobs)
+        if layout.kind != "points":
+            raise ConfigError(
+                args.blobs, "blobs", f"{args.markers} is a {layout.kind} layout, not IR marks"
+            )
     frames, track_default = _frames(args)
     track = track_default if args.track is None else bool(args.track)
     reference = None
     if args.reference is not None:
         r = np.asarray(args.reference, np.float64)
         reference = (r[:3], rotation_from_euler(r[3:]))
-    est = FramePoseEstimator(cam, layout, reference=reference, track=track)
+    est = FramePoseEstimator(cam, layout, reference=reference, blob_settings=blobs, track=track)
     W, H = cam.image_size_px
     header = (
         "source,frame,t_ns,x_O_m,y_O_m,z_O_m,qw,qx,qy,qz,roll_rad,pitch_rad,yaw_rad,"
