@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.systematic import LoadCellCalibrationSd, loadcell_sd_from_fit
 
 FloatArray = NDArray[np.float64]
 
@@ -258,6 +259,26 @@ class LoadCellCalibrationFile:
         """``offset_counts`` / ``gain_N_per_count`` driver settings for ``cables``."""
         return self.for_cables(cables).to_mapping()
 
+    def sd_for_cables(self, cables: Sequence[str]) -> LoadCellCalibrationSd | None:
+        """The calibration's own uncertainty for ``cables`` in that order (the fit's parameter
+        covariance, :func:`cdpr.analysis.systematic.loadcell_sd_from_fit`), or None when the file
+        does not give it (no ``sd_offset_counts`` / ``sd_gain_N_per_count``: the reduction then
+        flags ``loadcell_calibration_sd_not_given``).  Without ``corr_offset_gain`` the two σ are
+        used with the bound of :func:`cdpr.analysis.systematic.loadcell_calibration_covariance`."""
+        names = list(cables)
+        cal = self.for_cables(names)  # checks the names
+        sd = _calibration_sd(self.path, self.extra, len(self.cables or names))
+        if sd is None:
+            return None
+        order = (
+            list(range(len(names)))
+            if self.cables is None
+            else [self.cables.index(n) for n in names]
+        )
+        so, sg, corr, n = (None if v is None else v[order] for v in sd)
+        assert so is not None and sg is not None and n is not None
+        return loadcell_sd_from_fit(cal.gain_N_per_count, so, sg, corr, n)
+
 
 def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFile:
     """Read a load-cell calibration file (errors name the file and key)."""
@@ -303,6 +324,7 @@ def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFi
         calibration_from_settings(
             p, "calibration", n, cal["offset_counts"], cal["gain_N_per_count"]
         )
+        _calibration_sd(p, cal, n)
     extra = {k: v for k, v in cal.items() if k not in (*_CAL_KEYS_REQUIRED, "cables", "id", "kind")}
     return LoadCellCalibrationFile(
         p,
@@ -312,6 +334,59 @@ def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFi
         cal["gain_N_per_count"],
         extra,
     )
+
+
+CALIBRATION_SD_KEYS: tuple[str, ...] = (
+    "sd_offset_counts",
+    "sd_gain_N_per_count",
+    "corr_offset_gain",
+    "n_points",
+)
+"""The fit statistics of ``[calibration]`` that give the calibration's parameter covariance (one
+value or one per cable): the two σ are needed together, ``n_points`` with them (the degrees of
+freedom ``n_points - 2``), ``corr_offset_gain`` is optional (older files lack it)."""
+
+
+def _calibration_sd(
+    path: str, cal: Mapping[str, Any], n: int
+) -> tuple[FloatArray | None, ...] | None:
+    """The values of :data:`CALIBRATION_SD_KEYS` as arrays (n,) each for the file's n cables
+    (``corr_offset_gain`` None when not given), None when the file gives no σ; a bad value is a
+    :class:`ConfigError` naming the file and key."""
+    if "sd_offset_counts" not in cal and "sd_gain_N_per_count" not in cal:
+        return None
+    out: list[FloatArray | None] = []
+    for key in CALIBRATION_SD_KEYS:
+        if key not in cal:
+            if key == "corr_offset_gain":
+                out.append(None)
+                continue
+            raise ConfigError(
+                path, f"calibration.{key}", "missing (the fit's σ need sd_offset_counts, "
+                "sd_gain_N_per_count and n_points together)",
+            )  # fmt: skip
+        v = cal[key]
+        vals = v if isinstance(v, list) else [v]
+        if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in vals):
+            raise ConfigError(path, f"calibration.{key}", f"expected numbers, got {v!r}")
+        a = np.asarray(vals, dtype=np.float64)
+        if a.size == 1:
+            a = np.full(n, a[0])
+        if a.size != n:
+            raise ConfigError(
+                path, f"calibration.{key}", f"expected {n} values (one per cable), got {a.size}"
+            )
+        lo, hi, what = {
+            "corr_offset_gain": (-1.0, 1.0, "a correlation in [-1, 1]"),
+            "n_points": (3.0, math.inf, "at least 3 calibration points"),
+        }.get(key, (0.0, math.inf, "a standard deviation >= 0"))
+        bad = np.flatnonzero(~np.isfinite(a) | (a < lo) | (a > hi))
+        if bad.size:
+            raise ConfigError(
+                path, f"calibration.{key}[{bad[0]}]", f"expected {what}, got {a[bad[0]]:g}"
+            )
+        out.append(a)
+    return tuple(out)
 
 
 def calibration_file_text(
