@@ -52,12 +52,16 @@ def zero_drift_stage(p: Points, *, apply: bool = True) -> Points:
 
     The wind-off zeros are the points of kind ``zero`` (level, wind off: before and after a run and
     between blocks); their mean tensions are interpolated linearly in time
-    (:func:`cdpr.analysis.corrections.zero_drift`, relative to the first zero) and subtracted, the
-    drift's σ added to the tension covariance.  Points after the last zero are held there and
-    flagged ``no_closing_zero``, before the first ``no_opening_zero``; without any zero point every
-    point is flagged ``no_zero_drift_correction``.  Adds ``zero_drift_N`` and ``sd_zero_drift_N``
-    (s, m).  With ``apply=False`` (no test matrix: balance values) nothing is corrected here or in
-    the later correction stages, and the wind-on points are flagged ``uncorrected``."""
+    (:func:`cdpr.analysis.corrections.zero_drift`, relative to the first zero) and subtracted.  A
+    point's corrected tensions are then a combination of several points' raw means (its own and the
+    zeros'), ``tension_mix`` (s, s): the covariance is carried as one, so that the drift a wind-on
+    point shares with its tare cancels in their difference (``tension_cov_raw_N2`` keeps each
+    point's own; ``tension_cov_N2`` becomes that of the corrected tensions).  Points after the last
+    zero are held there and flagged ``no_closing_zero``, before the first ``no_opening_zero``;
+    without any zero point every point is flagged ``no_zero_drift_correction``.  Adds
+    ``zero_drift_N`` and ``sd_zero_drift_N`` (s, m).  With ``apply=False`` (no test matrix:
+    balance values) nothing is corrected here or in the later correction stages, and the wind-on
+    points are flagged ``uncorrected``."""
     s, m = p["tension_N"].shape
     if not apply:
         return with_updates(
@@ -75,14 +79,18 @@ def zero_drift_stage(p: Points, *, apply: bool = True) -> Points:
             flag={"no_zero_drift_correction": np.ones(s, bool)},
             meta={**_records(p, rec), "_note": why + ": drift not corrected"},
         )
-    zsd = np.sqrt(np.clip(np.diagonal(p["tension_cov_N2"][zero], axis1=1, axis2=2), 0.0, None))
+    raw = p["tension_cov_N2"]
+    zsd = np.sqrt(np.clip(np.diagonal(raw[zero], axis1=1, axis2=2), 0.0, None))
     d = zero_drift(p["start_ns"], p["start_ns"][zero], p["tension_N"][zero], zsd)
-    cov = p["tension_cov_N2"] + d.sigma_N[:, :, None] ** 2 * np.eye(m)
+    mix = np.asarray(p.arrays.get("tension_mix", np.eye(s)), dtype=np.float64)
+    mix = mix - d.weights @ mix[zero]  # T'_i = T_i - sum_z w_iz T_z, on the raw means
     return with_updates(
         p,
         arrays={
             "tension_N": p["tension_N"] - d.drift_N,
-            "tension_cov_N2": cov,
+            "tension_cov_N2": np.einsum("sk,kab->sab", mix**2, raw),
+            "tension_cov_raw_N2": raw,
+            "tension_mix": mix,
             "zero_drift_N": d.drift_N,
             "sd_zero_drift_N": d.sigma_N,
         },
@@ -312,11 +320,16 @@ def repeatability_stage(p: Points) -> Points:
     condition (the index of the point it repeats, or its own; -1 none).  Adds ``sd_repeat_<C>``
     (the pooled σ, on every wind-on point) and ``sd_propagated_<C>`` (RMS of the propagated σ over
     the repeat points); flag ``repeatability_disagrees`` on the repeat points when the two disagree
-    beyond their expected (chi-square) spread.  Without repeat points: NaN and a note."""
+    beyond their expected spread.  The repeat scatter is compared with the *random* part of σ
+    (``sd_random_<C>``, with its own degrees of freedom ``dof_random_<C>``: Fisher's F) when the
+    uncertainty stage ran, else with the total σ (chi-square).  Without repeat points: NaN and a
+    note."""
     s = p.n
     g = np.asarray(p.arrays.get("repeat_group", np.full(s, -1)), dtype=np.int64)
     C = np.stack([p[c] for c in COEFFICIENTS], axis=1)
-    sdC = np.stack([p[f"sd_{c}"] for c in COEFFICIENTS], axis=1)
+    random = all(f"sd_random_{c}" in p.arrays for c in COEFFICIENTS)
+    sdC = np.stack([p[f"sd_random_{c}" if random else f"sd_{c}"] for c in COEFFICIENTS], axis=1)
+    nuC = np.stack([p[f"dof_random_{c}"] for c in COEFFICIENTS], axis=1) if random else None
     on = (p["kind"] == "wind_on") & np.isfinite(C).all(axis=1) & (g >= 0)
     ids, counts = np.unique(g[on], return_counts=True)
     rep = on & np.isin(g, ids[counts >= 2])
@@ -325,7 +338,7 @@ def repeatability_stage(p: Points) -> Points:
     if not rep.any():
         rec = _not_applied("repeatability", "no repeated wind-on point in the run")
         return with_updates(p, arrays=out, meta={**_records(p, rec), "_note": "no repeat points"})
-    r = repeatability(g[rep], C[rep], sdC[rep])
+    r = repeatability(g[rep], C[rep], sdC[rep], dof_propagated=None if nuC is None else nuC[rep])
     windy = (p["kind"] == "wind_on") & np.isfinite(C).all(axis=1)
     for k, c in enumerate(COEFFICIENTS):
         out[f"sd_repeat_{c}"][windy] = r.sigma_repeat[k]

@@ -46,6 +46,9 @@ class ZeroDrift:
       at the last zero's value, not measured.
     no_opening_zero: (n,) True where no zero precedes the point (held at the first zero's value).
     record: what was done.
+    weights: (n, k) ``drift = weights @ zero_T_N``: how much of each zero reading enters each
+      point's drift (the same for every cable), so that a point, its tare and the zeros they share
+      can be carried as one covariance.
     """
 
     drift_N: FloatArray
@@ -53,6 +56,7 @@ class ZeroDrift:
     no_closing_zero: BoolArray
     no_opening_zero: BoolArray
     record: CorrectionRecord
+    weights: FloatArray
 
 
 def _interp_weights(t: FloatArray, knots: FloatArray) -> FloatArray:
@@ -124,7 +128,7 @@ def zero_drift(
         },
         flags=flags,
     )
-    return ZeroDrift(drift, sigma, no_close, no_open, rec)
+    return ZeroDrift(drift, sigma, no_close, no_open, rec, C)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -317,7 +321,9 @@ class Repeatability:
     sigma_repeat: pooled standard deviation of the repeat groups; dof: its degrees of freedom;
     sigma_propagated: RMS of the propagated sigma over the repeat points; ratio: their quotient;
     interval: (2, k) the central ``confidence`` interval of the ratio when the propagated sigma is
-    right (chi-square with ``dof``); disagree: (k,) True where the ratio falls outside it.
+    right (chi-square with ``dof``, or Fisher's F with ``dof`` and the propagated sigma's own
+    degrees of freedom when it is itself an estimate); disagree: (k,) True where the ratio falls
+    outside it.
     """
 
     sigma_repeat: FloatArray
@@ -330,7 +336,11 @@ class Repeatability:
 
 
 def repeatability(
-    group: ArrayLike, values: ArrayLike, sigma_propagated: ArrayLike, confidence: float = 0.95
+    group: ArrayLike,
+    values: ArrayLike,
+    sigma_propagated: ArrayLike,
+    confidence: float = 0.95,
+    dof_propagated: ArrayLike | None = None,
 ) -> Repeatability:
     """Pooled repeatability sigma from repeat points and its check against the propagated sigma.
 
@@ -339,9 +349,13 @@ def repeatability(
     (e.g. the coefficients); sigma_propagated: (n, k) their propagated sigma.
 
     ``s_p^2 = sum_g sum_i (x_gi - mean_g)^2 / sum_g (n_g - 1)``; if the propagated sigma is right,
-    ``dof s_p^2 / sigma^2 ~ chi^2(dof)``, which gives the expected spread of the ratio.
+    ``dof s_p^2 / sigma^2 ~ chi^2(dof)``, which gives the expected spread of the ratio.  With
+    ``dof_propagated`` (n, k), the degrees of freedom of each propagated sigma (the random part's,
+    from the data's correlation), the mean propagated variance has ``nu`` by Welch-Satterthwaite
+    and ``s_p^2 / sigma^2 ~ F(dof, nu)``: a short, correlated window does not make the test cry
+    wolf.
     """
-    from scipy.stats import chi2
+    from scipy.stats import chi2, f
 
     g = np.asarray(group).reshape(-1)
     x = as_float_array(values, "values")
@@ -364,8 +378,17 @@ def repeatability(
     s_prop = np.sqrt(np.mean(sp[keep] ** 2, axis=0))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = s_rep / s_prop
-    lo = np.sqrt(chi2.ppf((1 - confidence) / 2, dof) / dof)
-    hi = np.sqrt(chi2.ppf((1 + confidence) / 2, dof) / dof)
+    if dof_propagated is None:
+        lo = np.full(x.shape[1], np.sqrt(chi2.ppf((1 - confidence) / 2, dof) / dof))
+        hi = np.full(x.shape[1], np.sqrt(chi2.ppf((1 + confidence) / 2, dof) / dof))
+    else:
+        nu = np.broadcast_to(as_float_array(dof_propagated, "dof_propagated"), x.shape)[keep]
+        v = sp[keep] ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nu_m = np.sum(v, axis=0) ** 2 / np.sum(np.where(np.isinf(nu), 0.0, v * v / nu), axis=0)
+        nu_m = np.where(np.isfinite(nu_m), nu_m, 1e12)
+        lo = np.sqrt(f.ppf((1 - confidence) / 2, dof, nu_m))
+        hi = np.sqrt(f.ppf((1 + confidence) / 2, dof, nu_m))
     disagree = ~((ratio >= lo) & (ratio <= hi))
     rec = CorrectionRecord(
         name="repeatability",
@@ -374,12 +397,12 @@ def repeatability(
             "dof": dof,
             "n_groups": int(np.sum(counts >= 2)),
             "ratio": ratio.tolist(),
-            "interval": [float(lo), float(hi)],
+            "interval": [lo.tolist(), hi.tolist()],
             "confidence": confidence,
         },
         flags=("repeatability_disagrees",) if disagree.any() else (),
     )
-    interval = np.array([[lo] * x.shape[1], [hi] * x.shape[1]])
+    interval = np.array([lo, hi])
     return Repeatability(s_rep, dof, s_prop, ratio, interval, disagree, rec)
 
 

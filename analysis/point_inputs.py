@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .balance import PointStats, mask_words, point_stats
 from .errors import InputError
+from .longrun import MIN_N_EFF, window_long_runs
 from .reduction import POSE, POSE_COV, Points, new_points
 
 FloatArray = NDArray[np.float64]
@@ -34,6 +35,7 @@ def points_from_samples(
     pose_cov: ArrayLike | None,
     pose_sd_fallback: ArrayLike | None = None,
     pose_bad: ArrayLike | None = None,
+    pose_sd_word: str = "pose_cov_nominal",
 ) -> tuple[Points, dict[str, NDArray[Any]]]:
     """Per-point inputs of the core from sample streams, and the point statistics.
 
@@ -44,10 +46,18 @@ def points_from_samples(
     The pose stream is separate (``pose_t_ns`` (k,), ``poses`` (k, 6), ``pose_cov`` (k, 6, 6) as
     the camera reports it per frame, ``pose_bad`` (k,) frames to drop): each point takes the frames
     inside its time span; the covariance of its mean pose is the mean reported covariance over the
-    number of frames used.  Without a reported covariance, ``pose_sd_fallback`` (6,) is used and the
-    point flagged ``pose_cov_nominal``; with neither, an error.
+    number of frames used.  Without a reported covariance, ``pose_sd_fallback`` (6,) (the camera's
+    precision per frame) is used and the point flagged ``pose_sd_word`` (``pose_cov_nominal`` for
+    the paper's constant, ``pose_cov_stated`` for a precision the lab stated); with neither, an
+    error.
 
-    Tension covariance: the squared standard errors of the per-cable means (independent cables).
+    Tension covariance: the covariance of each point's mean tensions from the data's own correlation
+    in time and across cables (:func:`cdpr.analysis.longrun.window_long_runs`), with the samples'
+    covariance ``tension_sample_cov_N2``, the usable count ``n_used``, the smallest effective
+    sample count over the cables ``n_eff_min``; a window with fewer than
+    :data:`cdpr.analysis.longrun.MIN_N_EFF` effective samples (or a fit that is not stationary)
+    is flagged ``window_too_short`` with ``dwell_needed_s``, the point duration that would give
+    that many at the same correlation.
     Flag words (``input_flags``): ``masked`` plus the mask words, ``no_samples`` (nothing usable),
     ``no_pose``, ``pose_flagged`` (some camera frames in the point dropped), ``pose_cov_nominal``.
     Returns the points and a dict of extra per-point columns (counts, start/stop times).
@@ -102,7 +112,14 @@ def points_from_samples(
         nominal[:] = True
     else:
         raise InputError("pose_cov: no covariance in the pose stream and no fallback given")
-    tcov = st.sem[..., None] * np.eye(T.shape[1]) * st.sem[:, None, :]
+    # the covariance of each point's mean tensions from the data's own correlation (time and
+    # across cables), not sd / sqrt(n): :mod:`cdpr.analysis.longrun`
+    m = T.shape[1]
+    runs = window_long_runs(T, ranges, bits)
+    tcov = np.stack([lr.cov_of_mean for lr in runs]) if s else np.zeros((0, m, m))
+    g0 = np.stack([lr.sample_cov for lr in runs]) if s else np.zeros((0, m, m))
+    short = np.array([not lr.converged() for lr in runs], dtype=bool)
+    min_n_eff = np.array([float(np.min(lr.n_eff())) if lr.n >= 2 else np.nan for lr in runs])
     pts = new_points(
         kind=kind,
         start_ns=start_ns,
@@ -111,7 +128,14 @@ def points_from_samples(
         **{POSE: ps.mean, POSE_COV: np.array(pcov)},
         airspeed_mps=V,
         density_kgpm3=rho,
-        input_flags=_input_words(st, ps, nominal),
+        input_flags=_input_words(st, ps, nominal, short & (st.n_used >= 2), pose_sd_word),
+        tension_sample_cov_N2=g0,
+        n_used=st.n_used,
+        longrun_bandwidth=np.array([lr.bandwidth for lr in runs], dtype=np.int64),
+        n_eff_min=min_n_eff,
+        dwell_needed_s=np.where(
+            short, (stop_ns - start_ns) * 1e-9 * MIN_N_EFF / np.maximum(min_n_eff, 1e-9), np.nan
+        ),
     )
     extra = {
         "start_ns": start_ns,
@@ -124,9 +148,16 @@ def points_from_samples(
     return pts, extra
 
 
-def _input_words(st: PointStats, ps: PointStats, nominal: NDArray[np.bool_]) -> list[str]:
+def _input_words(
+    st: PointStats,
+    ps: PointStats,
+    nominal: NDArray[np.bool_],
+    short: NDArray[np.bool_],
+    nominal_word: str,
+) -> list[str]:
     """The flag words of each point's inputs (masked samples and why, no samples, no pose,
-    dropped camera frames, a nominal pose covariance)."""
+    dropped camera frames, a nominal pose covariance, a window too short for its own
+    correlation)."""
     words = []
     for i in range(len(nominal)):
         w = []
@@ -140,6 +171,8 @@ def _input_words(st: PointStats, ps: PointStats, nominal: NDArray[np.bool_]) -> 
         elif ps.n_masked[i]:
             w.append("pose_flagged")
         if nominal[i]:
-            w.append("pose_cov_nominal")
+            w.append(nominal_word)
+        if short[i]:
+            w.append("window_too_short")
         words.append(";".join(w))
     return words

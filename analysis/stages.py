@@ -22,10 +22,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .aero import ModelGeometry, aero_axes, aero_coefficients, dynamic_pressure
+from .aero import (
+    ModelGeometry,
+    aero_axes,
+    aero_coefficients,
+    coefficient_matrix,
+    dynamic_pressure,
+)
 from .balance_model import apply_balance_model
 from .check import tension_check
-from .conventions import COEFFICIENTS
+from .conventions import COEFFICIENTS, WRENCH_COLUMNS
 from .correction_stages import (
     PointSamples,
     flow_conditions_stage,
@@ -52,10 +58,10 @@ from .reduction import (
     with_updates,
 )
 from .rig import Rig
-from .rotations import rotation_from_euler
+from .rotations import rotation_from_euler, skew
 from .tare import weight_tare
 from .test_section import SectionGeometry
-from .uncertainty import propagate
+from .uncertainty import expanded_uncertainty, propagate
 from .weight import WeightModel, fit_weight_model, weight_model_note
 
 __all__ = [
@@ -156,10 +162,14 @@ def weight_tare_stage(
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
     tare_shares_pose: bool = False,
+    tare_pose_sd_rel: float | None = 0.25,
 ) -> Points:
     """Remove the weight (:func:`cdpr.analysis.tare.weight_tare`): the point's wind-off twin at
     the same pose (flag ``tare``), else the weight model (``weight_model``), else NaN and
-    ``no_tare`` (or, with ``allow_nominal_weight``, the rig file's mass: ``weight_nominal``).
+    ``no_tare`` (or, with ``allow_nominal_weight``, the rig file's mass: ``weight_nominal``).  A
+    tared point's pose is its tare's plus the difference the camera and the stiffness model agree
+    on (``tare_pose_sd_rel``, :func:`cdpr.analysis.tare.tare_pose`; ``deflection_O_m_rad`` beside
+    the camera's ``deflection_measured_O_m_rad``).
     Adds ``wrench_P_O_N_Nm`` and ``tare_index``; the σ terms ``load_cells``, ``pose`` and
     ``weight_model`` (replacing any before)."""
     wt = weight_tare(
@@ -177,10 +187,20 @@ def weight_tare_stage(
         prior_mass_rel_sd=prior_mass_rel_sd,
         prior_com_sd_m=prior_com_sd_m,
         tare_shares_pose=tare_shares_pose,
+        tension_mix=p.arrays.get("tension_mix"),
+        tension_cov_raw_N2=p.arrays.get("tension_cov_raw_N2"),
+        tare_pose_sd_rel=tare_pose_sd_rel,
     )
     return with_updates(
         p,
-        arrays={WRENCH: wt.wrench_P_O_N_Nm, "tare_index": wt.tare_index},
+        arrays={
+            WRENCH: wt.wrench_P_O_N_Nm,
+            "tare_index": wt.tare_index,
+            "load_map": wt.load_map,
+            "load_support": wt.load_support,
+            "deflection_O_m_rad": wt.deflection_O_m_rad,
+            "deflection_measured_O_m_rad": wt.deflection_measured_O_m_rad,
+        },
         terms={
             "load_cells": wt.cov_load_cells,
             "pose": wt.cov_pose,
@@ -224,7 +244,10 @@ def balance_interaction(p: Points, *, interaction: Any = None, second_order: Any
     W, J = apply_balance_model(p[WRENCH], K, K2)
     W[~np.isfinite(p[WRENCH]).all(axis=1)] = np.nan
     terms = {k: propagate(J, v) for k, v in p.cov_terms.items()}
-    return with_updates(p, arrays={WRENCH: W}, terms=terms, meta={"_note": note})
+    arrays = {WRENCH: W}
+    if "load_map" in p.arrays:  # the load cells' map on the raw means goes through J too
+        arrays["load_map"] = np.einsum("sij,skjm->skim", J, p["load_map"])
+    return with_updates(p, arrays=arrays, terms=terms, meta={"_note": note})
 
 
 # ------------------------------------------------------------------------------------------------
@@ -317,6 +340,52 @@ def coefficients_stage(
     return with_updates(p, arrays={"q_Pa": q_Pa, **out}, flag=flags)
 
 
+UNCERTAINTY_COLUMNS: tuple[str, ...] = ("sd_random", "sd_systematic", "dof", "U95")
+"""Prefixes of the uncertainty stage's per-point columns (``<prefix>_<wrench column>`` and
+``<prefix>_<coefficient>``)."""
+
+
+@stage("uncertainty", wraps=expanded_uncertainty)
+def uncertainty_stage(p: Points, *, geometry: ModelGeometry | None, level: float = 0.95) -> Points:
+    """The random and systematic parts of each wrench component (at the MRP) and coefficient, their
+    effective degrees of freedom (Welch-Satterthwaite over the load cells' raw means, each with
+    its own from the data's correlation) and the expanded uncertainty ``U95 = k u``
+    (:func:`cdpr.analysis.uncertainty.expanded_uncertainty`): ``sd_random_<c>``,
+    ``sd_systematic_<c>``, ``dof_<c>``, ``U95_<c>`` for every wrench column and coefficient."""
+    s = p.n
+    R = _attitudes(p[POSE])
+    X = np.tile(np.eye(6), (s, 1, 1))  # the moment transfer to the MRP: M - r x F
+    if geometry is not None:
+        r = np.einsum("sij,j->si", R, np.asarray(geometry.mrp_P_m, dtype=np.float64))
+        X[:, 3:, :3] = -np.nan_to_num(skew(np.nan_to_num(r)))  # no pose: no wrench either
+    Kc = np.full((s, 6, 6), np.nan)
+    have = np.isfinite(p.arrays.get("CL", np.full(s, np.nan))) & np.isfinite(p["q_Pa"])
+    if geometry is not None and have.any():
+        g = geometry
+        Kc[have] = coefficient_matrix(
+            R[have], p["q_Pa"][have], g.area_m2, g.span_m, g.chord_m, g.mrp_P_m, g.nose_P, g.up_P
+        )
+    m = p["tension_N"].shape[1]
+    eu = expanded_uncertainty(
+        dict(p.cov_terms),
+        np.concatenate([X, Kc], axis=1),
+        p.arrays.get("load_map", np.zeros((s, 0, 6, m))),
+        p.arrays.get("load_support", np.zeros((s, 0), np.int64)),
+        p.arrays.get("tension_sample_cov_N2", p["tension_cov_N2"]),
+        p.arrays.get("tension_cov_raw_N2", p["tension_cov_N2"]),
+        p.arrays.get("n_used", np.full(s, 2)),
+        p.arrays.get("longrun_bandwidth"),
+        level=level,
+    )
+    names = [*WRENCH_COLUMNS, *COEFFICIENTS]
+    out: dict[str, NDArray[Any]] = {}
+    vals = (eu.u_random, eu.u_systematic, eu.dof, eu.U, eu.dof_random)
+    for prefix, v in zip((*UNCERTAINTY_COLUMNS, "dof_random"), vals, strict=True):
+        for k, c in enumerate(names):
+            out[f"{prefix}_{c}"] = np.where(np.isfinite(p[WRENCH]).all(axis=1), v[:, k], np.nan)
+    return with_updates(p, arrays=out, meta={"_note": f"level {level:g}"})
+
+
 @stage("tension_check", wraps=tension_check)
 def tension_check_stage(
     p: Points, *, rig: Rig, method: str = "exact", limit_N: float = 1.0
@@ -360,6 +429,7 @@ STEADY_STAGES: tuple[Callable[..., Points], ...] = (
     balance_interaction,
     axes_stage,
     coefficients_stage,
+    uncertainty_stage,
     wall_corrections_stage,
     repeatability_stage,
     tension_check_stage,
@@ -390,6 +460,8 @@ class ReduceSettings:
     fit_weight_model: fit the weight model from the wind-off points (``cdpr wrench`` pairs each row
         with its own tare and does not); tare_shares_pose: the tare row is at the same measured
         pose (one pose error for both, see :func:`cdpr.analysis.tare.weight_tare`).
+    tare_pose_sd_rel: the stiffness model's relative σ when a point's pose is taken relative to its
+        tare's (:func:`cdpr.analysis.tare.tare_pose`); None: the two measured poses as they are.
     """
 
     method: str = "exact"
@@ -402,6 +474,7 @@ class ReduceSettings:
     wind_off_mps: float = 1.0
     fit_weight_model: bool = True
     tare_shares_pose: bool = False
+    tare_pose_sd_rel: float | None = 0.25
 
 
 @dataclass(frozen=True)
@@ -464,6 +537,7 @@ def core_stages(
             prior_mass_rel_sd=s.prior_mass_rel_sd,
             prior_com_sd_m=s.prior_com_sd_m,
             tare_shares_pose=s.tare_shares_pose,
+            tare_pose_sd_rel=s.tare_pose_sd_rel,
         ),
         flow_conditions_stage: None
         if corrections is None or geometry is None
@@ -492,6 +566,7 @@ def core_stages(
         )
         if coefficients
         else None,
+        uncertainty_stage: functools.partial(uncertainty_stage, geometry=geometry),
         wall_corrections_stage: None
         if corrections is None or geometry is None
         else functools.partial(wall_corrections_stage, walls=corrections.walls),

@@ -22,7 +22,9 @@ from ._checks import check_trailing
 from .balance import nearest_tare
 from .conventions import WIND_OFF_KINDS
 from .dynamics import weight_basis
+from .kinematics import structure_matrix
 from .rig import Rig
+from .rotations import rotation_from_euler
 from .uncertainty import propagate, wrench_covariance
 from .weight import WeightModel
 from .wrench import recover_wrench
@@ -37,7 +39,11 @@ class WeightTare:
     wrench_P_O_N_Nm: (s, 6) at P in {O} axes (NaN where it cannot be had; on wind-off points the
     residual against the weight model, NaN without one); tare_index: (s,) the point that served as
     tare (-1: none); cov_load_cells, cov_pose, cov_weight_model: (s, 6, 6); flags: word -> (s,)
-    mask.
+    mask; load_map (s, K, 6, m) and load_support (s, K): the wrench's load-cell part as a linear map
+    of the raw point means it is made of, ``W_i = sum_k load_map[i, k] T_raw[load_support[i, k]]``
+    (-1: an unused slot), so that the degrees of freedom of each raw mean can be combined later;
+    deflection_O_m_rad, deflection_measured_O_m_rad: (s, 6) a tared point's pose minus its tare's,
+    as used (:func:`tare_pose`) and as the camera measured it (NaN without a tare).
     """
 
     wrench_P_O_N_Nm: FloatArray
@@ -46,6 +52,117 @@ class WeightTare:
     cov_pose: FloatArray
     cov_weight_model: FloatArray
     flags: dict[str, NDArray[np.bool_]]
+    load_map: FloatArray
+    load_support: NDArray[np.int64]
+    deflection_O_m_rad: FloatArray
+    deflection_measured_O_m_rad: FloatArray
+
+
+@dataclass(frozen=True)
+class TarePose:
+    """A wind-on point's pose relative to its tare's, from the camera and the stiffness model.
+
+    pose: (k, 6) the point's pose (m, rad) = the tare's measured pose + ``delta``; delta: (k, 6) the
+    fused pose difference; delta_measured, delta_predicted: (k, 6) the camera's and the stiffness
+    model's; gain_measured: (k, 6, 6) ``F`` with ``delta = predicted + F (measured - predicted)``;
+    cov_predicted: (k, 6, 6) the prediction's covariance.
+    """
+
+    pose: FloatArray
+    delta: FloatArray
+    delta_measured: FloatArray
+    delta_predicted: FloatArray
+    gain_measured: FloatArray
+    cov_predicted: FloatArray
+
+
+def tare_pose(
+    rig: Rig,
+    pose_point: ArrayLike,
+    pose_tare: ArrayLike,
+    cov_point: ArrayLike,
+    cov_tare: ArrayLike,
+    tensions_tare_N: ArrayLike,
+    load_change_N_Nm: ArrayLike,
+    sigma_rel: float = 0.25,
+) -> TarePose:
+    """The pose difference between a wind-on point and its wind-off tare, from what it really is.
+
+    Between the two the winches hold the cables' lengths: the platform moves only as much as the
+    added load deflects it, ``x = K^-1 dW`` (:func:`cdpr.analysis.stiffness.stiffness_matrix` at the
+    tare's pose and tensions; ``x = [dp; dtheta]``, the rotation turned into Euler angles by the
+    paper's H).  The camera measures the same difference with the noise of two mean poses.  The two
+    are fused by their covariances (the model's: ``sigma_rel`` of the deflection, spread over every
+    coordinate of its group, translation or rotation, so that no coordinate is taken as exact), so
+    camera noise is not multiplied by the full tensions where the model is the more precise; where
+    the camera is, the camera wins.
+
+    pose_point, pose_tare: (k, 6) measured mean poses; cov_point, cov_tare: (k, 6, 6) their
+    covariances; tensions_tare_N: (k, m); load_change_N_Nm: (k, 6) the load the point adds at P in
+    {O} (its wrench against the tare's, a first estimate is enough: the deflection is linear in it).
+    """
+    from .rotations import euler_rate_matrix
+    from .stiffness import stiffness_matrix
+
+    qi = check_trailing(pose_point, "pose_point", (6,))
+    qj = check_trailing(pose_tare, "pose_tare", (6,))
+    dW = check_trailing(load_change_N_Nm, "load_change_N_Nm", (6,))
+    k = qi.shape[0]
+    st = stiffness_matrix(
+        rig.anchors_O_m,
+        rig.attach_P_m,
+        qj[:, :3],
+        rotation_from_euler(qj[:, 3:]),
+        tensions_tare_N,
+        rig.cable_EA_N,
+        rig.mass_kg,
+        rig.com_P_m,
+        rig.gravity_O_mps2,
+    )
+    x = np.linalg.solve(st.K, dW[..., None])[..., 0]  # (k, 6): [dp; dtheta]
+    to_q = np.tile(np.eye(6), (k, 1, 1))
+    to_q[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(qj[:, 3:]))  # dpsi = H^-1 dtheta
+    spread = np.concatenate(
+        [np.repeat(np.linalg.norm(x[:, :3], axis=1)[:, None], 3, axis=1),
+         np.repeat(np.linalg.norm(x[:, 3:], axis=1)[:, None], 3, axis=1)], axis=1
+    )  # fmt: skip
+    cov_x = sigma_rel**2 * (
+        x[:, :, None] * x[:, None, :] + np.einsum("ki,ij->kij", spread**2, np.eye(6))
+    )
+    cov_p = propagate(to_q, cov_x)
+    predicted = np.einsum("kij,kj->ki", to_q, x)
+    measured = qi - qj
+    S = np.asarray(cov_point, dtype=np.float64) + np.asarray(cov_tare, dtype=np.float64)
+    gain = np.swapaxes(np.linalg.solve(S + cov_p, np.swapaxes(cov_p, 1, 2)), 1, 2)  # Sp (Sm+Sp)^-1
+    delta = predicted + np.einsum("kij,kj->ki", gain, measured - predicted)
+    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p)
+
+
+def load_cell_maps(
+    A: FloatArray, tare: NDArray[np.int64], mix: FloatArray
+) -> tuple[FloatArray, NDArray[np.int64]]:
+    """The load-cell part of each point's wrench as a map on the raw point means.
+
+    A: (s, 6, m) structure matrices (NaN rows: no wrench); tare: (s,) each point's tare (-1: none);
+    mix: (s, s) ``T'_i = sum_k mix[i, k] T_raw_k`` (the zero drift's combination; identity
+    without one).  ``W_i = -A_i T'_i + A_j T'_j`` (j the tare), so the map on raw point k is
+    ``-A_i mix[i, k] + A_j mix[j, k]``.  Returns the maps (s, K, 6, m) and the raw indices (s, K)
+    (-1 where unused), K the largest number of raw means a point is made of.
+    """
+    s = A.shape[0]
+    has = tare >= 0
+    own = mix
+    of_tare = np.where(has[:, None], mix[np.maximum(tare, 0)], 0.0)
+    nz = (own != 0) | (of_tare != 0)
+    K = int(nz.sum(axis=1).max()) if s else 0
+    order = np.argsort(~nz, axis=1, kind="stable")[:, :K]
+    used = np.take_along_axis(nz, order, axis=1)
+    w_own = np.where(used, np.take_along_axis(own, order, axis=1), 0.0)
+    w_tare = np.where(used, np.take_along_axis(of_tare, order, axis=1), 0.0)
+    A0 = np.nan_to_num(A)
+    A_tare = np.where(has[:, None, None], A0[np.maximum(tare, 0)], 0.0)
+    G = -w_own[..., None, None] * A0[:, None] + w_tare[..., None, None] * A_tare[:, None]
+    return G, np.where(used, order, -1).astype(np.int64)
 
 
 def weight_tare(
@@ -63,6 +180,9 @@ def weight_tare(
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
     tare_shares_pose: bool = False,
+    tension_mix: ArrayLike | None = None,
+    tension_cov_raw_N2: ArrayLike | None = None,
+    tare_pose_sd_rel: float | None = 0.25,
 ) -> WeightTare:
     """Remove the weight from every point's cable load (see the module docstring).
 
@@ -70,7 +190,14 @@ def weight_tare(
     tension_cov_N2 (s, m, m); weight: the fitted weight model (None: the rig file's mass and
     centre of mass with the prior spreads ``prior_mass_rel_sd`` and ``prior_com_sd_m``).
 
-    σ terms: ``load_cells`` (both points), ``pose`` (both points' pose covariances through
+    tension_mix: (s, s) how each point's tensions combine the raw point means (the zero drift's
+    ``tension_mix``; identity without one) and tension_cov_raw_N2 (s, m, m) the raw means'
+    covariances (default: ``tension_cov_N2``).  tare_pose_sd_rel: the stiffness model's relative σ
+    for the pose difference between a point and its tare (:func:`tare_pose`; None: the two
+    measured poses as they are).
+
+    σ terms: ``load_cells`` (one covariance for the point, its tare and the zeros they share:
+    :func:`load_cell_maps`), ``pose`` (both points' pose covariances through
     ``dW/dq``, independent measurements; with ``tare_shares_pose`` the tare was taken at the very
     same measured pose, as in ``cdpr wrench --tare``, and the one pose error acts through
     ``J_i - J_j``), ``weight_model`` (theta's covariance through ``B(q_i) - B(q_j)`` or ``B(q_i)``).
@@ -93,26 +220,56 @@ def weight_tare(
     tare = nearest_tare(q, off, start_ns, position_tol_m, angle_tol_rad) if s else np.zeros(0)
     tare = np.where(finite & ~off, tare, -1).astype(np.int64)
 
+    has = tare >= 0
+    j = tare[has]
+    # a tared point's pose: its tare's + the difference the camera and the stiffness model agree on
+    q_hat = q.copy()
+    tp = None
+    deflection = np.full((s, 6), np.nan)
+    deflection_measured = np.full((s, 6), np.nan)
+    if j.size and tare_pose_sd_rel is not None and not tare_shares_pose:
+        i = np.flatnonzero(has)
+        first = recover_wrench(rig, q[i], T[i], weight_theta=theta)
+        first = first - recover_wrench(rig, q[j], T[j], weight_theta=theta)
+        tp = tare_pose(rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel)
+        q_hat[i] = tp.pose
+        deflection[i], deflection_measured[i] = tp.delta, tp.delta_measured
     W = np.full((s, 6), np.nan)
-    c_load = np.zeros((s, 6, 6))
     c_pose = np.zeros((s, 6, 6))
     c_wm = np.zeros((s, 6, 6))
     J = np.zeros((s, 6, 6))
     idx = np.flatnonzero(finite)
     if idx.size:
-        W[idx] = recover_wrench(rig, q[idx], T[idx], weight_theta=theta)
-        cov = wrench_covariance(rig, q[idx], T[idx], C_T[idx], C_q[idx], weight_theta=theta)
-        c_load[idx], c_pose[idx], J[idx] = cov.from_tensions, cov.from_pose, cov.jacobian
-    B = weight_basis(q, rig.gravity_O_mps2)
+        W[idx] = recover_wrench(rig, q_hat[idx], T[idx], weight_theta=theta)
+        cov = wrench_covariance(rig, q_hat[idx], T[idx], C_T[idx], C_q[idx], weight_theta=theta)
+        c_pose[idx], J[idx] = cov.from_pose, cov.jacobian
+    B = weight_basis(q_hat, rig.gravity_O_mps2)
     c_wm[idx] = propagate(B[idx], np.broadcast_to(theta_cov, (len(idx), 4, 4)))
+    # the load cells: one covariance over the raw point means the point is made of
+    mix = np.eye(s) if tension_mix is None else np.asarray(tension_mix, dtype=np.float64)
+    raw = C_T if tension_cov_raw_N2 is None else np.asarray(tension_cov_raw_N2, dtype=np.float64)
+    A = np.full((s, 6, rig.n_cables), np.nan)
+    if idx.size:
+        A[idx] = structure_matrix(
+            rig.anchors_O_m, rig.attach_P_m, q[idx, :3], rotation_from_euler(q[idx, 3:])
+        )
+    G, support = load_cell_maps(A, tare, mix)
+    raw_k = np.where((support >= 0)[..., None, None], raw[np.maximum(support, 0)], 0.0)
+    c_load = np.einsum("skam,skmn,skbn->sab", G, raw_k, G)
+    c_load[~finite] = 0.0
     # tare where one matches: subtract the tare's own residual (its weight, measured)
-    has = tare >= 0
-    j = tare[has]
     if j.size:
         W[has] = W[has] - W[j]
-        c_load[has] = c_load[has] + c_load[j]
         if tare_shares_pose:  # one pose measurement for both: its error acts through J_i - J_j
             c_pose[has] = propagate(J[has] - J[j], C_q[has])
+        elif tp is not None:  # q_i = q_j + F (e_i - e_j) + (I - F) e_model: see tare_pose
+            Ji, Jj, F = J[has], J[j], tp.gain_measured
+            eye = np.eye(6)
+            c_pose[has] = (
+                propagate(Ji @ (eye - F) - Jj, C_q[j])
+                + propagate(Ji @ F, C_q[has])
+                + propagate(Ji @ (eye - F), tp.cov_predicted)
+            )
         else:
             c_pose[has] = c_pose[has] + c_pose[j]
         c_wm[has] = propagate(B[has] - B[j], np.broadcast_to(theta_cov, (j.size, 4, 4)))
@@ -138,4 +295,6 @@ def weight_tare(
             c_load[no_tare] = c_pose[no_tare] = c_wm[no_tare] = np.nan
             flags["no_tare"] = no_tare
         W[off] = np.nan  # wind-off points keep their residual only against a weight model
-    return WeightTare(W, tare, c_load, c_pose, c_wm, flags)
+    return WeightTare(
+        W, tare, c_load, c_pose, c_wm, flags, G, support, deflection, deflection_measured
+    )

@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._checks import as_float_array, check_trailing
 from .errors import InputError
 from .kinematics import structure_matrix
+from .longrun import dof_of_estimate
 from .rig import Rig
 from .rotations import rotation_from_euler
 from .wrench import recover_wrench
@@ -168,4 +169,123 @@ def wrench_covariance(
     cov_from_q = J @ cov_q @ np.swapaxes(J, -1, -2)
     return WrenchCovariance(
         total=cov_from_T + cov_from_q, from_tensions=cov_from_T, from_pose=cov_from_q, jacobian=J
+    )
+
+
+# ------------------------------------------------------------------------------------------------
+# random and systematic parts, effective degrees of freedom, expanded uncertainty (GUM, AIAA S-071A)
+# ------------------------------------------------------------------------------------------------
+RANDOM_TERMS: tuple[str, ...] = ("load_cells", "pose")
+"""σ terms that change from one point to the next (their scatter is what repeat points show); every
+other term (the weight model, the windage tare, calibrations, geometry, instruments) is fixed over a
+run: systematic."""
+
+
+def welch_satterthwaite(u2: ArrayLike, nu: ArrayLike) -> FloatArray:
+    """Effective degrees of freedom ``(sum u_i^2)^2 / sum (u_i^4 / nu_i)`` of a sum of independent
+    variance parts ``u2`` (..., q) with degrees of freedom ``nu`` (..., q) (inf allowed) (GUM G.4.1);
+    inf when every part has infinite degrees of freedom, NaN where the total is."""
+    a = np.asarray(u2, dtype=np.float64)
+    n = np.broadcast_to(np.asarray(nu, dtype=np.float64), a.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = np.sum(np.where(np.isinf(n) | (a == 0), 0.0, a * a / n), axis=-1)
+        tot = np.sum(a, axis=-1)
+        out = np.where(den > 0, tot * tot / np.where(den > 0, den, 1.0), np.inf)
+    return np.asarray(np.where(np.isfinite(tot), out, np.nan))
+
+
+def coverage_factor(nu: ArrayLike, level: float = 0.95) -> FloatArray:
+    """Student's t factor ``k`` for a two-sided ``level`` interval at ``nu`` degrees of freedom (the
+    normal's 1.96 at 95 % for inf; NaN stays NaN)."""
+    from scipy.stats import t
+
+    n = np.asarray(nu, dtype=np.float64)
+    z = float(t.ppf(0.5 + level / 2.0, np.inf))
+    with np.errstate(invalid="ignore"):
+        k = np.where(np.isfinite(n), t.ppf(0.5 + level / 2.0, np.maximum(n, 1.0)), z)
+    return np.asarray(np.where(np.isnan(n), np.nan, k))
+
+
+@dataclass(frozen=True)
+class ExpandedUncertainty:
+    """Per point and output quantity (s, p): the random and systematic standard uncertainties, the
+    effective degrees of freedom of the total, its coverage factor and the expanded uncertainty
+    ``U = k u`` at the level asked; dof_random: the random part's own degrees of freedom (what a
+    comparison of repeat points with the random part needs)."""
+
+    u_random: FloatArray
+    u_systematic: FloatArray
+    dof: FloatArray
+    k: FloatArray
+    U: FloatArray
+    dof_random: FloatArray
+
+
+def expanded_uncertainty(
+    terms: dict[str, ArrayLike],
+    out_map: ArrayLike,
+    load_map: ArrayLike,
+    load_support: ArrayLike,
+    sample_cov_N2: ArrayLike,
+    cov_of_mean_N2: ArrayLike,
+    n_used: ArrayLike,
+    bandwidth: ArrayLike | None = None,
+    extra_systematic_u2: ArrayLike | None = None,
+    level: float = 0.95,
+) -> ExpandedUncertainty:
+    """Random and systematic parts and the expanded uncertainty of linear outputs of the wrench.
+
+    terms: name -> (s, 6, 6) covariance of the wrench at P in {O} from each source (the core's
+    ``cov_terms``; :data:`RANDOM_TERMS` are random, the rest systematic); out_map: (s, p, 6) the
+    outputs as linear maps of that wrench (the moment transfer to the MRP, the coefficient map);
+    load_map (s, K, 6, m) and load_support (s, K): the load-cell part of each wrench as a map of raw
+    point means (:func:`cdpr.analysis.tare.load_cell_maps`), whose sample covariances
+    ``sample_cov_N2`` (S, m, m), covariances of the mean ``cov_of_mean_N2`` (S, m, m) and counts
+    ``n_used`` (S,) with the estimate's Bartlett ``bandwidth`` (S,) give each raw mean's degrees of
+    freedom for each output (:func:`cdpr.analysis.longrun.dof_of_estimate` with
+    ``n_eff = c Gamma_0 c^T / c C c^T``); the pose and the systematic
+    terms count with infinite degrees of freedom (calibrations and stated accuracies);
+    extra_systematic_u2: (s, p) systematic variance not in the wrench (q and rho on the
+    coefficients).  The total's degrees of freedom by Welch-Satterthwaite, ``k`` from Student's t.
+    """
+    L = as_float_array(out_map, "out_map")
+    s, p, _ = L.shape
+    u2 = {
+        k: np.einsum("spi,sij,spj->sp", L, np.asarray(v, dtype=np.float64), L)
+        for k, v in terms.items()
+    }
+    zero = np.zeros((s, p))
+    u_rand2 = sum((u2[k] for k in RANDOM_TERMS if k in u2), zero)
+    u_sys2 = sum((u2[k] for k in u2 if k not in RANDOM_TERMS), zero)
+    if extra_systematic_u2 is not None:
+        u_sys2 = u_sys2 + np.asarray(extra_systematic_u2, dtype=np.float64)
+    # the load cells' part, raw mean by raw mean, each with its own degrees of freedom
+    G = np.einsum("spi,skim->skpm", L, as_float_array(load_map, "load_map"))
+    sup = np.asarray(load_support, dtype=np.int64)
+    used = (sup >= 0)[..., None]
+    k_ = np.maximum(sup, 0)
+    Cm = np.asarray(cov_of_mean_N2, dtype=np.float64)[k_]
+    G0 = np.asarray(sample_cov_N2, dtype=np.float64)[k_]
+    uk = np.where(used, np.einsum("skpm,skmn,skpn->skp", G, Cm, G), 0.0)
+    gk = np.where(used, np.einsum("skpm,skmn,skpn->skp", G, G0, G), 0.0)
+    nk = np.asarray(n_used, dtype=np.float64)[k_][..., None]
+    Lk = 1.0 if bandwidth is None else np.asarray(bandwidth, dtype=np.float64)[k_][..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nu_k = dof_of_estimate(np.where(uk > 0, gk / uk, nk), Lk, nk)
+    u_pose2 = u2.get("pose", zero)
+    u_load2 = np.sum(uk, axis=1)
+    nu_load = welch_satterthwaite(np.moveaxis(uk, 1, -1), np.moveaxis(nu_k, 1, -1))
+    parts = np.stack([u_load2, u_pose2 + (u_rand2 - u_load2 - u_pose2), u_sys2], axis=-1)
+    nus = np.stack([nu_load, np.full((s, p), np.inf), np.full((s, p), np.inf)], axis=-1)
+    dof = welch_satterthwaite(np.clip(parts, 0.0, None), nus)
+    dof_random = welch_satterthwaite(np.clip(parts[..., :2], 0.0, None), nus[..., :2])
+    k = coverage_factor(dof, level)
+    u = np.sqrt(np.clip(u_rand2 + u_sys2, 0.0, None))
+    return ExpandedUncertainty(
+        np.sqrt(np.clip(u_rand2, 0.0, None)),
+        np.sqrt(np.clip(u_sys2, 0.0, None)),
+        dof,
+        k,
+        k * u,
+        dof_random,
     )

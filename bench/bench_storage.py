@@ -248,7 +248,7 @@ def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    from cdpr.daq.mcap_writer import _ChunkedWriter
+    from cdpr.daq.mcap_chunks import ChunkedWriter
 
     with json_run.open("rb") as fh:
         msgs = [(m.log_time, m.data) for _, _, m in make_reader(fh).iter_messages()]
@@ -264,7 +264,7 @@ def _storage_options(tmp: Path, json_run: Path) -> dict[str, dict]:
     mcap_w_s = time.perf_counter() - tt
     tt = time.perf_counter()
     with (tmp / "w_cdpr.mcap").open("wb") as fh:
-        cw = _ChunkedWriter(fh, 256 * 1024, "zstd")
+        cw = ChunkedWriter(fh, 256 * 1024, "zstd")
         cw.start("", "bench")
         sid = cw.register_schema("s", "jsonschema", b"{}")
         cid = cw.register_channel("/tensions", "json", sid, {})

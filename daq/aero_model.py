@@ -7,24 +7,24 @@ a field of :class:`AeroModel` that a schedule's ``[aero]`` table can override:
 
 - reference chord ``c_ref = 0.060 m`` (mean aerodynamic chord, assumed), span ``b_ref = 0.2441 m``,
   reference area ``S_ref = b_ref * c_ref = 0.0146 m^2`` (assumed rectangular-equivalent wing);
-- lift ``CL = CL0 + CL_alpha * alpha`` with ``CL0 = 0.0``, ``CL_alpha = 3.5 /rad`` (low aspect ratio
+- lift ``CL = CL0 + CL_alpha * aoa`` with ``CL0 = 0.0``, ``CL_alpha = 3.5 /rad`` (low aspect ratio
   ~4 delta-like wing);
 - parabolic drag polar ``CD = CD0 + k * CL^2`` with ``CD0 = 0.035``, ``k = 0.09``;
-- side force ``CY = CY_beta * beta``, ``CY_beta = -0.6 /rad``;
-- rolling moment ``Cl = Cl_beta * beta``, ``Cl_beta = -0.08 /rad`` (dihedral effect);
-- pitching moment ``Cm = Cm0 + Cm_alpha * alpha``, ``Cm0 = 0.0``, ``Cm_alpha = -0.4 /rad``
+- side force ``CY = CY_beta * sideslip``, ``CY_beta = -0.6 /rad``;
+- rolling moment ``Cl = Cl_beta * sideslip``, ``Cl_beta = -0.08 /rad`` (dihedral effect);
+- pitching moment ``Cm = Cm0 + Cm_alpha * aoa``, ``Cm0 = 0.0``, ``Cm_alpha = -0.4 /rad``
   (statically stable about the moment reference point);
-- yawing moment ``Cn = Cn_beta * beta``, ``Cn_beta = 0.10 /rad`` (weathercock stable);
+- yawing moment ``Cn = Cn_beta * sideslip``, ``Cn_beta = 0.10 /rad`` (weathercock stable);
 - dynamic derivatives (a moving model, :meth:`AeroModel.wrench_moving_O`; zero body rates on a
   steady point leave the quasi-steady model above unchanged), on the hats ``q c / (2V)``,
-  ``alpha_dot c / (2V)`` (pitch) and ``p b / (2V)``, ``r b / (2V)``, ``beta_dot b / (2V)``
+  ``aoa_dot c / (2V)`` (pitch) and ``p b / (2V)``, ``r b / (2V)``, ``sideslip_dot b / (2V)``
   (roll, yaw), with ``(p, q, r)`` the body rates and ``V`` the model's speed relative to the air:
   ``CL += CLq q_hat + CLadot alphadot_hat`` with ``CLq = 3.0``, ``CLadot = 1.0``;
   ``Cm += Cmq q_hat + Cmadot alphadot_hat`` with ``Cmq = -5.0``, ``Cmadot = -1.5`` (pitch damping
   ``Cmq + Cmadot = -6.5 /rad``); ``Cl += Clp p_hat + Clr r_hat`` with ``Clp = -0.25``,
   ``Clr = 0.05``; ``Cn += Cnr r_hat + Cnp p_hat + Cnbetadot betadot_hat`` with ``Cnr = -0.15``,
   ``Cnp = -0.02``, ``Cnbetadot = 0.0``.  No lift lag (the response follows the motion at once,
-  apart from the alpha_dot terms);
+  apart from the aoa_dot terms);
 - a moving model meets the air at the velocity of its moment reference point relative to the free
   stream: the angles, their rates and the dynamic pressure ``rho |v|^2 / 2`` use it (a heave or
   surge motion changes them; a pitch about the MRP does not); wind off, the aero load is zero;
@@ -34,7 +34,7 @@ a field of :class:`AeroModel` that a schedule's ``[aero]`` table can override:
   axes B (x nose, y right wing, z down) are ``R_P_B = diag(-1, 1, -1)``; the free stream blows
   along +x of {O} (downstream).
 
-Angles: ``alpha = atan2(w, u)``, ``beta = asin(v / V)`` from the model's velocity relative to the air
+Angles: ``aoa = atan2(w, u)``, ``sideslip = asin(v / V)`` from the model's velocity relative to the air
 in body axes ``(u, v, w)``.  Forces: drag opposite the relative velocity, lift perpendicular to it in
 the body x-z plane, side force along body y (the usual wind-to-body rotation).  Moments use ``b`` for
 roll and yaw and ``c`` for pitch, about the MRP.  The wrench returned is the **aero load on the
@@ -60,7 +60,6 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-R_AIR_J_PER_KGK = 287.05
 DERIVATIVE_COEFFICIENTS = ("CL", "CD", "CY", "CN", "CA", "Cl", "Cm", "Cn")
 """The coefficients :meth:`AeroModel.oscillation_derivatives` projects on a motion's phase."""
 DERIVATIVE_NAMES = ("k",) + tuple(
@@ -109,31 +108,28 @@ class AeroModel:
         temperature_K: ArrayLike,
         relative_humidity: float | None = None,
     ) -> FloatArray:
-        """Ideal-gas density ``p / (R T)``, kg/m^3; moist air
-        (:func:`cdpr.analysis.flow.air_density`) when ``relative_humidity`` (0..1) is given."""
-        if relative_humidity is not None:
-            from cdpr.analysis.flow import air_density as moist
+        """Density, kg/m^3 (:func:`cdpr.analysis.flow.air_density`: moist air at
+        ``relative_humidity`` (0..1), dry air without one)."""
+        from cdpr.analysis.flow import air_density
 
-            return moist(static_pressure_Pa, temperature_K, relative_humidity)
-        return np.asarray(static_pressure_Pa, float) / (
-            R_AIR_J_PER_KGK * np.asarray(temperature_K, float)
-        )
+        rh = 0.0 if relative_humidity is None else relative_humidity
+        return air_density(static_pressure_Pa, temperature_K, rh)
 
     def angles(self, R_O_P: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        """(alpha_rad, beta_rad) (...,) of the model at attitude ``R_O_P`` (..., 3, 3) in a free
+        """(aoa_rad, sideslip_rad) (...,) of the model at attitude ``R_O_P`` (..., 3, 3) in a free
         stream along +x of {O}."""
         R = np.asarray(R_O_P, dtype=np.float64)
         R_O_B = R @ R_P_B
         v_air_rel_O = np.array([-1.0, 0.0, 0.0])  # model velocity relative to the air, unit speed
         v_B = np.einsum("...ji,j->...i", R_O_B, v_air_rel_O)  # R_O_B^T v
-        alpha = np.arctan2(v_B[..., 2], v_B[..., 0])
-        beta = np.arcsin(np.clip(v_B[..., 1], -1.0, 1.0))
-        return alpha, beta
+        aoa = np.arctan2(v_B[..., 2], v_B[..., 0])
+        sideslip = np.arcsin(np.clip(v_B[..., 1], -1.0, 1.0))
+        return aoa, sideslip
 
-    def coefficients(self, alpha_rad: ArrayLike, beta_rad: ArrayLike) -> dict[str, FloatArray]:
-        """CL, CD, CY, Cl, Cm, Cn at (alpha, beta) (rad, broadcast)."""
-        a = np.asarray(alpha_rad, dtype=np.float64)
-        b = np.asarray(beta_rad, dtype=np.float64)
+    def coefficients(self, aoa_rad: ArrayLike, sideslip_rad: ArrayLike) -> dict[str, FloatArray]:
+        """CL, CD, CY, Cl, Cm, Cn at (aoa, sideslip) (rad, broadcast)."""
+        a = np.asarray(aoa_rad, dtype=np.float64)
+        b = np.asarray(sideslip_rad, dtype=np.float64)
         CL = self.CL0 + self.CL_alpha * a
         return {
             "CL": CL,
@@ -158,8 +154,8 @@ class AeroModel:
         V = np.asarray(airspeed_mps, dtype=np.float64)
         R = np.asarray(R_O_P, dtype=np.float64)
         q = 0.5 * self._density(static_pressure_Pa, temperature_K) * V**2
-        alpha, beta = self.angles(R)
-        return self._wrench(q, R, self.coefficients(alpha, beta), alpha, beta)
+        aoa, sideslip = self.angles(R)
+        return self._wrench(q, R, self.coefficients(aoa, sideslip), aoa, sideslip)
 
     def wrench_moving_O(
         self,
@@ -176,7 +172,7 @@ class AeroModel:
         airspeed_mps: (...,) free-stream speed along +x of {O}; pose, pose_rate, pose_accel:
         (..., 6) ``[x, y, z, roll, pitch, yaw]`` and its first two time derivatives.  The model
         meets the air at ``v = v_MRP - V x_O``; ``(u, v, w)`` its body components,
-        ``alpha = atan2(w, u)``, ``beta = asin(v / |v|)``, their rates from ``dv_B/dt =
+        ``aoa = atan2(w, u)``, ``sideslip = asin(v / |v|)``, their rates from ``dv_B/dt =
         R_B_O a_MRP - omega_B x v_B``, and the hats normalised by ``|v|``.  Zero where the free
         stream is zero (wind off).
         """
@@ -201,23 +197,23 @@ class AeroModel:
         speed = np.where(on, np.linalg.norm(vB, axis=-1), 1.0)
         u, v, w = vB[..., 0], vB[..., 1], vB[..., 2]
         ud, vd, wd = vB_dot[..., 0], vB_dot[..., 1], vB_dot[..., 2]
-        alpha = np.arctan2(w, u)
-        beta = np.arcsin(np.clip(v / speed, -1.0, 1.0))
+        aoa = np.arctan2(w, u)
+        sideslip = np.arcsin(np.clip(v / speed, -1.0, 1.0))
         uw2 = np.where(on, u * u + w * w, 1.0)
-        alpha_dot = (u * wd - w * ud) / uw2
+        aoa_dot = (u * wd - w * ud) / uw2
         speed_dot = np.einsum("...i,...i->...", vB, vB_dot) / speed
-        beta_dot = (vd * speed - v * speed_dot) / (speed * np.sqrt(uw2))
-        c = self.coefficients(alpha, beta)
+        sideslip_dot = (vd * speed - v * speed_dot) / (speed * np.sqrt(uw2))
+        c = self.coefficients(aoa, sideslip)
         kc, kb = self.c_ref_m / (2.0 * speed), self.b_ref_m / (2.0 * speed)
         p_hat, q_hat, r_hat = wB[..., 0] * kb, wB[..., 1] * kc, wB[..., 2] * kb
-        ad_hat, bd_hat = alpha_dot * kc, beta_dot * kb
+        ad_hat, bd_hat = aoa_dot * kc, sideslip_dot * kb
         c["CL"] = c["CL"] + self.CLq * q_hat + self.CLadot * ad_hat
         c["CD"] = self.CD0 + self.k_induced * c["CL"] ** 2
         c["Cm"] = c["Cm"] + self.Cmq * q_hat + self.Cmadot * ad_hat
         c["Cl"] = c["Cl"] + self.Clp * p_hat + self.Clr * r_hat
         c["Cn"] = c["Cn"] + self.Cnr * r_hat + self.Cnp * p_hat + self.Cnbetadot * bd_hat
         q = np.where(on, 0.5 * self._density(static_pressure_Pa, temperature_K) * speed**2, 0.0)
-        return self._wrench(q, R, c, alpha, beta)
+        return self._wrench(q, R, c, aoa, sideslip)
 
     def _density(
         self, static_pressure_Pa: ArrayLike | None, temperature_K: ArrayLike | None
@@ -231,15 +227,15 @@ class AeroModel:
         q: ArrayLike,
         R: FloatArray,
         c: Mapping[str, FloatArray],
-        alpha: FloatArray,
-        beta: FloatArray,
+        aoa: FloatArray,
+        sideslip: FloatArray,
     ) -> FloatArray:
         """The wrench at P in {O} (..., 6) of coefficients ``c`` at dynamic pressure ``q`` and
-        flow angles ``alpha``, ``beta`` (body axes), attitude ``R``."""
+        flow angles ``aoa``, ``sideslip`` (body axes), attitude ``R``."""
         qS = np.asarray(q, dtype=np.float64) * self.s_ref_m2
-        ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+        ca, sa, cb, sb = np.cos(aoa), np.sin(aoa), np.cos(sideslip), np.sin(sideslip)
         D, Y, L = qS * c["CD"], qS * c["CY"], qS * c["CL"]
-        # wind axes force [-D, Y, -L] rotated to body axes (R_B_W = Ry(alpha)^T-style, standard)
+        # wind axes force [-D, Y, -L] rotated to body axes (R_B_W = Ry(aoa)^T-style, standard)
         Fx_B = -D * ca * cb - Y * ca * sb + L * sa
         Fy_B = -D * sb + Y * cb
         Fz_B = -D * sa * cb - Y * sa * sb - L * ca
@@ -292,8 +288,8 @@ class AeroModel:
         F_B = np.einsum("nij,nj->ni", R_B_O, W[:, :3])
         M_B = np.einsum("nij,nj->ni", R_B_O, W[:, 3:] - np.cross(r, W[:, :3]))
         qS = 0.5 * float(self._density(None, None)) * V * V * self.s_ref_m2
-        alpha, beta = self.angles(R)
-        F_W = np.einsum("nij,nj->ni", wind_from_body(alpha, beta), F_B)
+        aoa, sideslip = self.angles(R)
+        F_W = np.einsum("nij,nj->ni", wind_from_body(aoa, sideslip), F_B)
         C = {
             "CL": -F_W[:, 2] / qS,
             "CD": -F_W[:, 0] / qS,

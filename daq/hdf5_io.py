@@ -82,18 +82,33 @@ def export_hdf5(run_path: str | os.PathLike[str], out_path: str | os.PathLike[st
     dst = Path(out_path)
     if dst.exists():
         raise InputError(f"{dst}: exists already; an export is never overwritten")
-    run = open_run(src)
+    run = None
     try:
-        counts = _write(run, src, dst)
-    except DamagedRunError as exc:
-        # the summary is intact but a chunk inside is not: read what the recovery path salvages
-        run.close()
-        run = open_run(src, recover=True)
-        run.warning = f"{exc}; exported what the recovery path salvaged"
-        counts = _write(run, src, dst)
+        try:
+            run = open_run(src)
+            counts = _write(run, src, dst)
+        except DamagedRunError as exc:
+            # a part the summary points at is damaged: read what the recovery path salvages
+            if run is not None:
+                run.close()
+            run = open_run(src, recover=True)
+            run.warning = f"{exc}; exported what the recovery path salvaged"
+            counts = _write(run, src, dst)
     finally:
-        run.close()
+        if run is not None:
+            run.close()
     return ExportResult(counts, run.warning if run.recovered else None)
+
+
+def _h5_text(src: Path, where: str, text: str, name: bool = True) -> str:
+    """``text`` if HDF5 can hold it as a group, dataset or attribute name (``name``: not empty,
+    ``.`` or ``..``) or as a string value (no NUL byte); else one line naming the file and the
+    part (a damaged metadata record can hold anything: MCAP checks no CRC on it)."""
+    if "\x00" in text or (name and text in ("", ".", "..")):
+        what = "name" if name else "value"
+        shown = repr(text) if len(text) <= 40 else repr(text[:40]) + f" ({len(text)} characters)"
+        raise InputError(f"{src}: {where}: {shown} cannot be an HDF5 {what} (empty or a NUL byte)")
+    return text
 
 
 def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
@@ -114,6 +129,8 @@ def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
             for topic, info in run.streams.items():
                 if info.metadata.get("view_of"):
                     continue  # the per-sample view of a block stream: a copy of some samples
+                if info.metadata.get("status_of") in run.streams:
+                    continue  # a pose's status channel: joined into the pose stream's table
                 name = topic.lstrip("/").replace("/", ".") or "root"
                 table, blobs = _table(run.table(topic))
                 ds = streams.create_dataset(name, data=table, chunks=True if len(table) else None)
@@ -130,16 +147,23 @@ def _write(run: Run, src: Path, dst: Path) -> dict[str, int]:
                     for i, b in enumerate(rows):
                         vl[i] = np.frombuffer(b, dtype=np.uint8)
                 counts[name] = len(table)
+            run.verify()  # the chunks no table needed (views) are checked too
             meta = f.create_group("metadata")
             for rec_name, kv in run.metadata.items():
-                g = meta.create_group(rec_name)
+                g = meta.create_group(_h5_text(src, "metadata record", rec_name))
                 for k, v in kv.items():
-                    g.attrs[k] = v
+                    where = f"metadata record {rec_name!r}"
+                    key = _h5_text(src, f"{where}, a key", k)
+                    g.attrs[key] = _h5_text(src, f"{where}, key {key!r}", v, False)
             att = f.create_group("attachments")
             for a_name, (media, data) in run.attachments.items():
-                d = att.create_dataset(a_name.replace("/", "_"), data=np.frombuffer(data, np.uint8))
-                d.attrs["media_type"] = media
-                d.attrs["name"] = a_name
+                where = f"attachment {a_name!r}"
+                d = att.create_dataset(
+                    _h5_text(src, "attachment", a_name.replace("/", "_")),
+                    data=np.frombuffer(data, np.uint8),
+                )
+                d.attrs["media_type"] = _h5_text(src, f"{where}, media type", media, False)
+                d.attrs["name"] = _h5_text(src, where, a_name, False)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         if dst.exists():

@@ -1,7 +1,8 @@
 """Run files in MCAP, the raw side: the streaming reader (:func:`read_run`, every message as a
 dict, for tests and tools that look at message bodies) and truncated-file recovery
-(:func:`recover_run`).  The columnar reader is :func:`cdpr.daq.run_reader.open_run`; the writer and
-codecs are in :mod:`cdpr.daq.mcap_writer` (re-exported here for existing imports).
+(:func:`recover_run`).  The columnar reader is :func:`cdpr.daq.run_reader.open_run`; the writer is
+:mod:`cdpr.daq.mcap_writer` (its public names, with the codecs' of :mod:`cdpr.daq.mcap_codecs`,
+re-exported here for existing imports).
 """
 
 from __future__ import annotations
@@ -73,12 +74,6 @@ def _check_file(path: str | os.PathLike[str]) -> Path:
     if magic != b"\x89MCAP0\r\n":
         raise ConfigError(str(p), "", "not an MCAP file (bad magic bytes)")
     return p
-
-
-def iter_records(path: str | os.PathLike[str]) -> Iterator[Any]:
-    """Every record of an MCAP file in order (chunks expanded), stopping quietly at a truncation or
-    corruption; the reason is available from :func:`read_run` (``error``)."""
-    yield from _iter_records(Path(path), [])
 
 
 def _iter_records(p: Path, errors: list[str]) -> Iterator[Any]:

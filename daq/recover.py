@@ -6,9 +6,12 @@ one streaming reader to the first error: a chunk that cannot be decompressed, fa
 does not parse is *skipped* and named (byte offset, log-time range, reason); framing that no
 longer makes sense (a bad opcode, a length past the end of the file) is skipped by a *resync* on
 the next well-formed chunk record (its length fields must agree exactly, and a valid record must
-follow it).  A file that simply ends is *truncated*, not damaged.  Schemas and channels of a file
-whose footer survived are also read from its summary section, so messages of a channel whose
-first chunk was lost can still be salvaged.
+follow it).  A file that simply ends is *truncated*, not damaged.  A footer whose summary section
+fails its CRC (or starts outside the file) is damage too (:func:`footer_check`, which
+:func:`cdpr.daq.run_reader.open_run` uses as well).  Schemas and channels of a file whose footer and
+summary survived are also read from its summary section, so messages of a channel whose first
+chunk was lost can still be salvaged.  :func:`check_mcap` runs the same scan without expanding the
+chunks (each is still decompressed and its CRC checked): what ``cdpr inspect`` reports as damage.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ _CHUNK, _FOOTER, _DATA_END = 0x06, 0x02, 0x0F
 _U64 = struct.Struct("<Q")
 _U32 = struct.Struct("<I")
 _CHUNK_FIXED = 8 + 8 + 8 + 4  # start, end, uncompressed size, crc (then the compression string)
+_FOOTER_LEN = 1 + 8 + 8 + 8 + 4  # opcode, record length, summary start, summary offset start, crc
 
 
 @dataclass
@@ -151,29 +155,50 @@ def _parsers() -> dict[int, Any]:
     }
 
 
+def footer_check(buf: Any, size: int) -> tuple[int | None, str]:
+    """The end of an MCAP file (``buf``: its bytes, ``size`` long): the summary section's start
+    offset (None: no summary section) and what is wrong ("" when nothing): the closing magic, the
+    footer record before it, a summary start inside the file, the summary CRC (spec: every byte
+    from the summary start through the footer's ``summary_offset_start``; 0 = not given)."""
+    if size < 8 + _FOOTER_LEN + 8:
+        return None, "the file is too short for a footer"
+    if bytes(buf[size - 8 : size]) != MAGIC:
+        return None, "no closing magic bytes (no footer)"
+    f = size - 8 - _FOOTER_LEN
+    if buf[f] != _FOOTER or _U64.unpack_from(buf, f + 1)[0] != _FOOTER_LEN - 9:
+        return None, f"no footer record at offset {f}"
+    (start,) = _U64.unpack_from(buf, f + 9)
+    (offsets,) = _U64.unpack_from(buf, f + 17)
+    (crc,) = _U32.unpack_from(buf, f + 25)
+    if start == 0:
+        return None, ""
+    if not 8 <= start <= f or not (offsets == 0 or start <= offsets <= f):
+        return None, f"the footer's summary offsets ({start}, {offsets}) lie outside the file"
+    if crc and zlib.crc32(buf[start : f + 25]) != crc:
+        return None, f"the summary section at offset {start} fails its CRC"
+    return start, ""
+
+
 def _summary_definitions(buf: Any, size: int, parse: dict[int, Any]) -> list[Any]:
-    """Schemas and channels of the summary section of a file whose footer survived ([] if not)."""
+    """Schemas and channels of the summary section of a file whose footer and summary CRC
+    survived ([] if not)."""
     from mcap.records import Channel, Schema
 
-    footer_len = 1 + 8 + 8 + 8 + 4
-    if size < 8 + footer_len + 8 or bytes(buf[size - 8 : size]) != MAGIC:
-        return []
-    f = size - 8 - footer_len
-    if buf[f] != _FOOTER:
-        return []
-    (summary_start,) = _U64.unpack_from(buf, f + 9)
-    if not 8 <= summary_start < f:
+    start, _ = footer_check(buf, size)
+    if start is None:
         return []
     try:
-        recs = list(_records(bytes(buf[summary_start:f]), parse))
-    except Exception:  # a damaged summary: the data section is all there is
+        recs = list(_records(bytes(buf[start : size - 8 - _FOOTER_LEN]), parse))
+    except Exception:  # a summary that does not parse: the data section is all there is
         return []
     return [r for r in recs if isinstance(r, Schema | Channel)]
 
 
-def scan_mcap(path: str | os.PathLike[str], scan: Scan) -> Iterator[Any]:
+def scan_mcap(path: str | os.PathLike[str], scan: Scan, expand: bool = True) -> Iterator[Any]:
     """Every readable Schema, Channel, Message, Metadata and Attachment record of an MCAP file, in
-    file order (chunks expanded), filling ``scan`` with what was skipped or cut.
+    file order (chunks expanded), filling ``scan`` with what was skipped or cut.  ``expand=False``:
+    a chunk is decompressed and its CRC checked (its records' framing too when it has no CRC), but
+    its records are not parsed nor yielded.
 
     Raises :class:`ConfigError` for a file that is missing, empty or not MCAP.
     """
@@ -233,7 +258,10 @@ def scan_mcap(path: str | os.PathLike[str], scan: Scan) -> Iterator[Any]:
                         data = _decompress(rec.compression, rec.data, rec.uncompressed_size)
                         if rec.uncompressed_crc and zlib.crc32(data) != rec.uncompressed_crc:
                             raise ValueError("CRC mismatch of the uncompressed chunk")
-                        inner = list(_records(data, chunk_parse))
+                        if expand or not rec.uncompressed_crc:
+                            inner = list(_records(data, chunk_parse if expand else {}))
+                        else:
+                            inner = []
                     except Exception as exc:
                         span = (
                             (rec.message_start_time, rec.message_end_time)
@@ -244,7 +272,8 @@ def scan_mcap(path: str | os.PathLike[str], scan: Scan) -> Iterator[Any]:
                         scan.skipped.append(Damage(pos, 9 + length, f"chunk skipped ({why})", span))
                     else:
                         scan.chunks_ok += 1
-                        yield from inner
+                        if expand:
+                            yield from inner
                 elif cls is not None:
                     try:
                         rec = _read(cls, buf[pos + 9 : body_end])
@@ -256,11 +285,24 @@ def scan_mcap(path: str | os.PathLike[str], scan: Scan) -> Iterator[Any]:
                             scan.complete = body_end == size - 8 and (
                                 bytes(buf[size - 8 : size]) == MAGIC
                             )
+                            _, why = footer_check(buf, size)
+                            if scan.complete and why:
+                                start = rec.summary_start if 8 <= rec.summary_start < pos else pos
+                                scan.skipped.append(Damage(start, size - start, why))
                             break
                         yield rec
                 pos = body_end
         finally:
             buf.close()
+
+
+def check_mcap(path: str | os.PathLike[str]) -> Scan:
+    """What is damaged or cut in an MCAP file: :func:`scan_mcap` without expanding the chunks
+    (every chunk still decompressed and CRC-checked)."""
+    scan = Scan()
+    for _ in scan_mcap(path, scan, expand=False):
+        pass
+    return scan
 
 
 def recover_run(
@@ -359,7 +401,7 @@ def recover_run(
         tmp.unlink(missing_ok=True)
         raise
     contents.complete = scan.complete
-    contents.error = "; ".join([*problems, scan.truncated_reason]) or None
+    contents.error = "; ".join(x for x in [*problems, scan.truncated_reason] if x) or None
     contents.metadata.setdefault("recovery", {})
     contents.metadata["recovery"] = {
         "stopped_at": stopped,

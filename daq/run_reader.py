@@ -37,13 +37,14 @@ import tempfile
 import warnings
 import zlib
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cdpr.analysis.errors import InputError
+from cdpr.analysis.errors import CdprError, InputError
 
 from . import column_blocks
 
@@ -129,31 +130,64 @@ def _block_fields(text: str) -> dict[str, FieldInfo]:
 
 
 class DamagedRunError(InputError):
-    """A chunk inside a run file cannot be read (bad compression or CRC): open the file with
-    ``open_run(path, recover=True)`` to read what the recovery path salvages, or run
+    """A part of a run file that its summary points at cannot be read (a chunk with bad compression
+    or CRC, a message index, a metadata record or an attachment that does not parse): open the file
+    with ``open_run(path, recover=True)`` to read what the recovery path salvages, or run
     ``cdpr recover``."""
+
+
+@contextmanager
+def _damage_is_one_line(path: Path, what: str) -> Iterator[None]:
+    """Any failure while reading ``what`` of ``path`` (a damaged length, name or body makes
+    ``struct``, the UTF-8 decoder, ``json``, a decompressor ... fail) becomes one
+    :class:`DamagedRunError` naming the file and the part, never a traceback."""
+    try:
+        yield
+    except CdprError:
+        raise
+    except Exception as exc:
+        why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        raise DamagedRunError(
+            f"{path}: damaged {what} ({why}); `cdpr recover` keeps every readable chunk"
+        ) from None
 
 
 class Run:
     """An open run file (see the module docstring); use :func:`open_run`."""
 
     def __init__(self, path: Path, recover: bool = False) -> None:
-        from mcap.exceptions import McapError
-        from mcap.reader import SeekingReader
-
         self.path = path
         self.recovered = False
         self.warning: str | None = None
         self._tmpdir: str | None = None
+        self._chunk_cache: dict[int, bytes] = {}
+        self._verified: set[int] = set()  # chunks whose CRC was checked (start offsets)
         self._fh = path.open("rb")
+        self._size = os.fstat(self._fh.fileno()).st_size
+        try:
+            with _damage_is_one_line(path, "run file"):
+                self._load(recover)
+        except BaseException:
+            self.close()
+            raise
+
+    def _load(self, recover: bool) -> None:
+        from mcap.exceptions import McapError
+        from mcap.reader import SeekingReader
+
+        path = self.path
         summary = None
+        why = ""
         try:
             summary = SeekingReader(self._fh).get_summary()
         except (McapError, struct.error, ValueError, EOFError, OSError):
             summary = None  # too short for a footer, or a bad one: recovery reads what is there
+        if summary is not None:
+            why = self._footer_problem()
         if (
             recover
             or summary is None
+            or why
             or (
                 summary.statistics
                 and summary.statistics.message_count
@@ -161,10 +195,9 @@ class Run:
             )
         ):
             self._fh.close()
-            self._open_recovered(path)
+            self._open_recovered(path, why)
             summary = self._summary_of_recovered()
         self._summary = summary
-        self._chunk_cache: dict[int, bytes] = {}
         self.metadata: dict[str, dict[str, str]] = {}
         for mi in summary.metadata_indexes:
             self.metadata[mi.name] = self._read_metadata(mi.offset, mi.length)
@@ -224,9 +257,45 @@ class Run:
                 info.count, info.start_ns, info.stop_ns = self._block_extent(cid)
             else:
                 info.start_ns, info.stop_ns = self._time_range(cid)
+        self._pair_status_channels()
+
+    def _pair_status_channels(self) -> None:
+        """A stream written as two channels (a pose: ``/pose`` in Foxglove's ``PoseInFrame`` for
+        the frames with a pose, ``/pose_status`` with metadata ``status_of = /pose`` for every
+        frame) is one stream here: ``streams["/pose"]`` counts the frames and has the fields of
+        both, ``table("/pose")`` joins them (:func:`_join_status`)."""
+        self._status_topic: dict[str, str] = {}  # topic -> its status topic
+        for topic, info in list(self.streams.items()):
+            of = info.metadata.get("status_of", "")
+            main = self.streams.get(of)
+            if main is None or of == topic or of in self._status_topic:
+                continue
+            self._status_topic[of] = topic
+            self.streams[of] = StreamInfo(
+                of,
+                main.schema_name,
+                {**main.fields, **info.fields},
+                main.rate_hz or info.rate_hz,
+                info.count,
+                info.start_ns,
+                info.stop_ns,
+                {**main.metadata, "status_topic": topic},
+            )
 
     # -- opening ------------------------------------------------------------------------------
-    def _open_recovered(self, path: Path) -> None:
+    def _footer_problem(self) -> str:
+        """What is wrong with the footer and summary section (:func:`cdpr.daq.recover.footer_check`:
+        the closing magic, the summary offsets, the summary CRC); "" when nothing."""
+        import mmap
+
+        from .recover import footer_check
+
+        if self._size < 8:
+            return "the file is too short for a footer"
+        with mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            return footer_check(buf, self._size)[1]
+
+    def _open_recovered(self, path: Path, why: str = "") -> None:
         from .mcap_io import recover_run
 
         self._tmpdir = tempfile.mkdtemp(prefix="cdpr-run-")
@@ -234,12 +303,15 @@ class Run:
         _, contents = recover_run(path, out)
         n = sum(len(v) for v in contents.messages.values())
         self.recovered = True
+        lost = contents.error or "no footer"
+        if why and why not in lost:
+            lost = f"{why}; {lost}"
         self.warning = (
-            f"{path}: no valid MCAP summary (truncated or damaged: "
-            f"{contents.error or 'no footer'}); read through recovery, {n} messages salvaged, "
-            "data after the damage is lost"
+            f"{path}: no valid MCAP summary or a damaged part (truncated or damaged: {lost}); "
+            f"read through recovery, {n} messages salvaged, the damaged parts are lost"
         )
         self._fh = out.open("rb")
+        self._size = os.fstat(self._fh.fileno()).st_size
 
     def _summary_of_recovered(self) -> Any:
         from mcap.reader import SeekingReader
@@ -265,28 +337,48 @@ class Run:
 
     # -- records ------------------------------------------------------------------------------
     def _read_at(self, offset: int, length: int) -> bytes:
+        if offset < 0 or length < 0 or offset + length > self._size:
+            raise DamagedRunError(
+                f"{self.path}: the summary points at {length} bytes at offset {offset}, past the "
+                f"end of the file ({self._size} bytes); `cdpr recover` keeps every readable chunk"
+            )
         self._fh.seek(offset)
         data = self._fh.read(length)
         if len(data) != length:
-            raise InputError(f"{self.path}: record at byte {offset} cut short")
+            raise DamagedRunError(f"{self.path}: record at byte {offset} cut short")
         return data
 
     def _read_metadata(self, offset: int, length: int) -> dict[str, str]:
+        with _damage_is_one_line(self.path, f"metadata record at byte {offset}"):
+            return self._parse_metadata(offset, length)
+
+    def _parse_metadata(self, offset: int, length: int) -> dict[str, str]:
+        """The key/value map of the metadata record at ``offset``: opcode 0x0C, u64 length, name,
+        u32 byte length of the map, then (u32 length, key, u32 length, value) pairs that fill the
+        record exactly (anything else is damage)."""
         raw = self._read_at(offset, length)
-        pos = 9
-        (nlen,) = struct.unpack_from("<I", raw, pos)
-        pos += 4 + nlen
+        if length < 17 or raw[0] != 0x0C or struct.unpack_from("<Q", raw, 1)[0] != length - 9:
+            raise DamagedRunError(
+                f"{self.path}: damaged metadata record at byte {offset} (not the record of "
+                f"{length} bytes the summary's index points at); `cdpr recover` keeps every "
+                "readable chunk"
+            )
+
+        def text(pos: int) -> tuple[str, int]:
+            (n,) = struct.unpack_from("<I", raw, pos)
+            if pos + 4 + n > length:
+                raise ValueError(f"a string of {n} bytes at {pos} runs past the record")
+            return raw[pos + 4 : pos + 4 + n].decode(), pos + 4 + n
+
+        _, pos = text(9)
         (mlen,) = struct.unpack_from("<I", raw, pos)
         pos += 4
-        end = pos + mlen
+        if pos + mlen != length:
+            raise ValueError(f"its map of {mlen} bytes does not fill the record")
         out: dict[str, str] = {}
-        while pos < end:
-            (kl,) = struct.unpack_from("<I", raw, pos)
-            k = raw[pos + 4 : pos + 4 + kl].decode()
-            pos += 4 + kl
-            (vl,) = struct.unpack_from("<I", raw, pos)
-            out[k] = raw[pos + 4 : pos + 4 + vl].decode()
-            pos += 4 + vl
+        while pos < length:
+            k, pos = text(pos)
+            out[k], pos = text(pos)
         return out
 
     @property
@@ -298,20 +390,33 @@ class Run:
 
             out: dict[str, tuple[str, bytes]] = {}
             for name, ai in self._attachment_index.items():
-                raw = self._read_at(ai.offset + 9, ai.length - 9)
-                import io
+                with _damage_is_one_line(self.path, f"attachment {name!r} at byte {ai.offset}"):
+                    raw = self._read_at(ai.offset + 9, ai.length - 9)
+                    import io
 
-                rec = Attachment.read(ReadDataStream(io.BytesIO(raw)))
-                out[name] = (rec.media_type, bytes(rec.data))
+                    rec = Attachment.read(ReadDataStream(io.BytesIO(raw)))
+                    out[name] = (rec.media_type, bytes(rec.data))
             self._attachments = out
         return self._attachments
 
-    def _chunk(self, ci: Any) -> bytes:
+    def _chunk(self, ci: Any, cache: bool = True) -> bytes:
         """The uncompressed records of the chunk of chunk index ``ci`` (cached: the last few)."""
         hit = self._chunk_cache.get(ci.chunk_start_offset)
         if hit is not None:
             return hit
+        with _damage_is_one_line(self.path, f"chunk at byte {ci.chunk_start_offset}"):
+            data = self._read_chunk(ci)
+        self._verified.add(ci.chunk_start_offset)
+        if cache:
+            if len(self._chunk_cache) >= 4:
+                self._chunk_cache.pop(next(iter(self._chunk_cache)))
+            self._chunk_cache[ci.chunk_start_offset] = data
+        return data
+
+    def _read_chunk(self, ci: Any) -> bytes:
         raw = self._read_at(ci.chunk_start_offset, ci.chunk_length)
+        if raw[0] != 0x06:
+            raise DamagedRunError(f"{self.path}: no chunk record at byte {ci.chunk_start_offset}")
         # opcode, length, start, end, uncompressed size, crc, compression string, records length
         pos = 9 + 24
         (crc,) = struct.unpack_from("<I", raw, pos)
@@ -320,15 +425,10 @@ class Run:
         pos += 8 + clen
         (rlen,) = struct.unpack_from("<Q", raw, pos)
         body = raw[pos + 8 : pos + 8 + rlen]
-        try:
-            data = _decompress(compression, body, ci.uncompressed_size)
-        except Exception as exc:  # zstandard.ZstdError, lz4's RuntimeError: the chunk is damaged
-            raise DamagedRunError(
-                f"{self.path}: damaged chunk at byte {ci.chunk_start_offset} "
-                f"({type(exc).__name__}: {exc}); `cdpr recover` keeps every readable chunk"
-            ) from None
+        # zstandard.ZstdError, lz4's RuntimeError: the chunk is damaged (_damage_is_one_line)
+        data = _decompress(compression, body, ci.uncompressed_size)
         if data is None:
-            raise InputError(
+            raise DamagedRunError(
                 f"{self.path}: chunk at byte {ci.chunk_start_offset}: "
                 f"unknown compression {compression!r}"
             )
@@ -337,16 +437,32 @@ class Run:
                 f"{self.path}: damaged chunk at byte {ci.chunk_start_offset}: CRC mismatch; "
                 "`cdpr recover` keeps every readable chunk"
             )
-        if len(self._chunk_cache) >= 4:
-            self._chunk_cache.pop(next(iter(self._chunk_cache)))
-        self._chunk_cache[ci.chunk_start_offset] = data
+        if len(data) != ci.uncompressed_size:
+            raise DamagedRunError(
+                f"{self.path}: damaged chunk at byte {ci.chunk_start_offset}: {len(data)} bytes "
+                f"uncompressed, the summary says {ci.uncompressed_size}"
+            )
         return data
+
+    def verify(self) -> None:
+        """Check every chunk the summary lists (decompressed, CRC) and its message indexes,
+        without keeping them; raises :class:`DamagedRunError` at the first damaged one.  Chunks
+        already read are not read again."""
+        for ci in self._summary.chunk_indexes:
+            if ci.chunk_start_offset not in self._verified:
+                self._chunk(ci, cache=False)
+            for cid in ci.message_index_offsets:
+                self._message_index(ci, cid)
 
     def _message_index(self, ci: Any, cid: int) -> np.ndarray:
         """(k, 2) uint64 (log_time, offset in the chunk) of channel ``cid`` in chunk ``ci``."""
         off = ci.message_index_offsets.get(cid)
         if off is None:
             return np.empty((0, 2), _U64)
+        with _damage_is_one_line(self.path, f"message index at byte {off}"):
+            return self._read_message_index(ci, cid, off)
+
+    def _read_message_index(self, ci: Any, cid: int, off: int) -> np.ndarray:
         head = self._read_at(off, 15)
         # message index record: opcode 0x07, u64 length, u16 channel, u32 entries byte length
         if len(head) < 15 or head[0] != 0x07 or struct.unpack_from("<H", head, 9)[0] != cid:
@@ -545,7 +661,8 @@ class Run:
         ):
             df = _flat_numeric(bodies, self.streams[topic].fields)
         if df is None:
-            rows = json.loads(b"[" + b",".join(bodies) + b"]")
+            with _damage_is_one_line(self.path, f"messages of {topic}"):
+                rows = json.loads(b"[" + b",".join(bodies) + b"]")
             df = _rows_frame(rows, schema)
         df.insert(0, "t_ns", t)
         return df
@@ -553,6 +670,7 @@ class Run:
     def times(self, topic: str) -> np.ndarray:
         """The log times (int64 ns, sorted) of every message of ``topic``, from the message indexes
         alone (no chunk is decompressed)."""
+        topic = self._status_topic.get(topic, topic)  # a pose stream: every frame
         cid = self._cid(topic)
         if cid in self._blocked:
             return self._block_columns(cid, None, None, ())["t_ns"]
@@ -569,7 +687,26 @@ class Run:
         stop_ns: int | None = None,
     ) -> Any:
         """The messages of ``topic`` with ``start_ns <= t_ns < stop_ns`` as a DataFrame sorted by
-        ``t_ns`` (``columns``: only these, after ``t_ns``; a column no message has is an error)."""
+        ``t_ns`` (``columns``: only these, after ``t_ns``; a column no message has is an error).
+        A pose stream written with its status channel (``/pose`` + ``/pose_status``) gives one row
+        per frame, with or without a pose (:func:`_join_status`)."""
+        status = self._status_topic.get(topic)
+        if status is not None:
+            df = _join_status(
+                self._channel_table(topic, None, start_ns, stop_ns),
+                self._channel_table(status, None, start_ns, stop_ns),
+            )
+            return self._finish_frame(topic, df, columns)
+        return self._channel_table(topic, columns, start_ns, stop_ns)
+
+    def _channel_table(
+        self,
+        topic: str,
+        columns: Sequence[str] | None,
+        start_ns: int | None,
+        stop_ns: int | None,
+    ) -> Any:
+        """:meth:`table` of one channel, as its messages are."""
         import pandas as pd
 
         cid = self._cid(topic)
@@ -639,6 +776,60 @@ class Run:
         return f"Run({str(self.path)!r}, {len(self.streams)} streams{extra})"
 
 
+#: the columns a pose message gives (:func:`_pose_frame`), in the reader's order
+_POSE_COLUMNS = ("x_m", "y_m", "z_m", "qw", "qx", "qy", "qz")
+
+
+def _rank_in_time(t: np.ndarray) -> np.ndarray:
+    """(n,) the position of each entry among the entries of equal time (``t`` sorted)."""
+    if not len(t):
+        return np.zeros(0, np.int64)
+    first = np.r_[0, np.flatnonzero(np.diff(t)) + 1]
+    return np.arange(len(t)) - np.repeat(first, np.diff(np.r_[first, len(t)]))
+
+
+def _join_status(pose: Any, status: Any) -> Any:
+    """One row per status message (every frame, sorted by time): ``t_ns``, the pose columns
+    (``x_m .. qz``; NaN, and ``frame_id`` None, for a frame without a pose), ``cov_*``,
+    ``frame_id``, then the other status columns, as the old one-channel layout gave them.  A
+    pose message belongs to the status message of the same log time (among several of one time,
+    in order, to those with ``has_pose`` = 1); one whose status message was lost (a damaged chunk
+    salvaged) is left out: the status channel is the list of frames."""
+    import pandas as pd
+
+    ts = status["t_ns"].to_numpy(np.int64)
+    has = (
+        np.nan_to_num(status["has_pose"].to_numpy(np.float64)) == 1
+        if "has_pose" in status
+        else np.ones(len(ts), bool)
+    )
+    rows = np.flatnonzero(has)
+    tp = pose["t_ns"].to_numpy(np.int64)
+    left = pd.DataFrame({"t": ts[rows], "r": _rank_in_time(ts[rows]), "i": rows})
+    right = pd.DataFrame({"t": tp, "r": _rank_in_time(tp), "j": np.arange(len(tp))})
+    pairs = left.merge(right, on=["t", "r"], how="inner")
+    i, j = pairs["i"].to_numpy(np.int64), pairs["j"].to_numpy(np.int64)
+    cols: dict[str, Any] = {"t_ns": ts}
+    for c in _POSE_COLUMNS:
+        col = np.full(len(ts), np.nan)
+        if c in pose:
+            col[i] = pose[c].to_numpy(np.float64)[j]
+        cols[c] = col
+    rest = [c for c in status.columns if c != "t_ns"]
+    for c in [c for c in rest if c.startswith("cov_")]:
+        cols[c] = status[c].to_numpy()
+    frame_id = np.full(len(ts), None, object)
+    if "frame_id" in pose:
+        frame_id[i] = pose["frame_id"].to_numpy(object)[j]
+    cols["frame_id"] = frame_id
+    for c in rest:
+        if c not in cols:
+            cols[c] = status[c].to_numpy()
+    df = pd.DataFrame(cols, copy=False)
+    df["frame_id"] = pd.Series(frame_id, dtype=object, index=df.index)
+    return df
+
+
 @dataclass
 class StreamSummary:
     """Counts and timing of one stream (``cdpr inspect``)."""
@@ -664,6 +855,8 @@ def summarize(run: Run) -> list[StreamSummary]:
     with its status in one pass); ``status`` is decoded window by window."""
     out = []
     for topic, info in run.streams.items():
+        if info.metadata.get("status_of") in run.streams:
+            continue  # a pose's status channel: its frames are counted under the pose stream
         blocked = info.metadata.get("storage") == column_blocks.STORAGE
         bad = 0
         if blocked:  # times and status in one pass over the blocks, a window at a time

@@ -57,8 +57,9 @@ from cdpr.analysis.test_section import SectionGeometry
 from cdpr.analysis.windage import windage_of_rig
 
 from .aero_model import DERIVATIVE_NAMES, AeroModel
-from .files import atomic_output, load_toml
+from .files import atomic_output
 from .loadcell import INT24_MAX, INT24_MIN, Calibration
+from .schema import load_rig
 from .vrig_events import oscillation_event_fields
 from .vrig_schedule import (  # noqa: F401  (the schedule API, re-exported for its users)
     FAULT_KINDS,
@@ -816,12 +817,6 @@ class VirtualRig:
 # --------------------------------------------------------------------------------------------
 # command line (two-process runs)
 # --------------------------------------------------------------------------------------------
-def _load_rig(path: str) -> Rig:
-    from .schema import rig_from_mapping
-
-    return rig_from_mapping(load_toml(path), source=str(Path(path)))
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m cdpr.daq.virtual_rig``: run a schedule on a pty transport (see module doc)."""
     ap = argparse.ArgumentParser(
@@ -855,7 +850,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from cdpr.analysis.errors import CdprError
 
     try:
-        rig = _load_rig(a.rig)
+        rig = load_rig(a.rig)
         sch = load_schedule(a.schedule, rig)
         vr = VirtualRig(rig, sch, seed=a.seed)
         run = vr.start(

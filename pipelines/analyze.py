@@ -50,7 +50,7 @@ PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),)
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
      "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options",
-     "windage_tare", "wall_corrected", "uncorrected"}
+     "windage_tare", "wall_corrected", "uncorrected", "pose_cov_stated"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -64,7 +64,10 @@ class AnalyzeOptions:
     corrections: run the correction stages (zero drift, flow conditions, windage, wall
         corrections, repeatability; ``cdpr analyze --matrix``); tunnel: the matrix's ``[tunnel]``
         (None: no windage model and no wall corrections, flagged); matrix_file: its path.
-    pose_sd_fallback: pose σ per frame when the pose stream carries no covariance (flagged).
+    pose_sd_fallback: pose σ per frame when the pose stream carries no covariance;
+        pose_sd_from: where it came from (``paper``: the paper's 0.5 mm / 0.1°, flagged
+        ``pose_cov_nominal``, a warning; else the lab's stated precision, ``--pose-sd`` or the test
+        matrix's ``campaign.pose_sd``, flagged ``pose_cov_stated``).
     balance_file: ``cdpr calibrate balance`` output whose interaction matrix is applied.
     loadcell_calibration_file: a load-cell calibration file (``cdpr calibrate loadcells``): every
         tension is re-derived from the run's recorded raw counts, ``T = (counts - offset) * gain``,
@@ -74,6 +77,7 @@ class AnalyzeOptions:
 
     geometry: ModelGeometry | None = None
     pose_sd_fallback: tuple[float, ...] = PAPER_POSE_SD
+    pose_sd_from: str = "paper"
     balance_file: str | None = None
     rule: SteadyRule = field(default_factory=SteadyRule)
     reduce: ReduceSettings = field(default_factory=ReduceSettings)
@@ -125,6 +129,7 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         pose_cov=run.pose_cov,
         pose_sd_fallback=None if run.pose_cov is not None else np.array(opts.pose_sd_fallback),
         pose_bad=run.pose_bad,
+        pose_sd_word="pose_cov_nominal" if opts.pose_sd_from == "paper" else "pose_cov_stated",
     )
     arrays = {"input_flags": _input_words(run, plan, pts["input_flags"])}
     corrections = None
@@ -288,6 +293,7 @@ def analyze_run(
             "fingerprint": fp,
             "rig": run.rig.name,
             "pose_source": run.pose_source,
+            "tension_clock": run.tension_clock,
             "options": options_json(opts),
             "balance_file": None
             if opts.balance_file is None

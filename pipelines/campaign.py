@@ -52,8 +52,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from cdpr.analysis.aero import ModelGeometry, attitude_from_flow_angles
 from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS, WIND_OFF_KINDS
 from cdpr.analysis.conventions import POINT_KINDS as KINDS
@@ -75,7 +73,9 @@ _TOP = {
     "campaign", "model", "tunnel", "instruments", "defaults", "points", "virtual_rig",
     "aero_estimate",
 }  # fmt: skip
-_CAMPAIGN = {"name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers"}
+_CAMPAIGN = {
+    "name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers", "pose_sd",
+}  # fmt: skip
 _MODEL = {"name", "area_m2", "span_m", "chord_m", "mrp_P_m", "volume_m3"}
 _MODEL_WALLS = {
     "blockage_K3",
@@ -204,6 +204,9 @@ class TestMatrix:
     """The tunnel instruments' stated accuracy (``[instruments]``; the keys not given take their
     defaults, named in ``instruments.defaulted``: the reduction flags
     ``tunnel_instrument_sd_default``)."""
+    pose_sd: tuple[float, ...] | None = None
+    """``campaign.pose_sd``: the camera's precision per frame (x, y, z in m; roll, pitch, yaw in
+    rad), used for runs whose pose stream carries no covariance (None: not stated)."""
     aero_estimate: Mapping[str, Any] | None = None
     """The ``[aero_estimate]`` table: the expected aerodynamic coefficients the motion planner
     loads the plan with (keys of the virtual rig's aero model, geometry from ``[model]``); None
@@ -331,6 +334,14 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
     }
     if (optional["camera"] is None) != (optional["markers"] is None):
         raise ConfigError(src, "campaign.camera", "camera and markers go together")
+    pose_sd = None
+    if "pose_sd" in camp:
+        v = camp["pose_sd"]
+        if not isinstance(v, list) or len(v) != 6:
+            raise ConfigError(
+                src, "campaign.pose_sd", "expected 6 numbers: x_m, y_m, z_m, roll, pitch, yaw (rad)"
+            )
+        pose_sd = tuple(_num(src, f"campaign.pose_sd[{i}]", x, 0.0, True) for i, x in enumerate(v))
 
     if "model" not in data:
         raise ConfigError(src, "model", "missing [model] table")
@@ -451,6 +462,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         tunnel=tunnel,
         instruments=instruments,
         aero_estimate=None if aero_estimate is None else dict(aero_estimate),
+        pose_sd=pose_sd,
         **optional,
     )
 
@@ -719,11 +731,6 @@ def schedule_mapping(matrix: TestMatrix) -> dict[str, Any]:
         segs.append(seg)
     out["segments"] = segs
     return out
-
-
-def total_duration_s(matrix: TestMatrix) -> float:
-    """Run time of the whole matrix (ramps included), s."""
-    return float(np.sum([p.transition_s + p.duration_s for p in matrix.points]))
 
 
 def schedule_from_matrix(

@@ -15,6 +15,7 @@ from cdpr.analysis.conventions import COEFFICIENTS, POSE_COLUMNS, WRENCH_COLUMNS
 from cdpr.analysis.errors import InputError
 from cdpr.analysis.reduction import POSE, POSE_COV, WRENCH, Points
 from cdpr.analysis.rig import Rig
+from cdpr.analysis.stages import UNCERTAINTY_COLUMNS
 
 
 def _sd(cov: np.ndarray) -> np.ndarray:
@@ -70,9 +71,33 @@ def points_table(
         cols[f"sd_T_{name}_N"] = np.sqrt(np.clip(p["tension_cov_N2"][:, k, k], 0.0, None))
         cols[f"dT_{name}_N"] = p["check_dT_N"][:, k]
     cols["check_max_abs_dT_N"] = p["check_max_abs_dT_N"]
+    cols.update(uncertainty_columns(p))
     cols.update(correction_columns(p, rig))
     cols.update(columns_after or {})
     return pd.DataFrame(cols)
+
+
+def uncertainty_columns(p: Points) -> dict[str, Any]:
+    """The uncertainty stage's columns (random and systematic σ, degrees of freedom, U95 of each
+    wrench component and coefficient), the effective load-cell sample count of each point's window
+    and the dwell it would need, and a tared point's pose difference to its tare (used and
+    measured)."""
+    a = p.arrays
+    cols: dict[str, Any] = {}
+    for key in ("n_eff_min", "dwell_needed_s"):
+        if key in a:
+            cols[key] = a[key]
+    for prefix in UNCERTAINTY_COLUMNS:
+        for c in (*WRENCH_COLUMNS, *COEFFICIENTS):
+            if f"{prefix}_{c}" in a:
+                cols[f"{prefix}_{c}"] = a[f"{prefix}_{c}"]
+    for key, prefix in (
+        ("deflection_O_m_rad", "deflection"), ("deflection_measured_O_m_rad", "deflection_measured")
+    ):  # fmt: skip
+        if key in a:
+            for k, c in enumerate(POSE_COLUMNS):
+                cols[f"{prefix}_{c}"] = a[key][:, k]
+    return cols
 
 
 def _correction_text(p: Points, i: int) -> str:

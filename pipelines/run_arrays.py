@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from cdpr.analysis.balance import interpolate_at, sample_mask
+from cdpr.analysis.clock import sample_clock
 from cdpr.analysis.conventions import status_from_channel_bits
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.flow import air_density
@@ -52,6 +53,10 @@ class RunData:
     """Relative humidity (0..1) on ``t_ns``, held from the last tunnel message (NaN where that
     message has none); None when no tunnel message carries one."""
     recalibration: dict[str, Any] | None = None
+    tension_clock: str = ""
+    """Where the tension samples' times come from: the sample counter (the sampling instants, the
+    lower envelope of the reception times: :func:`cdpr.analysis.clock.sample_clock`), or the
+    reception times when the stream has no counter."""
     """When the tensions were re-derived from the raw counts: the calibration's file, id, date and
     the largest change against the recorded tensions per cable (N); None: tensions as recorded."""
 
@@ -270,6 +275,15 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             seq = seq[order][keep]
     counter = seq
     bits = sample_mask(T, status=st, counter=counter, counter_modulus=2**62)
+    clock = "reception times (the stream has no sample counter)"
+    if seq is not None and len(seq) > 1 and np.all(np.diff(seq) > 0):
+        # the sampling instants from the sample counter, not the host's reception bursts
+        sc = sample_clock(t_ns, seq)
+        t_ns = sc.t_ns
+        clock = (
+            f"the sample counter (sample period {sc.period_ns / 1e6:.4f} ms; reception came up to "
+            f"{np.max(sc.latency_ns) / 1e6:.1f} ms after the sampling instant)"
+        )
 
     tunnel = None
     pressure_temperature: Any = None
@@ -322,26 +336,14 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         if (~bad).any():
             eul[~bad] = euler_from_quaternion(quat[~bad])
         poses = np.concatenate([pos, eul], axis=1)
-        pose_cov = None
-        ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
-        if all(c in pose_df for c in ccols):
-            C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
-            # a frame without any covariance value: none for the run; a partly missing one
-            # (NaN recorded as null) marks its frame bad
-            if np.isfinite(C).any(axis=(1, 2)).all():
-                # the camera reports [position, rotation vector in {O}]; Euler angles:
-                # dpsi = H^-1 dtheta
-                Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-                J = np.zeros((len(tp), 6, 6))
-                J[:, :3, :3] = np.eye(3)
-                J[:, 3:, 3:] = Hinv
-                pose_cov = J @ C @ np.swapaxes(J, 1, 2)
-                bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
+        pose_cov = _pose_covariance(pose_df, eul, bad)
+        if pose_cov is not None:  # a partly missing one (NaN recorded as null): its frame is bad
+            bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity, recal,
+                pressure_temperature, humidity, recal, clock,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -349,14 +351,31 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity, recal,
+            events, truth, False, pressure_temperature, humidity, recal, clock,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity, recal,
+        pressure_temperature, humidity, recal, clock,
     )  # fmt: skip
+
+
+def _pose_covariance(pose_df: pd.DataFrame, eul: np.ndarray, bad: np.ndarray) -> np.ndarray | None:
+    """(k, 6, 6) covariance of the camera frames in [position, Euler angles], from the recorded
+    ``cov_00 .. cov_55`` ([position, rotation vector in {O}]: dpsi = H^-1 dtheta); None when the
+    stream has no covariance or a usable frame has none at all.  A frame without a pose (``bad``)
+    carries none and does not count: one lost frame must not cost the run its covariance."""
+    ccols = [f"cov_{i}{j}" for i in range(6) for j in range(6)]
+    if not all(c in pose_df for c in ccols):
+        return None
+    C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
+    if not np.isfinite(C[~bad]).any(axis=(1, 2)).all():
+        return None
+    J = np.zeros((len(C), 6, 6))
+    J[:, :3, :3] = np.eye(3)
+    J[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
+    return J @ C @ np.swapaxes(J, 1, 2)
 
 
 def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:

@@ -33,8 +33,15 @@ def warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]:
         )
     if "pose_cov_nominal" in words:
         lines.append(
-            "the pose stream carries no covariance: pose σ from the configured constant "
-            "(flag pose_cov_nominal)"
+            "the pose stream carries no covariance and no camera precision was stated "
+            "(--pose-sd, or campaign.pose_sd in the test matrix): pose σ from the paper's "
+            "0.5 mm / 0.1° (flag pose_cov_nominal)"
+        )
+    if "window_too_short" in words:
+        lines.append(
+            "points whose window is too short for the correlation of their own noise (fewer than "
+            "10 effective samples): their σ is not stable; dwell_needed_s gives the time they "
+            "would need (flag window_too_short)"
         )
     if "no_pose_stream" in words:
         lines.append("no pose stream: the rig's reference pose is used (flag no_pose_stream)")
@@ -52,7 +59,7 @@ def warning_lines(run: RunData, plan: PointPlan, words: list[str]) -> list[str]:
             "(up to about 1 % high; flag humidity_not_given)"
         )
     said = {"pose_cov_nominal", "no_pose_stream", "no_tare", "masked", "no_geometry", "check_fail"}
-    said |= {"humidity_not_given"}
+    said |= {"humidity_not_given", "window_too_short"}
     said |= {"no_airspeed"} | set(MASK_NAMES.values())
     rest = [w for w in words if w not in said]
     if rest:
@@ -211,6 +218,7 @@ def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         f"# Analysis of `{run.path.name}`",
         "",
         f"- rig: **{run.rig.name}** ({run.rig.n_cables} cables); pose from: {run.pose_source}",
+        f"- tension times from {run.tension_clock}",
         f"- {len(df)} test points from **{red['point_source']}**"
         f" ({'the /events stream' if red['point_source'] == 'events' else 'steady-point detection'})"
         f", {int(df.kind.isin(('tare', 'zero')).sum())} wind-off",

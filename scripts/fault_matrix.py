@@ -83,8 +83,8 @@ def run_case(work: Path, name: str, faults: list[dict[str, Any]], transport: str
     import can
 
     import cdpr.daq.drivers  # noqa: F401
-    from cdpr.daq.mcap_io import read_run
     from cdpr.daq.recorder import Recorder, RecorderOptions
+    from cdpr.daq.run_reader import open_run
     from cdpr.daq.source import create_source
     from cdpr.daq.virtual_rig import RigRun, VirtualRig, schedule_from_mapping
     from cdpr.pipelines.config import load_rig
@@ -144,15 +144,15 @@ def run_case(work: Path, name: str, faults: list[dict[str, Any]], transport: str
     finally:
         rec.stop("case done")  # the recorder stops first: the end of the rig is no fault
         run.stop()
-    events = [b for _, b in read_run(path).messages["/event"] if b.get("name") == "fault"]
+    with open_run(path) as run:
+        df = run.table("/event")
+    rows = df[df["name"] == "fault"].to_dict("records") if len(df) and "name" in df else []
+    events = [{k: v for k, v in r.items() if v is not None and v == v} for r in rows]
     return events, t0, t1
 
 
 def _time_of(ev: dict[str, Any]) -> int:
-    if "t_start_ns" in ev:
-        return int(ev["t_start_ns"])
-    ts = ev["timestamp"]
-    return int(ts["sec"]) * 1_000_000_000 + int(ts["nsec"])
+    return int(ev["t_start_ns"] if "t_start_ns" in ev else ev["t_ns"])
 
 
 def main(argv: list[str] | None = None) -> int:

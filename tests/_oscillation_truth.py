@@ -19,7 +19,7 @@ import quadprog
 from scipy.optimize import linprog
 
 G0 = 9.80665
-RHO = 101325.0 / (287.05 * 293.15)  # the aero model's dry air at its defaults
+RHO = 101325.0 / (287.05287 * 293.15)  # the aero model's dry air at its defaults
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,6 @@ import pytest
 from cdpr.analysis.aero import (
     COEFFICIENT_NAMES,
     aero_coefficients,
-    air_density,
     body_axes_in_platform,
     body_from_tunnel,
     coefficient_matrix,
@@ -18,6 +17,7 @@ from cdpr.analysis.aero import (
     wind_from_body,
 )
 from cdpr.analysis.errors import InputError
+from cdpr.analysis.flow import air_density
 from cdpr.analysis.rotations import rotation_from_euler
 
 DEG = np.pi / 180

@@ -42,7 +42,10 @@ def write_run(
     events: bool = True,
     tunnel: bool = True,
     partial_first: bool = False,
+    lost_every: int = 0,
 ) -> None:
+    """``lost_every``: every so many camera frames is one without a pose (as the camera source
+    gives it: NaN pose and covariance, flag no_pose, status bad frame)."""
     w = McapRunWriter(path)
     w.add_attachment(f"rig/{RIG_FILE.name}", sw.rig_text.encode())
     readings = []
@@ -69,15 +72,19 @@ def write_run(
             C[:3, :3] = sw.pose_cov[i, :3, :3]
             H = _H(*q[3:])
             C[3:, 3:] = H @ sw.pose_cov[i, 3:, 3:] @ H.T  # rotation-vector covariance in {O}
+            lost = lost_every and (i // 3) % lost_every == lost_every - 1
+            nan = float("nan")
             readings.append(
                 Reading(
                     "pose",
                     int(t),
                     {
-                        "position_O_m": q[:3].tolist(),
-                        "quaternion_xyzw": xyzw.tolist(),
-                        "covariance": C.reshape(-1).tolist(),
+                        "position_O_m": [nan] * 3 if lost else q[:3].tolist(),
+                        "quaternion_xyzw": [nan] * 4 if lost else xyzw.tolist(),
+                        "covariance": [nan] * 36 if lost else C.reshape(-1).tolist(),
+                        "flags": 1 if lost else 0,
                     },
+                    8 if lost else 0,
                 )
             )
     if events:
@@ -143,6 +150,25 @@ def test_events_define_the_points_and_the_accuracy_holds(
     assert summary["reduction"]["point_source"] == "events"
     names = [s["stage"] for s in summary["reduction"]["stages"]]
     assert names.index("weight_model") < names.index("weight_tare") < names.index("coefficients")
+
+
+def test_frames_without_a_pose_are_flagged_and_the_camera_covariance_kept(
+    sweep: Sweep, tmp_path: Path
+) -> None:
+    """Every 10th camera frame without a pose (a covered mark): the points that lose frames say
+    ``pose_flagged``, none falls back to a nominal pose σ (before: one such frame made the run's
+    covariance count as missing, ``pose_cov_nominal`` on every point), the accuracy holds."""
+    run = tmp_path / "lost.mcap"
+    write_run(run, sweep, lost_every=10)
+    assert main(["analyze", str(run), "--out", str(tmp_path / "a"), *GEO]) == 1  # the flags
+    df = pd.read_csv(tmp_path / "a" / "lost" / "points.csv")
+    flags = df["flags"].fillna("")
+    assert not flags.str.contains("pose_cov_nominal").any()
+    assert flags.str.contains("pose_flagged").sum() >= len(df) // 2
+    on = (df.kind == "wind_on").to_numpy()
+    err = df.loc[on, list(WRENCH_COLUMNS)].to_numpy() - sweep.true_wrench[on]
+    assert np.abs(err[:, :3]).max() < 0.1 and np.abs(err[:, 3:]).max() < 0.005
+    assert (df.loc[on, "sd_fz_N"] < 0.05).all()
 
 
 def test_mid_sample_start_and_no_tunnel_say_so(sweep: Sweep, tmp_path: Path, capsys) -> None:

@@ -214,7 +214,7 @@ def test_virtual_rig_runs_the_matrix(tmp_path: Path) -> None:
     np.testing.assert_allclose(t["euler_rad"][k_on], [[0.0, math.radians(4.0), 0.0]] * len(k_on))
     np.testing.assert_allclose(t["wind_mps"][k_on], 25.0)
     # the aero model's geometry comes from [model]: q S CL at aoa 4 deg, rho from p/(R T)
-    rho = 101325.0 / (287.05 * 293.15)
+    rho = 101325.0 / (287.05287 * 293.15)
     lift = 0.5 * rho * 25.0**2 * 0.0146 * 3.5 * math.radians(4.0)
     drag = 0.5 * rho * 25.0**2 * 0.0146 * (0.035 + 0.09 * (3.5 * math.radians(4.0)) ** 2)
     W = t["wrench_aero_O"][k_on[0]]

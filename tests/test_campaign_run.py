@@ -43,6 +43,7 @@ def test_a_short_run_reads_back_with_the_mcap_reader(tmp_path: Path) -> None:
         "/tensions": 45_000,
         "/tensions/view": 2250,
         "/pose": 1350,
+        "/pose_status": 1350,  # one per frame, with or without a pose (every frame has one here)
         "/tunnel": 450,
         "/events": 6,
     }

@@ -32,7 +32,7 @@ def test_humid_air_and_vapour_pressure() -> None:
     # 101325 Pa: 1.194 kg/m^3 (dry: 1.204)
     assert saturation_vapour_pressure(293.15) == pytest.approx(2339.0, rel=1e-3)
     assert air_density(101325.0, 293.15, 1.0) == pytest.approx(1.1936, rel=1e-3)
-    # dry air by hand: p / (R_d T) = 101325 / (287.05287 * 293.15) = 1.20412 kg/m^3
+    # dry air by hand: p / (R_d T) = 101325 / (287.05287 * 293.15) = 1.20410 kg/m^3
     assert air_density(101325.0, 293.15) == pytest.approx(
         101325.0 / (287.05287 * 293.15), rel=1e-12
     )

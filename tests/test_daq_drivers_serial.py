@@ -161,9 +161,9 @@ def test_serial_tunnel_and_density(tmp_path: Path) -> None:
         port.close()
     tun = [r for r in rd if r.stream == "tunnel"]
     assert [r.values["airspeed_mps"] for r in tun] == [17.27, 25.51]
-    # rho = p / (R T) = 101325 / (287.05 * 293.15) = 1.20412 kg/m^3
-    assert tun[0].values["density_kgpm3"] == pytest.approx(1.20412, abs=1e-5)
-    assert tun[1].values["density_kgpm3"] == pytest.approx(100000 / (287.05 * 300.0))
+    # rho = p / (R T) = 101325 / (287.05287 * 293.15) = 1.20410 kg/m^3
+    assert tun[0].values["density_kgpm3"] == pytest.approx(1.20410, abs=1e-5)
+    assert tun[1].values["density_kgpm3"] == pytest.approx(100000 / (287.05287 * 300.0))
     assert src.stats.bad == 1
 
 
@@ -201,9 +201,9 @@ def test_serial_tunnel_humidity_and_moist_density(tmp_path: Path) -> None:
     wet, dry = (r.values for r in rd if r.stream == "tunnel")
     assert wet["relative_humidity"] == 0.8 and "relative_humidity" not in dry
     # by hand at 30 deg C: e_s = 4245 Pa (steam tables: 4.2455 kPa), e = 0.8 e_s = 3396 Pa,
-    # rho = (p - e)/(287.05 T) + e/(461.5 T) = 1.12537 + 0.02427 = 1.1496 kg/m^3
+    # rho = (p - e)/(287.05287 T) + e/(461.5 T) = 1.12537 + 0.02427 = 1.1496 kg/m^3
     assert wet["density_kgpm3"] == pytest.approx(1.1496, abs=3e-4)
-    assert dry["density_kgpm3"] == pytest.approx(101325.0 / (287.05 * 303.15))
+    assert dry["density_kgpm3"] == pytest.approx(101325.0 / (287.05287 * 303.15))
     assert dry["density_kgpm3"] - wet["density_kgpm3"] > 0.01  # 1.3 % denser when dry
 
 

@@ -68,7 +68,7 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
     (path,) = sorted(out.glob("*_cam.mcap"))
     node = node_read(path)
     assert node["complete"]
-    n_pose, n_img = node["topics"]["/pose"], node["topics"]["/image"]
+    n_pose, n_img = node["topics"]["/pose_status"], node["topics"]["/image"]  # frames, images
     assert 3 <= n_pose <= 27  # 10 fps paced in real time for 2.5 s (fewer on a loaded machine)
     rc = read_run(path)
     t_img = np.array([t for t, _ in rc.messages["/image"]])
@@ -78,13 +78,15 @@ def test_record_a_camera_folder(tmp_path: Path) -> None:
         "calibration/camera_virtual.json",
         "calibration/markers_flat_aruco.toml",
     }
-    got = rc.messages["/pose"]
-    good = [b for _, b in got if b["flags"] == 0]  # flagged poses (not trusted) aside
+    got = rc.messages["/pose_status"]  # every frame; its pose (if any) on /pose, same log time
+    assert len(got) == n_pose
+    pose_at = dict(rc.messages["/pose"])
+    good = [(t, b) for t, b in got if b["flags"] == 0]  # flagged poses (not trusted) aside
     assert len(good) >= 0.6 * len(got)
-    for b in good:
+    for t, b in good:
         k = b["frame_index"]
         pos, R = truth[k]
-        pp, o = b["pose"]["position"], b["pose"]["orientation"]  # foxglove.PoseInFrame
+        pp, o = pose_at[t]["pose"]["position"], pose_at[t]["pose"]["orientation"]
         assert np.linalg.norm(np.array([pp["x"], pp["y"], pp["z"]]) - pos) < 1e-3
         dR = rotation_from_quaternion([o["w"], o["x"], o["y"], o["z"]]) @ R.T
         assert np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)) < np.deg2rad(0.1)

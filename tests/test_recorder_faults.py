@@ -227,7 +227,7 @@ def test_a_camera_folder_that_runs_dry_is_a_fault(tmp_path: Path) -> None:
         assert rec.status().alarms == ["cam: ended"]
     assert rec.status().faults == ["source cam: ended early"]
     rc = read_run(path)
-    assert len(rc.messages["/pose"]) == 4 and rc.messages["/pose"][0][1]["flags"] == 0
+    assert len(rc.messages["/pose_status"]) == 4 and rc.messages["/pose_status"][0][1]["flags"] == 0
     (f,) = _faults(path)
     assert (
         f["source"] == "cam" and f["fault"] == "ended" and "while the run went on" in f["message"]

@@ -63,11 +63,18 @@ def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path)
 
     node = node_read(p)
     assert node["complete"] and node["error"] is None and node["bad_json"] == 0
-    assert node["topics"] == {"/tensions": 501, "/pose": 8, "/image_cam0": 1, "/event": 1}
+    assert node["topics"] == {
+        "/tensions": 501,
+        "/pose": 8,
+        "/pose_status": 8,
+        "/image_cam0": 1,
+        "/event": 1,
+    }
     assert node["statistics"]["per_topic"] == node["topics"]
     assert node["schemas"] == {
         "/tensions": "cdpr.tensions",
         "/pose": "foxglove.PoseInFrame",
+        "/pose_status": "cdpr.pose_status",
         "/image_cam0": "foxglove.CompressedImage",
         "/event": "foxglove.Log",
     }
@@ -83,8 +90,13 @@ def test_channels_schemas_and_bodies_match_an_independent_reader(tmp_path: Path)
     assert rc.messages["/tensions"][-1][1]["T_c1_N"] is None  # NaN -> null (strict JSON)
     pose = rc.messages["/pose"][2][1]
     assert pose["pose"]["position"] == {"x": 0.5, "y": 0.0, "z": 2.3}
-    assert pose["pose"]["orientation"]["w"] == 1.0 and pose["rms_px"] == 0.2
+    assert pose["pose"]["orientation"]["w"] == 1.0 and set(pose) == {
+        "timestamp",
+        "frame_id",
+        "pose",
+    }
     assert pose["timestamp"] == {"sec": 1_700_000_000, "nsec": 2}
+    assert rc.messages["/pose_status"][2] == (T0 + 2, {"rms_px": 0.2, "has_pose": 1, "status": 0})
     q = rc.messages["/pose"][7][1]["pose"]["orientation"]
     assert q == {"x": 0.1, "y": 0.2, "z": 0.3, "w": 0.5}
     img = rc.messages["/image_cam0"][0][1]
@@ -286,12 +298,13 @@ def test_every_message_is_valid_against_its_channel_schema(tmp_path: Path) -> No
     )
     w.write(Reading("event", T0, {"message": "point 1", "level": "info"}))
     w.finish()
-    n = 0
+    topics = []
     with p.open("rb") as fh:
-        for schema, _, msg in make_reader(fh).iter_messages():
+        for schema, ch, msg in make_reader(fh).iter_messages():
             jsonschema.Draft202012Validator(json.loads(schema.data)).validate(json.loads(msg.data))
-            n += 1
-    assert n == 4
+            topics.append(ch.topic)
+    # the failed pose is no PoseInFrame message: only its status
+    assert sorted(topics) == ["/event", "/pose_status", "/tensions", "/tensions"]
     with open_run(p) as run:
         t = run.table("/tensions")
         assert np.isnan(t["T_c1_N"][1]) and t["status"].tolist() == [0, 16]

@@ -4,6 +4,7 @@ virtual camera; truth: the poses the frames were rendered at."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -209,23 +210,32 @@ def test_simulated_run_recorded_poses_match_the_virtual_rig(tmp_path: Path) -> N
     path = tmp_path / "run.mcap"
     rec = Recorder([src], path)
     rec.start()
-    rec.wait(1.6)
+    # record until 8 pose frames and 2 images are written (about 1.6 s idle; a loaded machine
+    # renders slower and loses frames, so wait for the frames, not for a time)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        c = rec.status().counts
+        if c.get("pose", 0) >= 8 and c.get("image", 0) >= 2:
+            break
+        time.sleep(0.05)
     rec.stop()
-    poses, images = [], 0
+    poses, images, status = [], 0, {}
     with open(path, "rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages():
             if schema.name == "foxglove.PoseInFrame" and channel.topic == "/pose":
                 poses.append(json.loads(message.data))
+            elif channel.topic == "/pose_status":  # every frame's status, at the frame's time
+                status[message.log_time] = json.loads(message.data)["status"]
             elif schema.name == "foxglove.CompressedImage":
                 images += 1
-    assert len(poses) >= 8 and 2 <= images <= 4  # 2 images/s over ~1.6 s
+    assert len(poses) >= 8 and images >= 2  # 10 poses/s and 2 images/s
     for b in poses:
         t_ns = b["timestamp"]["sec"] * 1_000_000_000 + b["timestamp"]["nsec"]
         p, R = vr.true_pose_at(t_ns)
         o = b["pose"]["orientation"]
         q = [o["w"], o["x"], o["y"], o["z"]]
         pos = b["pose"]["position"]
-        assert b["status"] == 0
+        assert status[t_ns] == 0
         assert np.linalg.norm(np.array([pos["x"], pos["y"], pos["z"]]) - p) < 0.15e-3
         assert _rot_err_deg(q, R) < 0.03
 

@@ -253,7 +253,7 @@ def test_each_correction_has_its_size_in_the_table_and_the_report(analysed) -> N
     # flow conditions by hand: Re on the chord, Mach
     V = df.airspeed_mps[on].to_numpy(float)
     np.testing.assert_allclose(df.reynolds[on], RHO * V * CHORD / MU, rtol=2e-3)
-    np.testing.assert_allclose(df.mach[on], V / np.sqrt(1.4 * 287.05 * T_K), rtol=2e-3)
+    np.testing.assert_allclose(df.mach[on], V / np.sqrt(1.4 * 287.05287 * T_K), rtol=2e-3)
     # wall corrections: induced drag delta (S/C) CL^2 with the octagon's area 2(1+sqrt2) side^2
     C = 2 * (1 + 2**0.5) * SIDE**2
     dcd = 0.125 * AREA / C * df.CL[on].to_numpy(float) ** 2

@@ -45,6 +45,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--balance", help="balance calibration (cdpr calibrate balance output, JSON)")
     p.add_argument(
+        "--pose-sd",
+        nargs=6,
+        type=float,
+        metavar=("X_M", "Y_M", "Z_M", "ROLL_RAD", "PITCH_RAD", "YAW_RAD"),
+        help="the camera's precision per frame, for runs whose pose stream carries no covariance "
+        "(wins over the test matrix's campaign.pose_sd; without either: the paper's 0.5 mm / "
+        "0.1 deg, flagged pose_cov_nominal)",
+    )
+    p.add_argument(
         "--loadcell-calibration",
         help="load-cell calibration file (cdpr calibrate loadcells): re-derive every tension from "
         "the run's recorded raw counts, T = (counts - offset) * gain, before the reduction "
@@ -132,6 +141,12 @@ def run(args: argparse.Namespace) -> int:
     if args.balance is not None and not Path(args.balance).is_file():
         raise ConfigError(args.balance, "", "no such balance calibration file")
     geometry = geometry_from_args(args, need=False)
+    pose_sd: tuple[float, ...] | None = None
+    pose_sd_from = "paper"
+    if args.pose_sd is not None:
+        if not all(math.isfinite(v) and v > 0 for v in args.pose_sd):
+            raise InputError(f"--pose-sd: expected 6 finite values > 0, got {args.pose_sd}")
+        pose_sd, pose_sd_from = tuple(args.pose_sd), "--pose-sd"
     tunnel = None
     lc_file: str | None = args.loadcell_calibration
     lc_from = "--loadcell-calibration"
@@ -142,6 +157,8 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--matrix gives the model geometry: drop --area-m2/--span-m/--chord-m")
         m = load_test_matrix(args.matrix)
         geometry = m.model
+        if pose_sd is None and m.pose_sd is not None:
+            pose_sd, pose_sd_from = m.pose_sd, f"the test matrix {args.matrix} (campaign.pose_sd)"
         tunnel = m.tunnel
         if m.loadcell_calibration is not None:
             if lc_file is None:
@@ -177,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
         loadcell_calibration_file=lc_file,
         loadcell_calibration_from=lc_from if lc_file is not None else None,
         reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
+        **({} if pose_sd is None else {"pose_sd_fallback": pose_sd, "pose_sd_from": pose_sd_from}),
     )
     results = analyze_runs(
         paths,

@@ -10,7 +10,13 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("export", help="export a run file to HDF5 (one table per stream)")
+    p = sub.add_parser(
+        "export",
+        help="export a run file to HDF5 (one table per stream)",
+        description="Export a run file to HDF5. Exit codes: 0 the whole run exported; 3 the run is "
+        "cut off or damaged (what reads is exported, one line on stderr says what was lost); 2 "
+        "bad input (one line, nothing written).",
+    )
     p.add_argument("run", help="run file (.mcap)")
     p.add_argument("--hdf5", required=True, help="output HDF5 file (never overwritten)")
     p.set_defaults(func=run)

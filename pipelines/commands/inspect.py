@@ -1,4 +1,9 @@
-"""``cdpr inspect RUN``: streams, counts, rates, gaps, drops, duration and metadata of a run file."""
+"""``cdpr inspect RUN``: streams, counts, rates, gaps, drops, duration and metadata of a run file.
+
+Exit codes (as ``cdpr export``): 0 the file is whole; 3 it is cut short or damaged (the first line
+says ``TRUNCATED (...)`` or ``DAMAGED (...)``, and the summary is of what the recovery path reads);
+2 bad input or nothing readable (one line on stderr).
+"""
 
 from __future__ import annotations
 
@@ -6,9 +11,17 @@ import argparse
 import json
 from typing import Any
 
+EXIT_DAMAGED = 3
+"""The file is cut short or damaged: the code ``cdpr export`` and ``cdpr recover`` give too."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("inspect", help="summarise a run file (streams, counts, rates, gaps, drops)")
+    p = sub.add_parser(
+        "inspect",
+        help="summarise a run file (streams, counts, rates, gaps, drops)",
+        description="Summarise a run file. Exit codes: 0 the file is whole; 3 it is cut short or "
+        "damaged (said in the first line; the summary is of what recovery reads); 2 bad input.",
+    )
     p.add_argument("run", help="run file (.mcap)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
@@ -21,6 +34,7 @@ def inspect_run(path: str, recover: bool = False) -> dict[str, Any]:
 
     with open_run(path, recover=recover) as rc:
         streams = summarize(rc)
+        rc.verify()  # every chunk, also those of streams whose values the summary does not read
         metadata = rc.metadata
         attachments = {
             k: {"media_type": v[0], "bytes": len(v[1])} for k, v in rc.attachments.items()
@@ -85,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         try:
             info = inspect_run(args.run)
-        except DamagedRunError:  # a damaged chunk inside: summarise what recovery salvages
+        except DamagedRunError:  # a damaged part inside: summarise what recovery salvages
             info = inspect_run(args.run, recover=True)
     except CdprError:
         raise
@@ -94,11 +108,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.run}: damaged run file ({type(exc).__name__}: {exc}); "
             "`cdpr recover` salvages every readable chunk"
         ) from None
-    damage = _damage_line(args.run) if info["read_error"] else ""
+    damage = _damage_line(args.run, info["complete"])
+    whole = info["complete"] and not damage
     if args.json:
         info["damage"] = damage
         print(json.dumps(info, indent=2))
-        return 0
+        return 0 if whole else EXIT_DAMAGED
     md = info["metadata"]
     state = "complete" if info["complete"] else f"TRUNCATED ({info['read_error'] or 'no footer'})"
     if damage:
@@ -135,19 +150,22 @@ def run(args: argparse.Namespace) -> int:
                 f"  {name:16s} {c.get('read', 0):9d} {c.get('dropped', 0):8d} "
                 f"{c.get('lost', 0):6d} {c.get('bad', 0):6d} {c.get('errors', 0):6d}"
             )
-    return 0
+    return 0 if whole else EXIT_DAMAGED
 
 
-def _damage_line(path: str) -> str:
-    """``DAMAGED (...)`` when parts inside the file are unreadable (not only its end cut off)."""
-    from cdpr.daq.recover import Scan, scan_mcap
+def _damage_line(path: str, read_whole: bool) -> str:
+    """``DAMAGED (...)`` when parts inside the file are unreadable (not only its end cut off):
+    :func:`cdpr.daq.recover.check_mcap`, the check ``cdpr recover`` makes.  ``read_whole``: the
+    summary's chunks all read (the damage is in a part the summary holds again)."""
+    from cdpr.daq.recover import check_mcap
 
-    scan = Scan()
-    for _ in scan_mcap(path, scan):
-        pass
+    scan = check_mcap(path)
     if not scan.skipped:
         return ""
-    return (
-        f"DAMAGED ({len(scan.skipped)} unreadable part(s), first {scan.skipped[0]}; the counts "
-        "below stop there; `cdpr recover` keeps every readable chunk after it)"
+    counts = (
+        "every chunk the summary lists reads: the counts below are whole"
+        if read_whole
+        else "the counts below are of what recovery reads: every readable chunk before and "
+        "after the damage"
     )
+    return f"DAMAGED ({len(scan.skipped)} unreadable part(s), first {scan.skipped[0]}; {counts})"

@@ -118,39 +118,41 @@ def _video_frames(path: Path) -> Iterator[tuple[str, int, int | None, Any]]:
 
 
 def _run_frames(path: Path, topic: str | None) -> Iterator[tuple[str, int, int | None, Any]]:
-    import base64
-
+    """The camera frames of a run file, read through ``open_run`` (the one reader; a truncated or
+    damaged file through its recovery, said on stderr) ten seconds of frames at a time."""
     from cdpr.analysis.errors import ConfigError
     from cdpr.calibration import cv
-    from cdpr.daq.mcap_io import read_run
+    from cdpr.daq.run_reader import open_run
 
-    run = read_run(path)
-    images = sorted(
-        t for t, c in run.channels.items() if c.schema_name == "foxglove.CompressedImage"
-    )
-    if topic is not None:
-        if topic not in images:
-            raise ConfigError(str(path), topic, f"no image channel of that name (has {images})")
-        images = [topic]
-    if not images:
-        raise ConfigError(str(path), "", "the run has no camera frames (no image channel)")
-    if len(images) > 1:
-        raise ConfigError(str(path), "", f"several image channels {images}: choose with --topic")
-    msgs = run.messages.get(images[0], [])
-    if not msgs:
-        raise ConfigError(str(path), images[0], "the image channel holds no frames")
-    if not run.complete:
-        print(
-            f"cdpr pose: warning: {path} is truncated ({run.error or 'no footer'}): "
-            f"{len(msgs)} frames read up to the damage",
-            file=sys.stderr,
+    with open_run(path) as run:
+        images = sorted(
+            t for t, info in run.streams.items() if info.schema_name == "foxglove.CompressedImage"
         )
-    for i, (t_ns, body) in enumerate(msgs):
-        try:
-            data = base64.b64decode(body.get("data", ""), validate=True)
-        except (ValueError, TypeError):
-            data = b""
-        yield f"{path}{images[0]}", i, int(t_ns), cv.decode_image(data) if data else None
+        if topic is not None:
+            if topic not in images:
+                raise ConfigError(str(path), topic, f"no image channel of that name (has {images})")
+            images = [topic]
+        if not images:
+            raise ConfigError(str(path), "", "the run has no camera frames (no image channel)")
+        if len(images) > 1:
+            raise ConfigError(
+                str(path), "", f"several image channels {images}: choose with --topic"
+            )
+        if not run.streams[images[0]].count:
+            raise ConfigError(str(path), images[0], "the image channel holds no frames")
+        if run.recovered:
+            print(
+                f"cdpr pose: warning: {path}: {run.warning}; "
+                f"{run.streams[images[0]].count} frames read up to the damage",
+                file=sys.stderr,
+            )
+        i = 0
+        for df in run.iter_tables(images[0], 10 * 10**9, columns=["data"]):
+            for t_ns, data in zip(df["t_ns"].tolist(), df["data"].tolist(), strict=True):
+                # open_run gives the image bytes (the base64 of the JSON body decoded)
+                data = data if isinstance(data, bytes) else b""
+                yield f"{path}{images[0]}", i, int(t_ns), cv.decode_image(data) if data else None
+                i += 1
 
 
 def run_pose(args: argparse.Namespace) -> int:
