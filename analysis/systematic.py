@@ -1,13 +1,15 @@
-"""The systematic parts of a point's uncertainty, and the expanded uncertainty U95.
+"""The systematic parts of a point's uncertainty: each source's covariance, where its numbers come
+from, and their degrees of freedom.
 
 A point's wrench has a *random* part (the noise of its own window: the load cells' long-run
 covariance, the camera's pose noise) and *systematic* parts: errors that are the same for every
 point of a campaign because they come from a calibration or a stated accuracy.  This module gives,
 per point and per source, the covariance (s, 6, 6) of the wrench at P in {O} axes (N, N m), and
-for the coefficients the covariance from the tunnel instruments; then the expanded uncertainty in
-the sense of the GUM (JCGM 100:2008, annex G) and AIAA S-071A: ``U = k u_c`` with
-``u_c^2 = u_random^2 + u_systematic^2`` and ``k = t_p(nu_eff)`` (Student's t) at the effective
-degrees of freedom of the Welch–Satterthwaite formula (GUM G.4.1, eq. G.2b).
+for the coefficients the covariance from the tunnel instruments.  The expanded uncertainty U95 of
+the GUM (JCGM 100:2008, annex G) and AIAA S-071A, ``U = k u_c`` with ``k = t_p(nu_eff)`` at the
+Welch–Satterthwaite degrees of freedom, is :func:`cdpr.analysis.uncertainty.expanded_uncertainty`
+(its ``term_dof`` takes the degrees of freedom given here, its ``extra_systematic_u2`` the
+instruments' part of the coefficients).
 
 The sources, where their numbers come from and where they enter:
 
@@ -51,15 +53,14 @@ that is linear in the wrench at the check-load poses; the geometry and calibrati
 counted again beside the interaction matrix's, which makes the sum conservative.
 
 The degrees of freedom of each systematic source (``dof`` of :class:`SystematicWrench`) feed the
-Welch–Satterthwaite formula of the systematic part (:func:`welch_satterthwaite`); the random part
-brings its own (the long-run estimate, :mod:`cdpr.analysis.longrun`).  Pure numpy/scipy: arrays in,
+Welch–Satterthwaite formula (:func:`cdpr.analysis.uncertainty.welch_satterthwaite`); the random
+part brings its own (the long-run estimate, :mod:`cdpr.analysis.longrun`).  Pure numpy: arrays in,
 arrays out.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -73,17 +74,6 @@ from .rig import Rig
 from .rotations import rotation_from_euler, skew
 
 FloatArray = NDArray[np.float64]
-
-SYSTEMATIC_TERMS: tuple[str, ...] = (
-    "loadcell_calibration",
-    "rig_geometry",
-    "interaction_matrix",
-    "weight_model",
-    "windage",
-)
-"""The ``cov_terms`` of :class:`~cdpr.analysis.reduction.Points` that are systematic (the same error
-for every point of a campaign: a calibration, a model, a stated accuracy); every other term (the
-load cells' noise ``load_cells``, the camera's ``pose``) is the point's random part."""
 
 # ------------------------------------------------------------------------------------------------
 # where the numbers come from: defaults and the calibrations' own uncertainty
@@ -519,70 +509,14 @@ def flow_coefficient_covariance(
 
 
 # ------------------------------------------------------------------------------------------------
-# degrees of freedom and the expanded uncertainty
-# ------------------------------------------------------------------------------------------------
-def welch_satterthwaite(variances: ArrayLike, dof: ArrayLike) -> FloatArray:
-    """Effective degrees of freedom (...) of a sum of independent variance components (..., k)
-    with degrees of freedom (..., k) (``inf`` for a Type B component known exactly): GUM eq.
-    G.2b, ``nu_eff = (sum u_i^2)^2 / sum (u_i^4 / nu_i)``.  Components of zero variance or infinite
-    dof add nothing to the denominator; with none left ``nu_eff`` is ``inf``."""
-    v = as_float_array(variances, "variances")
-    n = np.broadcast_to(as_float_array(dof, "dof"), v.shape)
-    if np.any(v < 0):
-        raise InputError("variances: expected values >= 0")
-    if np.any(~np.isnan(n) & (n <= 0)):
-        raise InputError("dof: expected degrees of freedom > 0")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        part = np.where((v > 0) & np.isfinite(n), v * v / n, 0.0)
-        den = part.sum(axis=-1)
-        num = v.sum(axis=-1) ** 2
-        out = np.where(den > 0, num / den, np.inf)
-    return np.asarray(np.where(np.isnan(v).any(axis=-1), np.nan, out), dtype=np.float64)
-
-
-def expanded_uncertainty(
-    u_random: ArrayLike,
-    nu_random: ArrayLike,
-    u_systematic: ArrayLike,
-    nu_systematic: ArrayLike = np.inf,
-    level: float = 0.95,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The expanded uncertainty ``(U, k, nu_eff)`` (broadcast shapes) of a result whose combined
-    standard uncertainty has a random part ``u_random`` (degrees of freedom ``nu_random``) and a
-    systematic part ``u_systematic`` (``nu_systematic``, ``inf`` for Type B):
-    ``u_c = sqrt(u_r^2 + u_s^2)``, ``nu_eff`` by Welch–Satterthwaite (GUM G.4.1, eq. G.2b),
-    ``k = t_{(1+level)/2}(nu_eff)`` (Student's t at the non-integer ``nu_eff``, which GUM G.6.4
-    allows by interpolation; the normal quantile for infinite ``nu_eff``), ``U = k u_c`` (GUM G.6.4;
-    AIAA S-071A's U95 at ``level = 0.95``).  NaN inputs give NaN."""
-    if not (0.0 < level < 1.0):
-        raise InputError(f"level: expected a probability in (0, 1), got {level}")
-    ur = as_float_array(u_random, "u_random")
-    us = as_float_array(u_systematic, "u_systematic")
-    nr = as_float_array(nu_random, "nu_random")
-    ns = as_float_array(nu_systematic, "nu_systematic")
-    ur, us, nr, ns = np.broadcast_arrays(ur, us, nr, ns)
-    if np.any(ur < 0) or np.any(us < 0):
-        raise InputError("u_random, u_systematic: expected standard uncertainties >= 0")
-    nu = welch_satterthwaite(np.stack([ur**2, us**2], axis=-1), np.stack([nr, ns], axis=-1))
-    from scipy import stats  # here: importing scipy.stats costs ~2 s at every CLI start
-
-    p = 0.5 * (1.0 + level)
-    k = np.where(
-        np.isfinite(nu), stats.t.ppf(p, np.where(np.isfinite(nu), nu, 1.0)), stats.norm.ppf(p)
-    )
-    k = np.where(np.isnan(nu), np.nan, k)
-    U = k * np.sqrt(ur**2 + us**2)
-    return np.asarray(U, dtype=np.float64), np.asarray(k, dtype=np.float64), nu
-
-
-# ------------------------------------------------------------------------------------------------
 # every systematic term of the wrench, for the core
 # ------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SystematicWrench:
     """The systematic covariances of each point's *uncorrected* wrench (the one the balance
     calibration multiplies), by source: terms name -> (s, 6, 6); dof name -> degrees of freedom of
-    that source; flags word -> (s,) mask."""
+    that source (the load-cell calibration's: the smallest over the cables); flags word -> (s,)
+    mask."""
 
     terms: dict[str, FloatArray]
     dof: dict[str, float]
@@ -686,84 +620,3 @@ def systematic_wrench_covariance(
             terms["interaction_matrix"] = full(Ji @ C @ np.swapaxes(Ji, -1, -2))
             dof["interaction_matrix"] = float(balance_fit.dof)
     return SystematicWrench(terms, dof, flags)
-
-
-def split_terms(
-    cov_terms: Mapping[str, FloatArray], n: int
-) -> tuple[FloatArray, dict[str, FloatArray]]:
-    """The random covariance (n, 6, 6) (the sum of every term not in :data:`SYSTEMATIC_TERMS`) and
-    the systematic terms by name."""
-    rand = np.zeros((n, 6, 6))
-    sysd: dict[str, FloatArray] = {}
-    for name, c in cov_terms.items():
-        if name in SYSTEMATIC_TERMS:
-            sysd[name] = c
-        else:
-            rand = rand + c
-    return rand, sysd
-
-
-@dataclass(frozen=True)
-class UncertaintyBudget:
-    """Random and systematic standard uncertainties and the expanded uncertainty of six outputs
-    per point (each (s, 6)): u_random, u_systematic, U (at the level asked), k (the coverage
-    factor), nu_eff (Welch–Satterthwaite over both parts), nu_systematic (over the systematic
-    sources)."""
-
-    u_random: FloatArray
-    u_systematic: FloatArray
-    U: FloatArray
-    k: FloatArray
-    nu_eff: FloatArray
-    nu_systematic: FloatArray
-
-
-def point_uncertainty(
-    cov_terms: Mapping[str, FloatArray],
-    dof: Mapping[str, float],
-    nu_random: ArrayLike | None = None,
-    transform: ArrayLike | None = None,
-    extra_systematic: ArrayLike | None = None,
-    level: float = 0.95,
-) -> UncertaintyBudget:
-    """The budget of six outputs ``Y = M W`` of each point's wrench W (s, 6).
-
-    cov_terms: the wrench's σ terms by source (s, 6, 6) (:class:`~cdpr.analysis.reduction.Points`'
-    ``cov_terms``), split by :data:`SYSTEMATIC_TERMS`; dof: the degrees of freedom of each
-    systematic source (absent: ``inf``, Type B); nu_random: (s, 6) the random part's degrees of
-    freedom per output (None: ``inf``); transform: (s, 6, 6) M (None: the identity; the moment
-    transfer to the MRP, or the coefficient map :func:`cdpr.analysis.aero.coefficient_matrix`);
-    extra_systematic: (s, 6, 6) a systematic covariance of Y itself (the instruments' part of the
-    coefficients, infinite dof).
-
-    ``u_systematic^2`` per output is the sum of the sources' ``(M C_j M^T)_kk``, its dof by
-    Welch–Satterthwaite over the sources (independent), and :func:`expanded_uncertainty` combines
-    it with the random part."""
-    names = list(cov_terms)
-    if not names:
-        raise InputError("cov_terms: expected at least one term")
-    s = next(iter(cov_terms.values())).shape[0]
-    rand, sysd = split_terms(cov_terms, s)
-    M = np.broadcast_to(np.eye(6), (s, 6, 6)) if transform is None else np.asarray(transform)
-
-    def diag(C: ArrayLike) -> FloatArray:
-        D = np.einsum("sij,sjk,slk->sil", M, np.asarray(C, dtype=np.float64), M)
-        return np.clip(np.diagonal(D, axis1=1, axis2=2), 0.0, None)
-
-    parts = [diag(c) for c in sysd.values()]
-    nus = [dof.get(name, math.inf) for name in sysd]
-    if extra_systematic is not None:
-        parts.append(
-            np.clip(np.diagonal(np.asarray(extra_systematic), axis1=1, axis2=2), 0.0, None)
-        )
-        nus.append(math.inf)
-    if parts:
-        V = np.stack(parts, axis=-1)  # (s, 6, n_sources)
-        var_s = V.sum(axis=-1)
-        nu_s = welch_satterthwaite(V, np.array(nus))
-    else:
-        var_s, nu_s = np.zeros((s, 6)), np.full((s, 6), np.inf)
-    u_r = np.sqrt(diag(rand))
-    nr = np.full((s, 6), np.inf) if nu_random is None else as_float_array(nu_random, "nu_random")
-    U, k, nu = expanded_uncertainty(u_r, nr, np.sqrt(var_s), nu_s, level)
-    return UncertaintyBudget(u_r, np.sqrt(var_s), U, k, nu, nu_s)

@@ -18,17 +18,19 @@ from _lab_physics import structure_matrix as lab_A
 from truth_rig import alpha_sweep
 
 from cdpr.analysis import systematic_stages as ss
-from cdpr.analysis.aero import ModelGeometry
+from cdpr.analysis.aero import ModelGeometry, coefficient_matrix
 from cdpr.analysis.balance import points_from_events, sample_mask
-from cdpr.analysis.errors import ConfigError, InputError
+from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.point_inputs import points_from_samples
 from cdpr.analysis.reduction import run_stages
 from cdpr.analysis.rig import Rig, rig_to_mapping
+from cdpr.analysis.rotations import rotation_from_euler, skew
 from cdpr.analysis.stages import (
     axes_stage,
     balance_interaction,
     coefficients_stage,
     structure_matrix_stage,
+    uncertainty_stage,
     weight_model_stage,
     weight_tare_stage,
 )
@@ -38,7 +40,6 @@ from cdpr.analysis.systematic import (
     InstrumentAccuracy,
     LoadCellCalibrationSd,
     default_geometry_sd,
-    expanded_uncertainty,
     flow_coefficient_covariance,
     geometry_covariance,
     geometry_jacobian,
@@ -48,8 +49,8 @@ from cdpr.analysis.systematic import (
     loadcell_sd_from_fit,
     rig_geometry_sd,
     systematic_wrench_covariance,
-    welch_satterthwaite,
 )
+from cdpr.analysis.uncertainty import coverage_factor, expanded_uncertainty, welch_satterthwaite
 from cdpr.calibration.balance_fit import check_loads, fit_load_cell
 from cdpr.daq.loadcell import read_calibration_file
 from cdpr.daq.schema import load_rig, rig_from_mapping
@@ -219,26 +220,34 @@ def test_welch_satterthwaite_gum_example_g41() -> None:
     assert float(nu) == pytest.approx(19.0, abs=0.05)
     uc = math.sqrt(float(np.sum(u**2)))
     assert uc == pytest.approx(1.03, abs=0.005)
-    # as a random part (the first) and a systematic part (the other two, their own nu_eff)
-    nu_s = welch_satterthwaite(u[1:] ** 2, np.array([4.0, 14.0]))
-    U, k, nu_eff = expanded_uncertainty(u[0], 9.0, math.sqrt(float(np.sum(u[1:] ** 2))), nu_s)
-    assert float(nu_eff) == pytest.approx(19.0, abs=0.05)
-    assert float(k) == pytest.approx(2.09, abs=0.005)
-    assert float(U) == pytest.approx(2.2, abs=0.05)
+    k = float(coverage_factor(nu))
+    assert k == pytest.approx(2.09, abs=0.005)
+    assert k * uc == pytest.approx(2.2, abs=0.05)
 
 
-def test_expanded_uncertainty_limits_and_shapes() -> None:
-    U, k, nu = expanded_uncertainty(np.zeros((3, 6)), np.inf, np.full((3, 6), 0.1))
-    assert np.allclose(k, 1.959964, atol=1e-6) and np.all(np.isinf(nu))
-    assert np.allclose(U, 0.1959964, atol=1e-7)
-    U, k, nu = expanded_uncertainty(1.0, 1.0, 0.0)  # one degree of freedom: t = 12.706
-    assert float(k) == pytest.approx(12.7062, abs=1e-3)
-    U, k, nu = expanded_uncertainty(np.nan, 5.0, 1.0)
-    assert np.isnan(U) and np.isnan(k)
-    with pytest.raises(InputError, match="level"):
-        expanded_uncertainty(1.0, 5.0, 1.0, level=1.5)
-    with pytest.raises(InputError, match="dof"):
-        welch_satterthwaite([1.0, 2.0], [0.0, 3.0])
+def test_fitted_calibrations_bring_their_degrees_of_freedom_to_u95() -> None:
+    """``expanded_uncertainty(..., term_dof=...)``: a systematic term fitted from data counts with its
+    own degrees of freedom.  One output, the wrench's Fx: random pose part 1 (inf), a fitted term
+    of variance 1 with 4 dof, a stated term of variance 2: nu = 4^2 / (1/4) = 64, k = t95(64);
+    without term_dof every systematic term is Type B (inf)."""
+    C = {
+        "pose": np.diag([1.0, 0, 0, 0, 0, 0])[None],
+        "loadcell_calibration": np.diag([1.0, 0, 0, 0, 0, 0])[None],
+        "rig_geometry": np.diag([2.0, 0, 0, 0, 0, 0])[None],
+    }
+    L = np.eye(6)[None, :1]  # the output Fx
+    empty = (np.zeros((1, 0, 6, 8)), np.zeros((1, 0), np.int64), np.zeros((1, 8, 8)))
+    args = (C, L, *empty[:2], empty[2], empty[2], np.full(1, 2))
+    base = expanded_uncertainty(*args)
+    fitted = expanded_uncertainty(
+        *args, term_dof={"loadcell_calibration": 4.0, "rig_geometry": math.inf}
+    )
+    assert float(base.dof[0, 0]) == math.inf
+    assert float(fitted.dof[0, 0]) == pytest.approx(64.0)
+    assert float(fitted.k[0, 0]) == pytest.approx(1.9977, abs=1e-3)  # t_0.975(64)
+    assert float(fitted.u_systematic[0, 0]) == pytest.approx(math.sqrt(3.0))
+    assert float(fitted.u_random[0, 0]) == pytest.approx(1.0)
+    assert float(fitted.U[0, 0]) == pytest.approx(float(fitted.k[0, 0]) * 2.0)
 
 
 def test_welch_satterthwaite_coverage_by_simulation() -> None:
@@ -251,7 +260,8 @@ def test_welch_satterthwaite_coverage_by_simulation() -> None:
     x = rng.normal(0, sr, (N, n))
     err = x.mean(axis=1) + rng.normal(0, sb, N)
     ur = x.std(axis=1, ddof=1) / math.sqrt(n)
-    U, k, _ = expanded_uncertainty(ur, n - 1.0, sb)
+    nu = welch_satterthwaite(np.stack([ur**2, np.full(N, sb**2)], -1), [n - 1.0, np.inf])
+    U = coverage_factor(nu) * np.hypot(ur, sb)
     cov = np.mean(np.abs(err) <= U)
     assert 0.93 <= cov <= 0.965, cov
     assert np.mean(np.abs(err) <= 1.96 * np.hypot(ur, sb)) < cov - 0.02
@@ -510,9 +520,10 @@ def _points():
 
 
 def test_stages_in_the_core_order(monkeypatch) -> None:
-    """The three stages bound where their docstrings place them: the terms appear by source,
-    the balance stage carries the interaction term back to exactly its own covariance, and the
-    budget splits random from systematic."""
+    """The two stages bound where their docstrings place them, with main's uncertainty stage after
+    them: the terms appear by source, the balance stage carries the interaction term back to
+    exactly its own covariance, the uncertainty stage counts them as systematic, and its function
+    bound with ``term_dof`` and the instruments' part gives the budget the issue asks for."""
     import functools
 
     rig = load_rig(FLAT)
@@ -524,11 +535,7 @@ def test_stages_in_the_core_order(monkeypatch) -> None:
     )
     lc = loadcell_sd_from_fit(np.full(8, 5e-5), 40.0, 2e-8, -0.8, 11)
     calls = []
-    for fn_name in (
-        "systematic_wrench_covariance",
-        "flow_coefficient_covariance",
-        "point_uncertainty",
-    ):
+    for fn_name in ("systematic_wrench_covariance", "flow_coefficient_covariance"):
         orig = getattr(ss, fn_name)
 
         def spy(*a, _orig=orig, _name=fn_name, **k):
@@ -536,13 +543,15 @@ def test_stages_in_the_core_order(monkeypatch) -> None:
             return _orig(*a, **k)
 
         monkeypatch.setattr(ss, fn_name, spy)
-    stages = [
+    head = [
         functools.partial(structure_matrix_stage, rig=rig),
         functools.partial(weight_model_stage, rig=rig),
         functools.partial(weight_tare_stage, rig=rig),
-        functools.partial(
-            ss.systematic_stage, rig=rig, loadcell=lc, balance_fit=fit, interaction=K
-        ),
+    ]
+    systematic = functools.partial(
+        ss.systematic_stage, rig=rig, loadcell=lc, balance_fit=fit, interaction=K
+    )
+    tail = [
         functools.partial(balance_interaction, interaction=K),
         functools.partial(axes_stage, geometry=GEOMETRY),
         functools.partial(coefficients_stage, geometry=GEOMETRY),
@@ -550,13 +559,14 @@ def test_stages_in_the_core_order(monkeypatch) -> None:
             ss.flow_uncertainty_stage,
             instruments=InstrumentAccuracy(defaulted=("airspeed_rel_sd",)),
         ),
-        functools.partial(ss.expanded_uncertainty_stage, geometry=GEOMETRY),
+        functools.partial(uncertainty_stage, geometry=GEOMETRY),
     ]
-    before = run_stages(pts, stages[:4])
-    out = run_stages(before, stages[4:])
+    before = run_stages(pts, [*head, systematic])
+    out = run_stages(before, tail)
+    plain = run_stages(pts, [*head, *tail])  # the same without the systematic terms
+    # one call each in the run with the systematic stage, and the flow stage again in ``plain``
     assert calls == [
-        "systematic_wrench_covariance", "flow_coefficient_covariance",
-        "point_uncertainty", "point_uncertainty",  # the wrench, the coefficients
+        "systematic_wrench_covariance", "flow_coefficient_covariance", "flow_coefficient_covariance"
     ]  # fmt: skip
     on = np.flatnonzero(out["kind"] == "wind_on")
     for name in ("loadcell_calibration", "rig_geometry", "interaction_matrix"):
@@ -565,29 +575,39 @@ def test_stages_in_the_core_order(monkeypatch) -> None:
     direct = interaction_covariance(before["wrench_P_O_N_Nm"][on], fit)
     assert np.allclose(out.cov_terms["interaction_matrix"][on], direct, rtol=1e-9, atol=1e-18)
     flags = [set(out.flags[i]) for i in on]
-    assert all(
-        {"rig_geometry_sd_default", "tunnel_instrument_sd_default", "random_dof_not_given"} <= f
-        for f in flags
-    )
+    assert all({"rig_geometry_sd_default", "tunnel_instrument_sd_default"} <= f for f in flags)
     assert out.meta["systematic_dof"] == {
         "rig_geometry": math.inf,
         "loadcell_calibration": 9.0,
         "interaction_matrix": 30.0,
     }
-    u_r, u_s, U = (
-        out["u_random_coefficients"][on],
-        out["u_systematic_coefficients"][on],
-        out["U95_coefficients"][on],
-    )
-    assert np.all(np.isfinite(U)) and np.all(U > 1.9 * np.hypot(u_r, u_s))
-    # the parts add up to the coefficients' total σ of the core (plus the instruments' part)
-    sd = np.stack([out[f"sd_{c}"][on] for c in ("CD", "CY", "CL", "Cl", "Cm", "Cn")], axis=1)
-    flow = np.sqrt(np.diagonal(out["coefficient_cov_flow"][on], axis1=1, axis2=2))
-    assert np.allclose(np.hypot(u_r, u_s) ** 2, sd**2 + flow**2, rtol=1e-9)
-    # the wrench at the MRP: the same split of the total the axes stage reports
-    tot = np.sqrt(np.diagonal(out["wrench_mrp_cov_O"][on], axis1=1, axis2=2))
+    # the uncertainty stage counts the new terms as systematic, the random part unchanged
+    cols = ["fx_N", "fz_N", "my_Nm", "CD", "CL", "Cm"]
+    for c in cols:
+        assert np.allclose(out[f"sd_random_{c}"][on], plain[f"sd_random_{c}"][on], rtol=1e-9)
+        assert np.all(out[f"sd_systematic_{c}"][on] > plain[f"sd_systematic_{c}"][on])
+    # bound with term_dof and the instruments' part (what the lead's binding adds)
+    s = out.n
+    X = np.tile(np.eye(6), (s, 1, 1))
+    r = np.einsum("sij,j->si", rotation_from_euler(out["pose_O_m_rad"][:, 3:]), GEOMETRY.mrp_P_m)
+    X[:, 3:, :3] = -skew(r)
+    Kc = np.full((s, 6, 6), np.nan)
+    Kc[on] = coefficient_matrix(
+        rotation_from_euler(out["pose_O_m_rad"][on, 3:]), out["q_Pa"][on], GEOMETRY.area_m2,
+        GEOMETRY.span_m, GEOMETRY.chord_m, GEOMETRY.mrp_P_m,
+    )  # fmt: skip
+    flow_u2 = np.diagonal(out["coefficient_cov_flow"], axis1=1, axis2=2)
+    extra = np.concatenate([np.zeros((s, 6)), flow_u2], axis=1)
+    m = out["tension_N"].shape[1]
+    args = (
+        dict(out.cov_terms), np.concatenate([X, Kc], axis=1), np.zeros((s, 0, 6, m)),
+        np.zeros((s, 0), np.int64), out["tension_cov_N2"], out["tension_cov_N2"], np.full(s, 2),
+    )  # fmt: skip
+    eu = expanded_uncertainty(*args, extra_systematic_u2=extra, term_dof=out.meta["systematic_dof"])
+    base = expanded_uncertainty(*args)
+    k = 6 + 2  # CL
     assert np.allclose(
-        np.hypot(out["u_random_wrench"][on], out["u_systematic_wrench"][on]), tot, rtol=1e-9
+        eu.u_systematic[on, k] ** 2, base.u_systematic[on, k] ** 2 + flow_u2[on, 2], rtol=1e-9
     )
-    off = np.flatnonzero(out["kind"] == "tare")
-    assert np.all(np.isnan(out["U95_coefficients"][off]))
+    assert np.all(eu.dof[on, :6] < base.dof[on, :6])  # the fitted calibrations' finite dof
+    assert np.all(np.isfinite(eu.U[on]))
