@@ -155,6 +155,36 @@ def angular_rates(
     return omega, omega_dot
 
 
+def _pose_jacobian(psi_rad: ArrayLike, rotation: FloatArray) -> FloatArray:
+    psi = check_trailing(psi_rad, "psi_rad", (3,))
+    J = np.zeros(psi.shape[:-1] + (6, 6))
+    J[..., :3, :3] = np.eye(3)
+    J[..., 3:, 3:] = rotation
+    return J
+
+
+def pose_cov_from_euler(psi_rad: ArrayLike, cov_euler: ArrayLike) -> FloatArray:
+    """A pose covariance (..., 6, 6) over ``[position, roll, pitch, yaw]`` turned into the camera's
+    (``/pose``'s) parametrisation ``[position, rotation vector in {O}]`` (``R' = exp([dtheta]x) R``,
+    :mod:`cdpr.calibration.pose`), to first order: ``dtheta = H(psi) dpsi``
+    (:func:`euler_rate_matrix`), ``C' = J C J^T`` with ``J = diag(I, H)``."""
+    C = check_trailing(cov_euler, "cov_euler", (6, 6))
+    J = _pose_jacobian(psi_rad, euler_rate_matrix(psi_rad))
+    return np.asarray(J @ C @ np.swapaxes(J, -1, -2), dtype=np.float64)
+
+
+def pose_cov_to_euler(psi_rad: ArrayLike, cov_rotvec: ArrayLike) -> FloatArray:
+    """The inverse of :func:`pose_cov_from_euler`: ``dpsi = H(psi)^-1 dtheta`` (NaN where ``H`` is
+    singular, pitch at +-90 deg, and where the covariance is: a frame without one)."""
+    C = check_trailing(cov_rotvec, "cov_rotvec", (6, 6), allow_nan=True)
+    H = euler_rate_matrix(psi_rad)
+    ok = np.abs(np.linalg.det(H)) > 1e-12
+    Hinv = np.where(ok[..., None, None], np.linalg.inv(np.where(ok[..., None, None], H, np.eye(3))),
+                    np.nan)  # fmt: skip
+    J = _pose_jacobian(psi_rad, Hinv)
+    return np.asarray(J @ C @ np.swapaxes(J, -1, -2), dtype=np.float64)
+
+
 def skew(v: ArrayLike) -> FloatArray:
     """Cross-product matrices (..., 3, 3) with ``skew(a) @ b == cross(a, b)`` for ``v`` (..., 3)."""
     a = check_trailing(v, "v", (3,))

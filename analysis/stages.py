@@ -162,7 +162,7 @@ def weight_tare_stage(
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
     tare_shares_pose: bool = False,
-    tare_pose_sd_rel: float | None = 0.25,
+    tare_pose_sd_rel: float | None = 0.5,
 ) -> Points:
     """Remove the weight (:func:`cdpr.analysis.tare.weight_tare`): the point's wind-off twin at
     the same pose (flag ``tare``), else the weight model (``weight_model``), else NaN and
@@ -359,11 +359,12 @@ def uncertainty_stage(p: Points, *, geometry: ModelGeometry | None, level: float
         r = np.einsum("sij,j->si", R, np.asarray(geometry.mrp_P_m, dtype=np.float64))
         X[:, 3:, :3] = -np.nan_to_num(skew(np.nan_to_num(r)))  # no pose: no wrench either
     Kc = np.full((s, 6, 6), np.nan)
-    have = np.isfinite(p.arrays.get("CL", np.full(s, np.nan))) & np.isfinite(p["q_Pa"])
+    q_Pa = p.arrays.get("q_Pa", np.full(s, np.nan))
+    have = np.isfinite(p.arrays.get("CL", np.full(s, np.nan))) & np.isfinite(q_Pa)
     if geometry is not None and have.any():
         g = geometry
         Kc[have] = coefficient_matrix(
-            R[have], p["q_Pa"][have], g.area_m2, g.span_m, g.chord_m, g.mrp_P_m, g.nose_P, g.up_P
+            R[have], q_Pa[have], g.area_m2, g.span_m, g.chord_m, g.mrp_P_m, g.nose_P, g.up_P
         )
     m = p["tension_N"].shape[1]
     eu = expanded_uncertainty(
@@ -474,7 +475,7 @@ class ReduceSettings:
     wind_off_mps: float = 1.0
     fit_weight_model: bool = True
     tare_shares_pose: bool = False
-    tare_pose_sd_rel: float | None = 0.25
+    tare_pose_sd_rel: float | None = 0.5
 
 
 @dataclass(frozen=True)

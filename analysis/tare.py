@@ -65,7 +65,9 @@ class TarePose:
     pose: (k, 6) the point's pose (m, rad) = the tare's measured pose + ``delta``; delta: (k, 6) the
     fused pose difference; delta_measured, delta_predicted: (k, 6) the camera's and the stiffness
     model's; gain_measured: (k, 6, 6) ``F`` with ``delta = predicted + F (measured - predicted)``;
-    cov_predicted: (k, 6, 6) the prediction's covariance.
+    cov_predicted: (k, 6, 6) the prediction's covariance; model_disagrees: (k,) True where the
+    camera's difference and the model's disagree beyond their covariances (chi-square, 6 dof, at
+    0.1 %): there the camera's difference alone is used (``gain_measured`` = I).
     """
 
     pose: FloatArray
@@ -74,6 +76,11 @@ class TarePose:
     delta_predicted: FloatArray
     gain_measured: FloatArray
     cov_predicted: FloatArray
+    model_disagrees: NDArray[np.bool_]
+
+
+CHI2_6_999: float = 22.4577
+"""The 99.9 % point of the chi-square distribution with 6 degrees of freedom."""
 
 
 def tare_pose(
@@ -84,7 +91,7 @@ def tare_pose(
     cov_tare: ArrayLike,
     tensions_tare_N: ArrayLike,
     load_change_N_Nm: ArrayLike,
-    sigma_rel: float = 0.25,
+    sigma_rel: float = 0.5,
 ) -> TarePose:
     """The pose difference between a wind-on point and its wind-off tare, from what it really is.
 
@@ -134,8 +141,16 @@ def tare_pose(
     measured = qi - qj
     S = np.asarray(cov_point, dtype=np.float64) + np.asarray(cov_tare, dtype=np.float64)
     gain = np.swapaxes(np.linalg.solve(S + cov_p, np.swapaxes(cov_p, 1, 2)), 1, 2)  # Sp (Sm+Sp)^-1
-    delta = predicted + np.einsum("kij,kj->ki", gain, measured - predicted)
-    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p)
+    # the model is used only where the camera agrees with it: a rig whose controller holds the
+    # pose, a frame softer than its cables, a model off by more than sigma_rel, all show as a
+    # measured difference the prediction does not explain (chi-square at 0.1 %)
+    r = measured - predicted
+    chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(S + cov_p, r[..., None])[..., 0])
+    disagree = chi2 > CHI2_6_999
+    gain[disagree] = np.eye(6)
+    cov_p[disagree] = 0.0
+    delta = predicted + np.einsum("kij,kj->ki", gain, r)
+    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p, disagree)
 
 
 def load_cell_maps(
@@ -182,7 +197,7 @@ def weight_tare(
     tare_shares_pose: bool = False,
     tension_mix: ArrayLike | None = None,
     tension_cov_raw_N2: ArrayLike | None = None,
-    tare_pose_sd_rel: float | None = 0.25,
+    tare_pose_sd_rel: float | None = 0.5,
 ) -> WeightTare:
     """Remove the weight from every point's cable load (see the module docstring).
 
@@ -227,6 +242,7 @@ def weight_tare(
     tp = None
     deflection = np.full((s, 6), np.nan)
     deflection_measured = np.full((s, 6), np.nan)
+    disagrees = np.zeros(s, bool)
     if j.size and tare_pose_sd_rel is not None and not tare_shares_pose:
         i = np.flatnonzero(has)
         first = recover_wrench(rig, q[i], T[i], weight_theta=theta)
@@ -234,6 +250,7 @@ def weight_tare(
         tp = tare_pose(rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel)
         q_hat[i] = tp.pose
         deflection[i], deflection_measured[i] = tp.delta, tp.delta_measured
+        disagrees[i] = tp.model_disagrees
     W = np.full((s, 6), np.nan)
     c_pose = np.zeros((s, 6, 6))
     c_wm = np.zeros((s, 6, 6))
@@ -277,6 +294,7 @@ def weight_tare(
     no_tare = finite & ~has & ~off & (weight is None)
     flags: dict[str, NDArray[np.bool_]] = {
         "tare": has,
+        "tare_pose_model_disagrees": disagrees,
         "weight_model": model_used,
         "nonfinite_input": ~finite,
     }

@@ -6,7 +6,7 @@ four 8-byte TPDOs per sample with a rolling counter, epoch timestamps), at full 
 
 - cdpr: the CAN load-cell driver (:class:`~cdpr.daq.can_source.CanLoadCellSource`, raw frames only,
   no DBC decoding, like the BLF logger) opens that bus; the recorder's acquisition thread, bounded
-  queue and writer thread, ``/can_raw`` JSON messages, zstd chunks closed every 0.25 s and fsynced.
+  queue and writer thread, ``/can_raw`` frame blocks, zstd chunks closed every 0.25 s and fsynced.
   A 5 s probe measures the capacity C (the bus holds back while 20k frames are queued); then the bus
   is paced at 0.85 C for 60 s and the recorder must drop nothing and keep up (at the end, at most
   0.25 s of frames still queued); else 0.7 C, then 0.5 C are tried (30 s each).  The value is the
@@ -161,7 +161,7 @@ def _child_writers(d: str) -> dict:
     CPU-second."""
     import can
 
-    from cdpr.daq.can_source import CanFrameBatch
+    from cdpr.daq.can_raw import DESCRIPTION, CanFrameBatch
     from cdpr.daq.mcap_io import McapRunWriter
 
     msgs = _messages() * 4
@@ -171,6 +171,7 @@ def _child_writers(d: str) -> dict:
         for i in range(0, len(msgs), 2000)
     ]
     w = McapRunWriter(f"{d}/writer_only.mcap")
+    w.add_stream("can_raw", DESCRIPTION)  # declared, as the recorder does: frame blocks
     c0 = time.process_time()
     for b in batches:
         w.write_many(b)
@@ -294,7 +295,7 @@ def run() -> dict[str, dict]:
                 "capacity (bus held back when 20k "
                 "frames are queued), then the bus paced at 0.85x (else 0.7x, 0.5x) that rate for "
                 f"{best['elapsed_s']:.0f} s with zero drops and <= 0.25 s of backlog at the end "
-                "(the issue's 60 s); MCAP JSON messages, zstd-1 "
+                "(the issue's 60 s); /can_raw frame blocks, zstd-1 "
                 "chunks closed every 0.25 s and fsynced; peer: can.Notifier + can.Logger(BLF), "
                 "2 x 5 s at max speed before and after the paced run (no queue, cannot drop); "
                 "frames_per_cpu_s = frames / CPU time of the process (robust to machine load); "

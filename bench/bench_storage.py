@@ -3,9 +3,8 @@
 - ``import_candump``: frames/s of ``cdpr import`` of a candump ``.log`` (ten minutes of 8 load
   cells at 1 kHz: 2.4 M frames, the shipped DBC), against python-can's ``LogReader`` just reading
   the same file (one minute imported too, for the fixed costs);
-- ``import_asc``: the same frames as a Vector ASC file (relative times, as Vector writes them):
-  frames/s of ``cdpr import``, against python-can's ``LogReader`` reading the same file, with the
-  numpy ASC parser (``read_asc``) alone in the context;
+- ``import_asc``, ``import_blf``, ``import_trc``, ``import_csv``: in ``bench_canlog.py`` (the same
+  frames in each format, :func:`write_asc` here);
 - ``run_read_topic``: rows/s of ``open_run(...).table("/tensions")`` on a run of one minute of 8
   cells at 1 kHz written by the project's writer (column blocks), against the ``mcap`` package's
   reader + ``json.loads`` per message on the same samples stored as per-sample JSON (the usual
@@ -139,7 +138,7 @@ def run() -> dict[str, dict]:
     out: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        from cdpr.daq.canlog import read_candump
+        from cdpr.daq.canlog_candump import read_candump
 
         def import_log(log: Path, out: Path) -> float:
             t = time.perf_counter()
@@ -169,31 +168,6 @@ def run() -> dict[str, dict]:
             f"LogReader {peer_s:.2f} s; the numpy candump parser alone: "
             f"{n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader); one minute "
             f"({n_minute} frames) imported in {minute_s:.2f} s ({n_minute / minute_s:.0f} frames/s)",
-        }
-        n_frames = n_minute
-
-        asc = tmp / "bench.asc"
-        assert write_asc(asc, N_SAMPLES) == n_frames
-        t = time.perf_counter()
-        assert _python_can_read(asc) == n_frames
-        peer_s = time.perf_counter() - t
-        t = time.perf_counter()
-        rc = main(["import", "--can-log", str(asc), "--dbc", str(DBC), "--rig", str(RIG),
-                   "--out", str(tmp / "imp_asc.mcap")])  # fmt: skip
-        imp_s = time.perf_counter() - t
-        assert rc == 0
-        from cdpr.daq.canlog import read_asc
-
-        t = time.perf_counter()
-        assert sum(len(c) for c in read_asc(asc)) == n_frames
-        parse_s = time.perf_counter() - t
-        out["import_asc"] = {
-            "value": n_frames / imp_s,
-            "unit": "frames/s",
-            "peer": "python-can LogReader reading the same ASC file",
-            "peer_value": n_frames / peer_s,
-            "context": f"{n_frames} frames (1 min, 8 cells at 1 kHz) in ASC; the numpy ASC parser "
-            f"alone: {n_frames / parse_s:.0f} frames/s ({peer_s / parse_s:.1f}x LogReader)",
         }
 
         run_path = tmp / "tensions.mcap"  # the layout runs have: column blocks

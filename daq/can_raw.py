@@ -1,28 +1,33 @@
-"""The ``can_raw`` stream: every CAN frame as it was on the bus, and its MCAP codec.
+"""The ``can_raw`` stream: every CAN frame as it was on the bus, its layouts and its MCAP codec.
 
 A frame is every field python-can gives a ``can.Message``:
 
 ``arbitration_id`` (int), ``is_extended`` (0/1: 29-bit id), ``is_remote`` (0/1: RTR), ``is_error_frame``
 (0/1), ``is_fd`` (0/1), ``bitrate_switch`` (0/1), ``error_state_indicator`` (0/1), ``dlc`` (int),
-``data`` (array of byte values, up to 64; a plot panel graphs ``.data[2]``), ``channel`` (the
-interface's channel as python-can gives it: a string such as ``"can0"``, an integer, or null),
-``is_rx`` (0/1: direction, 0 = transmitted by the logging node), ``t_bus_ns`` (the interface's
-timestamp, integer ns: ``round(timestamp * 1e9)``) and ``status`` (8 = error frame).
+``data`` (array of byte values, up to 64), ``channel`` (the interface's channel as python-can gives
+it: a string such as ``"can0"``, an integer, or null), ``is_rx`` (0/1: direction, 0 = transmitted
+by the logging node), ``t_bus_ns`` (the interface's timestamp, integer ns: ``round(timestamp *
+1e9)``) and ``status`` (8 = a bad frame: an error frame, a frame no classic bus carries as logged,
+or a load-cell frame the decoder could not use).
 
-The CAN driver registers the codec (:func:`register`): :func:`cdpr.daq.mcap_writer.register_stream_codec`
-for the ``can_raw`` stream, and the driver's batch type for the writer's batch path, which formats a
-batch of frames at once with numpy (:func:`encode_can_frames`) instead of one reading at a time.
+Every run cdpr writes (``record``, ``simulate``, a replay, ``import``) stores ``/can_raw`` as frame
+blocks (:func:`frame_block`, channel metadata ``layout = "can_frames"``): the frames of a
+:class:`CanFrameBatch` (the batch type of the CAN sources, from a live bus or a log) as columns.
+One JSON message per frame (:func:`encode`) is what runs from before the blocks hold and what a
+stream added without a description gets; every reader reads both.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from .mcap_writer import FrameRecords, StreamCodec, register_frame_batch_type
+from .can_frames import BRS, ERROR, ESI, EXTENDED, FD, ODD, REMOTE, RX, FrameColumns, concat_frames
+from .mcap_writer import StreamCodec, register_frame_batch_type, register_stream_codec
 from .source import STATUS_BAD_FRAME, FieldDescription, Reading, StreamDescription
 
 #: the fields of a frame, in the order they are written
@@ -61,36 +66,43 @@ DESCRIPTION = StreamDescription(
 )
 
 
-def t_bus_ns(timestamp_s: float) -> int:
-    """The integer ns of a python-can timestamp (float seconds)."""
-    return int(round(timestamp_s * 1e9))
-
-
 def _channel(ch: Any) -> Any:
     return ch if ch is None or isinstance(ch, int | str) else str(ch)
 
 
-def frame_values(msg: Any) -> dict[str, Any]:
-    """The ``can_raw`` values of a ``can.Message``."""
+def frame_values(frames: FrameColumns, i: int) -> dict[str, Any]:
+    """The ``can_raw`` values of frame ``i``."""
+    f = int(frames.flags[i])
     return {
-        "arbitration_id": int(msg.arbitration_id),
-        "is_extended": int(bool(msg.is_extended_id)),
-        "is_remote": int(bool(msg.is_remote_frame)),
-        "is_error_frame": int(bool(msg.is_error_frame)),
-        "is_fd": int(bool(msg.is_fd)),
-        "bitrate_switch": int(bool(msg.bitrate_switch)),
-        "error_state_indicator": int(bool(msg.error_state_indicator)),
-        "dlc": int(msg.dlc),
-        "data": bytes(msg.data),
-        "channel": _channel(msg.channel),
-        "is_rx": int(bool(msg.is_rx)),
-        "t_bus_ns": t_bus_ns(msg.timestamp),
+        "arbitration_id": int(frames.arbitration_id[i]),
+        "is_extended": int(bool(f & EXTENDED)),
+        "is_remote": int(bool(f & REMOTE)),
+        "is_error_frame": int(bool(f & ERROR)),
+        "is_fd": int(bool(f & FD)),
+        "bitrate_switch": int(bool(f & BRS)),
+        "error_state_indicator": int(bool(f & ESI)),
+        "dlc": int(frames.dlc[i]),
+        "data": frames.data[i, : int(frames.length[i])].tobytes(),
+        "channel": _channel(frames.channel[i]),
+        "is_rx": int(bool(f & RX)),
+        "t_bus_ns": int(round(float(frames.t_s[i]) * 1e9)),
     }
+
+
+def frame_status(frames: FrameColumns, bad: Any = None) -> np.ndarray:
+    """The ``status`` of frames: :data:`~cdpr.daq.source.STATUS_BAD_FRAME` for an error frame, an
+    odd one (:data:`~cdpr.daq.can_frames.ODD`) and the ``bad`` ones (the load-cell frames the
+    decoder could not use), else 0."""
+    flagged = (frames.flags & (ERROR | ODD)) != 0
+    if bad is not None:
+        flagged = flagged | np.asarray(bad, bool)
+    return np.where(flagged, STATUS_BAD_FRAME, 0).astype(np.int64)
 
 
 def raw_reading(msg: Any, t_ns: int, stream: str = "can_raw") -> Reading:
     """A ``can_raw`` reading of one ``can.Message``."""
-    return Reading(stream, t_ns, frame_values(msg), STATUS_BAD_FRAME if msg.is_error_frame else 0)
+    frames = FrameColumns.from_messages([msg])
+    return Reading(stream, t_ns, frame_values(frames, 0), int(frame_status(frames)[0]))
 
 
 def schema(stream: str) -> dict[str, Any]:
@@ -153,13 +165,9 @@ def _jsonable(x: Any) -> Any:
 
 
 # -------------------------------------------------------------------------------------------------
-# the hot path: a batch of classic 8-byte data frames formatted at once with numpy into fixed-width
-# JSON bodies (numbers right-aligned in space-padded fields: still plain JSON, the same values as
-# :func:`encode`)
-
-
-_byte3 = np.array([list(f"{b:>3d}".encode()) for b in range(256)], dtype=np.uint8)
-_pow10 = 10 ** np.arange(18, -1, -1, dtype=np.int64)
+# runs written before the frame blocks: the recorder's batch path wrote classic 8-byte data frames
+# as fixed-width JSON bodies (numbers right-aligned in space-padded fields: plain JSON); the reader
+# (:mod:`cdpr.daq.run_reader`) parses those rows back by position with this template
 
 
 def template(channel: Any) -> tuple[str, dict[str, int]]:
@@ -182,87 +190,6 @@ def template(channel: Any) -> tuple[str, dict[str, int]]:
     return tpl, pos
 
 
-def _decimal(v: Any, width: int) -> Any:
-    """Right-aligned decimal digits of non-negative integers ``v`` (n,) below 10**width, as ASCII
-    (n, width) uint8, leading zeros as spaces."""
-    x = v.astype(np.int64)
-    digits = np.empty((width, len(x)), np.uint8)
-    for c in range(width - 1, -1, -1):  # integer division by a scalar: vectorised by numpy
-        q = x // 10
-        digits[c] = x - q * 10
-        x = q
-    digits += 48
-    chars = digits.T
-    lead = v[:, None] < _pow10[-width:]
-    lead[:, -1] = False
-    chars[lead] = 32
-    return chars
-
-
-def encode_columns(
-    ids: Any, flags: Any, data: Any, lens: Any, t_bus: Any, channel: Any, is_rx: Any
-) -> FrameRecords:
-    """Bodies of frames given as columns: ``flags`` bit 0 extended, 1 error, 2 remote, 3 FD,
-    ``data`` (n, >= 8) uint8, ``lens`` data lengths, ``t_bus`` int64 ns, ``channel`` one value for
-    the batch, ``is_rx`` (n,) 0/1; frames outside the fast layout have ``ok`` False."""
-    ids = np.asarray(ids, np.int64)
-    flags = np.asarray(flags, np.int64)
-    t_bus = np.asarray(t_bus, np.int64)
-    ok = (
-        (np.asarray(lens) == 8)
-        & ((flags & 0b1110) == 0)  # not error, remote or FD
-        & (ids >= 0)
-        & (ids < 1_000_000_000)
-        & (t_bus >= 0)
-    )
-    tpl, pos = template(channel)
-    k = int(ok.sum())
-    bodies = np.empty((k, len(tpl)), np.uint8)
-    bodies[:] = np.frombuffer(tpl.replace("#", " ").encode(), np.uint8)
-    if k:
-        sel = ok if k < len(ok) else slice(None)
-        bodies[:, pos["id"] : pos["id"] + 9] = _decimal(ids[sel], 9)
-        chars = _byte3[np.asarray(data)[sel, :8]]  # (k, 8, 3)
-        for j in range(8):
-            a = pos["data"] + 4 * j
-            bodies[:, a : a + 3] = chars[:, j]
-        bodies[:, pos["ext"]] = 48 + (flags[sel] & 1)
-        bodies[:, pos["rx"]] = 48 + np.asarray(is_rx, np.int64)[sel]
-        bodies[:, pos["t"] : pos["t"] + 19] = _decimal(t_bus[sel], 19)
-    return FrameRecords(ok, bodies)
-
-
-def encode_can_frames(messages: Sequence[Any]) -> FrameRecords:
-    """JSON bodies of ``can.Message`` frames, formatted with numpy (see :func:`encode_columns`):
-    classic 8-byte data frames on the first frame's channel qualify, the others are marked."""
-    n = len(messages)
-    ids = np.array([m.arbitration_id for m in messages], dtype=np.int64)
-    ts = np.array([m.timestamp for m in messages], dtype=np.float64)
-    flags = np.array(
-        [
-            m.is_extended_id | (m.is_error_frame << 1) | (m.is_remote_frame << 2) | (m.is_fd << 3)
-            for m in messages
-        ],
-        dtype=np.int64,
-    )
-    datas = [bytes(m.data) for m in messages]
-    lens = np.fromiter(map(len, datas), np.int64, n)
-    dlc8 = np.fromiter((m.dlc == 8 for m in messages), bool, n)
-    ch0 = _channel(messages[0].channel) if n else None
-    same_ch = np.fromiter((_channel(m.channel) == ch0 for m in messages), bool, n)
-    rx = np.fromiter((bool(m.is_rx) for m in messages), np.int64, n)
-    t_bus = np.rint(ts * 1e9)
-    fits = (lens == 8) & dlc8 & same_ch & (t_bus >= 0) & (t_bus < 9e18)
-    data = np.zeros((n, 8), np.uint8)
-    if fits.any():
-        data[fits] = np.frombuffer(
-            b"".join([d for d, f in zip(datas, fits.tolist(), strict=True) if f]), np.uint8
-        ).reshape(-1, 8)
-    lens = np.where(fits, lens, -1)
-    t64 = np.where(fits, t_bus, 0).astype(np.int64)
-    return encode_columns(ids, flags, data, lens, t64, ch0, rx)
-
-
 # -------------------------------------------------------------------------------------------------
 # frame blocks: the bulk layout (``cdpr import``): frames as column blocks
 # (:mod:`cdpr.daq.column_blocks`, channel metadata ``layout = "can_frames"``)
@@ -273,36 +200,48 @@ BLOCK_LAYOUT = "can_frames"
 FLAG_FIELDS = FIELDS[1:7]
 
 
-def block_columns(
-    arbitration_id: Any,
-    flags: dict[str, Any],
-    dlc: Any,
-    data: Any,
-    length: Any,
-    channel_index: Any,
-    is_rx: Any,
-    t_bus: Any,
-) -> dict[str, np.ndarray]:
-    """The columns of frames in a frame block (the writer adds ``status``): ``arbitration_id``
-    int64; each of :data:`FLAG_FIELDS` (``flags[name]``, n bools) uint8; ``dlc``, ``length`` (bytes
-    of data) uint8; ``data_0`` ... ``data_<w-1>`` uint8 for the widest frame (w bytes; bytes past a
-    frame's length 0); ``channel`` uint8 indexes into the block's ``values`` table; ``is_rx``
-    uint8; ``t_bus_ns`` int64 (the interface's timestamp)."""
-    length = np.asarray(length, np.int64)
+def frame_block(
+    frames: FrameColumns, t_ns: Any, bad: Any = None
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, dict[str, list[Any]]]:
+    """``(t_ns, columns, status, values)`` of frames for a frame block
+    (:meth:`~cdpr.daq.mcap_writer.McapRunWriter.write_columns`): ``arbitration_id`` int64; each of
+    :data:`FLAG_FIELDS` uint8; ``dlc``, ``length`` (bytes of data) uint8; ``data_0`` ...
+    ``data_<w-1>`` uint8 for the widest frame (w bytes; bytes past a frame's length 0);
+    ``channel`` indexes into ``values["channel"]`` (the distinct channels as python-can gives them:
+    a name, a number or None); ``is_rx`` uint8; ``t_bus_ns`` int64 (the interface's timestamp);
+    ``status`` (:func:`frame_status`)."""
+    fl = frames.flags
+    length = frames.length.astype(np.int64)
     n = len(length)
-    data = np.asarray(data, np.uint8).reshape(n, -1)
     w = int(length.max()) if n else 0
-    cols: dict[str, np.ndarray] = {"arbitration_id": np.asarray(arbitration_id, np.int64)}
-    for name in FLAG_FIELDS:
-        cols[name] = np.asarray(flags[name], bool).view(np.uint8)
-    cols["dlc"] = np.asarray(dlc, np.int64).astype(np.uint8)
+    cols: dict[str, np.ndarray] = {"arbitration_id": frames.arbitration_id.astype(np.int64)}
+    for name, bit in zip(FLAG_FIELDS, (EXTENDED, REMOTE, ERROR, FD, BRS, ESI), strict=True):
+        cols[name] = ((fl & bit) != 0).view(np.uint8)
+    cols["dlc"] = frames.dlc.astype(np.uint8)
     cols["length"] = length.astype(np.uint8)
     for j in range(w):
-        cols[f"data_{j}"] = np.ascontiguousarray(data[:, j])
-    cols["channel"] = np.asarray(channel_index, np.int64)  # stored narrow when it fits
-    cols["is_rx"] = np.asarray(is_rx, bool).view(np.uint8)
-    cols["t_bus_ns"] = np.asarray(t_bus, np.int64)
-    return cols
+        cols[f"data_{j}"] = np.ascontiguousarray(frames.data[:, j])
+    codes, table = _channel_codes(frames.channel)
+    cols["channel"] = codes  # stored narrow when it fits
+    cols["is_rx"] = ((fl & RX) != 0).view(np.uint8)
+    cols["t_bus_ns"] = frames.t_bus_ns
+    return np.asarray(t_ns, np.int64), cols, frame_status(frames, bad), {"channel": table}
+
+
+def _channel_codes(channel: np.ndarray) -> tuple[np.ndarray, list[Any]]:
+    """Indexes (n,) into a table of the distinct channels of a block of frames."""
+    n = len(channel)
+    if n == 0:
+        return np.zeros(0, np.int64), []
+    ch0 = channel[0]
+    if ch0 is not None and bool(np.all(channel == ch0)):  # one channel (the usual log)
+        return np.zeros(n, np.int64), [_channel(ch0)]
+    import pandas as pd
+
+    codes, uniq = pd.factorize(channel, use_na_sentinel=False)
+    return codes.astype(np.int64), [
+        None if u is None or u != u else _channel(u) for u in uniq.tolist()
+    ]
 
 
 def block_columns_of(fields: Sequence[str]) -> set[str]:
@@ -343,7 +282,10 @@ def _frame_bytes(cols: dict[str, np.ndarray]) -> np.ndarray:
         raise ValueError(f"a frame's length {int(length.max())} is past its {w} data columns")
     rows = np.zeros((n, w), np.uint8)
     for j in range(w):
-        rows[:, j] = cols[f"data_{j}"]
+        col = cols[f"data_{j}"]
+        if col.dtype.kind == "f":  # blocks of narrower frames lack the column: NaN, past length
+            col = np.nan_to_num(col, nan=0.0)
+        rows[:, j] = col
     flat = rows.tobytes()
     data = np.empty(n, object)
     data[:] = [flat[i * w : i * w + k] for i, k in enumerate(length.tolist())]
@@ -360,16 +302,217 @@ def frame_rows(cols: dict[str, np.ndarray]) -> list[tuple[int, dict[str, Any]]]:
     return [(t[i], {k: lists[k][i] for k in names}) for i in range(len(t))]
 
 
+def frame_block_of_readings(
+    readings: Sequence[Reading],
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+    """:func:`frame_block` of ``can_raw`` readings (a source that gives readings, not batches;
+    their own status kept)."""
+    n = len(readings)
+    v = [r.values for r in readings]
+    datas = [bytes(x.get("data", b"")) for x in v]
+    w = max([8, *map(len, datas)])
+    flags = np.array(
+        [sum(bit * bool(x.get(name, 0)) for name, bit in _FLAG_BITS) | RX * bool(x.get("is_rx", 1))
+         for x in v], np.uint8,
+    )  # fmt: skip
+    ch = np.empty(n, object)
+    ch[:] = [x.get("channel") for x in v]
+    frames = FrameColumns(
+        np.array([x.get("t_bus_ns", r.t_ns) * 1e-9 for x, r in zip(v, readings, strict=True)]),
+        np.array([x.get("arbitration_id", 0) for x in v], np.int64),
+        flags,
+        np.array([x.get("dlc", len(d)) for x, d in zip(v, datas, strict=True)], np.int64),
+        np.frombuffer(b"".join(d.ljust(w, b"\0") for d in datas), np.uint8).reshape(n, w).copy(),
+        np.array(list(map(len, datas)), np.int64),
+        ch,
+        np.zeros(n, np.int64),
+    )
+    t, cols, _, values = frame_block(frames, [r.t_ns for r in readings])
+    cols["t_bus_ns"] = np.array([x.get("t_bus_ns", r.t_ns) for x, r in zip(v, readings, strict=True)],
+                                np.int64)  # exact, not through a float  # fmt: skip
+    return t, cols, np.array([r.status for r in readings], np.int64), values
+
+
+_FLAG_BITS = tuple(zip(FLAG_FIELDS, (EXTENDED, REMOTE, ERROR, FD, BRS, ESI), strict=True))
+
+
 def codec(stream: str, description: StreamDescription | None) -> Any:
-    """The ``can_raw`` stream codec (registered by the CAN driver): per-frame JSON messages, or
-    frame blocks (``layout`` :data:`BLOCK_LAYOUT`) for a stream added with ``blocks=True``."""
+    """The ``can_raw`` stream codec (registered by :func:`register`): frame blocks (``layout``
+    :data:`BLOCK_LAYOUT`) for a stream added with the frame description (every run cdpr writes;
+    frame batches and single readings alike), else one JSON message per reading (:func:`encode`:
+    a stream added without a description, or with other fields)."""
+    frames = description is not None and set(description.fields) == set(FIELDS)
     return StreamCodec(
-        f"cdpr.{stream}", schema(stream), encode, encode_can_frames, block_layout=BLOCK_LAYOUT
+        f"cdpr.{stream}",
+        schema(stream),
+        encode,
+        block_layout=BLOCK_LAYOUT if frames else None,
+        block_rows=frame_block_of_readings if frames else None,
     )
 
 
-def register(batch_type: type, register_codec: Callable[..., None]) -> None:
-    """Register the codec for ``can_raw`` streams and ``batch_type`` (the driver's batch of
-    frames) for the writer's batch path."""
+def register(register_codec: Callable[..., None]) -> None:
+    """Register the codec for ``can_raw`` streams and :class:`CanFrameBatch` for the writer's
+    batch path (done when this module is imported)."""
     register_codec("can_raw", codec)
-    register_frame_batch_type(batch_type)
+    register_frame_batch_type(CanFrameBatch)
+
+
+class CanFrameBatch(Sequence[Reading]):
+    """The readings of one read of a CAN source: the frames (``can.Message`` objects as a live bus
+    gives them, ``messages``, or columns read from a log, ``frames``), their times ``t_ns``
+    (integer ns since the Unix epoch: host reception, or log time), and the other readings
+    (decoded ``tensions``) with the number of frames they came after (``others``: ``(k,
+    reading)``).
+
+    It is a sequence of :class:`Reading` like any source's batch: indexing or iterating turns a
+    frame into its ``can_raw`` reading (:func:`frame_values`) only when it is looked at.  The
+    writer does not look: it writes the frames as a frame block (:meth:`frame_block`), which
+    saves building a ``Reading`` and a dict per frame on a busy bus.  ``bad``: the frames the
+    load-cell decoder could not use (flagged in ``/can_raw``).
+    """
+
+    __slots__ = ("stream", "messages", "t_ns", "others", "bad", "_frames", "_pos")
+
+    def __init__(
+        self,
+        stream: str = "can_raw",
+        messages: list[Any] | None = None,
+        t_ns: Any = None,
+        others: list[tuple[int, Reading]] | None = None,
+        frames: FrameColumns | None = None,
+        bad: Any = None,
+    ) -> None:
+        self.stream = stream
+        self.messages: list[Any] = [] if messages is None else messages
+        self.t_ns: Any = [] if t_ns is None else t_ns
+        self.others: list[tuple[int, Reading]] = [] if others is None else others
+        self.bad = bad
+        self._frames = frames
+        self._pos: list[int] | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.messages) if self.messages else len(self.t_ns)
+
+    def frames(self) -> FrameColumns:
+        """The frames as columns (made once from the messages of a live bus)."""
+        if self._frames is None or len(self._frames) != self.n_frames:
+            self._frames = FrameColumns.from_messages(self.messages)
+        return self._frames
+
+    def frame_block(self) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray, dict[str, Any]]:
+        """The frames as a frame block (:func:`frame_block`)."""
+        return frame_block(self.frames(), self.t_ns, self.bad)
+
+    def add_frame(self, msg: Any, t_ns: int) -> None:
+        self.messages.append(msg)
+        self.t_ns.append(t_ns)
+
+    def add_reading(self, reading: Reading) -> None:
+        self.others.append((self.n_frames, reading))
+        self._pos = None
+
+    def frame_reading(self, i: int) -> Reading:
+        """The ``can_raw`` reading of frame ``i``."""
+        frames = self.frames()
+        bad = None if self.bad is None else self.bad[i : i + 1]
+        status = int(frame_status(frames.take(slice(i, i + 1)), bad)[0])
+        return Reading(self.stream, int(self.t_ns[i]), frame_values(frames, i), status)
+
+    def renamed(self, renames: Mapping[str, str]) -> CanFrameBatch:
+        """The same batch with streams renamed (``{"can_raw": "bus_a/can_raw", ...}``)."""
+        others = [
+            (
+                k,
+                Reading(renames[r.stream], r.t_ns, r.values, r.status)
+                if r.stream in renames
+                else r,
+            )
+            for k, r in self.others
+        ]
+        return CanFrameBatch(
+            renames.get(self.stream, self.stream), self.messages, self.t_ns, others,
+            self._frames, self.bad,
+        )  # fmt: skip
+
+    @classmethod
+    def join(cls, batches: Sequence[CanFrameBatch]) -> CanFrameBatch:
+        """One batch of consecutive batches of the same stream (in order)."""
+        others: list[tuple[int, Reading]] = []
+        k = 0
+        for b in batches:
+            others.extend((k + i, r) for i, r in b.others)
+            k += b.n_frames
+        bads = [b.bad for b in batches]
+        bad = None
+        if any(x is not None for x in bads):
+            bad = np.concatenate(
+                [np.zeros(b.n_frames, bool) if x is None else np.asarray(x, bool)
+                 for b, x in zip(batches, bads, strict=True)]
+            )  # fmt: skip
+        t_ns = np.concatenate([np.asarray(b.t_ns, np.int64) for b in batches]) if batches else []
+        if all(len(b.messages) == b.n_frames for b in batches):  # a live bus: messages
+            msgs = [m for b in batches for m in b.messages]
+            cached = [b._frames for b in batches]  # the columns made for decoding, if all have
+            frames = concat_frames(cached) if all(f is not None for f in cached) else None  # type: ignore[arg-type]
+            return cls(batches[0].stream, msgs, list(t_ns), others, frames, bad)
+        frames = concat_frames([b.frames() for b in batches])
+        return cls(batches[0].stream, [], t_ns, others, frames, bad)
+
+    def latest(self) -> dict[str, Reading]:
+        """The last reading of every stream in the batch."""
+        out: dict[str, Reading] = {}
+        if self.n_frames:
+            out[self.stream] = self.frame_reading(self.n_frames - 1)
+        for _, r in self.others:
+            out[r.stream] = r
+        return out
+
+    def __len__(self) -> int:
+        return self.n_frames + len(self.others)
+
+    def _positions(self) -> list[int]:
+        # position of every other reading in the combined order
+        if self._pos is None:
+            self._pos = [k + j for j, (k, _) in enumerate(self.others)]
+        return self._pos
+
+    def _one(self, i: int) -> Reading:
+        n = len(self)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("batch index out of range")
+        if not self.others:
+            return self.frame_reading(i)
+        pos = self._positions()
+        j = bisect.bisect_left(pos, i)
+        if j < len(pos) and pos[j] == i:
+            return self.others[j][1]
+        return self.frame_reading(i - j)
+
+    def __getitem__(self, i: Any) -> Any:
+        if isinstance(i, slice):
+            return [self._one(k) for k in range(*i.indices(len(self)))]
+        return self._one(i)
+
+    def __iter__(self) -> Iterator[Reading]:
+        others = self.others
+        j = 0
+        for i in range(self.n_frames):
+            while j < len(others) and others[j][0] <= i:
+                yield others[j][1]
+                j += 1
+            yield self.frame_reading(i)
+        for _, r in others[j:]:
+            yield r
+
+    def __repr__(self) -> str:
+        return (
+            f"CanFrameBatch({self.stream!r}, {self.n_frames} frames, "
+            f"{len(self.others)} other readings)"
+        )
+
+
+register(register_stream_codec)

@@ -212,6 +212,12 @@ def calibration_from_mapping(
 # --------------------------------------------------------------------------------------------
 CALIBRATION_FILE_KIND = "loadcells"
 _CAL_KEYS_REQUIRED = ("offset_counts", "gain_N_per_count")
+#: the other keys of ``[calibration]``: its identity and the fit statistics `cdpr calibrate
+#: loadcells` writes (kept in :attr:`LoadCellCalibrationFile.extra`); any other key is an error
+_CAL_KEYS_OPTIONAL = (
+    "kind", "id", "cables", "source", "created_utc", "software_version", "sd_offset_counts",
+    "sd_gain_N_per_count", "residual_rms_N", "nonlinearity_pct", "n_points",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -297,6 +303,15 @@ def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFi
             p,
             "calibration",
             "missing [calibration] table (write the file with `cdpr calibrate loadcells`)",
+        )
+    unknown = sorted(set(cal) - {*_CAL_KEYS_REQUIRED, *_CAL_KEYS_OPTIONAL})
+    if unknown:
+        raise ConfigError(
+            p,
+            f"calibration.{unknown[0]}",
+            "unknown key (a load-cell calibration has "
+            + ", ".join((*_CAL_KEYS_REQUIRED, *_CAL_KEYS_OPTIONAL))
+            + ")",
         )
     kind = cal.get("kind", CALIBRATION_FILE_KIND)
     if kind != CALIBRATION_FILE_KIND:

@@ -19,7 +19,7 @@ import base64
 import fnmatch
 import json
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -98,11 +98,14 @@ class StreamCodec:
     encode: reading -> message body (a dict, encoded to JSON by the writer, or JSON bytes), or
         None: no message on this channel for that reading (a camera frame without a pose).
     encode_frames: optional batch encoder of raw CAN frames (``can.Message`` objects, see
-        :class:`cdpr.daq.can_source.CanFrameBatch`) -> :class:`FrameRecords`.
-    block_layout: the ``layout`` of the stream stored as column blocks when it is added with
-        ``blocks=True`` (its columns written with
-        :meth:`~cdpr.daq.mcap_writer.McapRunWriter.write_columns`; no view),
-        e.g. ``can_frames`` (:mod:`cdpr.daq.can_raw`); None: no block layout.
+        :class:`cdpr.daq.can_raw.CanFrameBatch`) -> :class:`FrameRecords`.
+    block_layout: the ``layout`` of the stream stored as column blocks when it is added with a
+        description and not ``blocks=False`` (its columns written with
+        :meth:`~cdpr.daq.mcap_writer.McapRunWriter.write_columns`, or by a frame batch's
+        ``frame_block()``; no view), e.g. ``can_frames`` (:mod:`cdpr.daq.can_raw`); None: no
+        block layout.
+    block_rows: with a block layout: readings -> ``(t_ns, columns, status, values)`` for
+        ``write_columns`` (a single reading written into a block stream).
     status: the codec of a second channel, ``/<stream>_status`` (channel metadata ``status_of``),
         that gets one message for every reading, whether ``encode`` gave one or not: what a
         well-known schema has no field for (a pose's status, flags, covariance).  ``open_run``
@@ -115,6 +118,7 @@ class StreamCodec:
     encode_frames: Callable[[Any], FrameRecords] | None = None
     block_layout: str | None = None
     status: StreamCodec | None = None
+    block_rows: Callable[[Sequence[Reading]], Any] | None = None
 
 
 #: a float that may be missing: NaN is written as JSON ``null`` (strict JSON has no NaN)
@@ -308,8 +312,9 @@ _FRAME_BATCH_TYPES: set[type] = set()
 
 def register_frame_batch_type(batch_type: type) -> None:
     """Have :meth:`~cdpr.daq.mcap_writer.McapRunWriter.write_many` treat ``batch_type`` as a batch
-    of frames: it has ``stream``, ``messages``, ``t_ns``, ``others`` and ``frame_reading(i)`` (see
-    :class:`cdpr.daq.can_source.CanFrameBatch`)."""
+    of frames: it has ``stream``, ``messages``, ``t_ns`` (one per frame), ``others``,
+    ``frame_reading(i)`` and, for a block stream, ``frame_block()`` (see
+    :class:`cdpr.daq.can_raw.CanFrameBatch`)."""
     _FRAME_BATCH_TYPES.add(batch_type)
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -143,6 +143,8 @@ class McapRunWriter:
         self._codecs: dict[str, Callable[[Reading], Any]] = {}
         self._frame_encoders: dict[str, Callable[[Any], FrameRecords]] = {}
         self._blocks: dict[str, BlockStream] = {}  # column-block streams (mcap_blocks)
+        #: a layout's block stream: its readings -> columns (StreamCodec.block_rows)
+        self._block_rows: dict[str, Callable[[Sequence[Reading]], Any]] = {}
         #: stream -> channel id and encoder of its ``/<stream>_status`` (StreamCodec.status)
         self._status: dict[str, tuple[int, Callable[[Reading], Any]]] = {}
         #: samples written per stream (a block stream's samples, not its block messages)
@@ -165,7 +167,7 @@ class McapRunWriter:
         if stream in self._channels:
             return self._channels[stream]
         codec = codec_for(stream, description)
-        if blocks and description is not None and codec.block_layout is not None:
+        if blocks is not False and description is not None and codec.block_layout is not None:
             return self._add_block_stream(stream, description, codec, codec.block_layout)
         if (
             blocks is not False
@@ -229,6 +231,8 @@ class McapRunWriter:
         self._codecs[stream] = codec.encode
         self.counts[stream] = 0
         self._blocks[stream] = bs
+        if layout is not None and codec.block_rows is not None:
+            self._block_rows[stream] = codec.block_rows
         return bs.cid
 
     @property
@@ -285,10 +289,10 @@ class McapRunWriter:
     def write_many(self, readings: Iterable[Reading]) -> int:
         """Write readings in order (the recorder's hot loop); returns how many.
 
-        A registered batch type (:func:`register_frame_batch_type`: the CAN driver's
-        :class:`~cdpr.daq.can_source.CanFrameBatch`) has its frames formatted at once by its stream
-        codec's ``encode_frames`` (:func:`cdpr.daq.can_raw.encode_can_frames`); its other readings
-        (decoded tensions) follow."""
+        A registered batch type (:func:`register_frame_batch_type`: the CAN sources'
+        :class:`~cdpr.daq.can_raw.CanFrameBatch`) has its frames written at once: as a frame
+        block (its ``frame_block()``) on a block stream, else by its stream codec's
+        ``encode_frames``; its other readings (decoded tensions) follow."""
         if is_frame_batch(readings):
             return self._write_frame_batch(readings)
         channels = self._channels
@@ -304,6 +308,10 @@ class McapRunWriter:
             if cid is None:
                 cid = self.add_stream(stream, None)
             bs = blocks.get(stream)
+            if bs is not None and stream in self._block_rows:  # a layout's reading: its columns
+                self.write_columns(stream, *self._block_rows[stream]([r]))
+                n += 1
+                continue
             if bs is not None:
                 buf = bs.buf
                 buf.add_reading(r.t_ns, r.values, r.status)
@@ -326,14 +334,17 @@ class McapRunWriter:
     def _write_frame_batch(self, batch: Any) -> int:
         stream = batch.stream
         msgs = batch.messages
-        n = len(msgs)
+        n = len(batch.t_ns)
         if n:
             if stream not in self._channels:
                 self.add_stream(stream, None)
-            encode_frames = self._frame_encoders.get(stream)
-            if encode_frames is None:  # another codec for this stream: one reading at a time
-                return self.write_many(list(batch))
-            self.write_records(stream, batch.t_ns[:n], encode_frames(msgs), batch.frame_reading)
+            if stream in self._blocks:  # a layout's block stream: the batch gives its columns
+                self.write_columns(stream, *batch.frame_block())
+            else:
+                encode_frames = self._frame_encoders.get(stream)
+                if encode_frames is None:  # another codec for this stream: reading by reading
+                    return self.write_many(list(batch))
+                self.write_records(stream, batch.t_ns[:n], encode_frames(msgs), batch.frame_reading)
         others = batch.others
         if others:
             self.write_many([r for _, r in others])

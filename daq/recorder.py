@@ -170,7 +170,7 @@ _SMALL_DRAIN = 2048
 
 
 def _joined(batches: list[Any]) -> list[Any]:
-    """Consecutive CAN frame batches (:class:`~cdpr.daq.can_source.CanFrameBatch`, one stream per
+    """Consecutive CAN frame batches (:class:`~cdpr.daq.can_raw.CanFrameBatch`, one stream per
     source) joined into batches of about ``_JOIN_FRAMES`` frames: the writer formats a batch's
     frames in one go, faster for a few thousand frames than for a few hundred, and a bounded size
     keeps the memory of a large backlog's formatting small."""
@@ -521,7 +521,7 @@ class Recorder:
                 if batch:
                     delivered(name)
                     if ren and is_frame_batch(batch):
-                        batch = batch.renamed(ren)  # a CAN frame batch (can_source.CanFrameBatch)
+                        batch = batch.renamed(ren)  # a CAN frame batch (can_raw.CanFrameBatch)
                     elif ren:
                         batch = [
                             Reading(ren[r.stream], r.t_ns, r.values, r.status)

@@ -624,7 +624,7 @@ class VirtualRig:
         The little-endian (Intel) signals of the DBC are packed with numpy in one go; a sample of
         frames is cross-checked against cantools' own encoder.
         """
-        from .can_source import DEFAULT_DBC, load_dbc
+        from .can_dbc import DEFAULT_DBC, load_dbc
 
         db = load_dbc(DEFAULT_DBC)
         m = self.rig.n_cables

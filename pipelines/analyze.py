@@ -153,6 +153,7 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
     after: dict[str, Any] = {
         "source": [plan.source] * out.n,
         **{k: extra[k] for k in ("start_ns", "stop_ns", "n_samples", "n_masked", "n_pose_frames")},
+        **_sample_counters(run, plan),
         **plan.targets,
     }
     df = points_table(out, rig, plan.labels, {"run": [run.path.name] * out.n}, after)
@@ -187,6 +188,19 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         else "not applied (no test matrix given: cdpr analyze --matrix)",
     }
     return df, info
+
+
+def _sample_counters(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
+    """``first_sample``, ``last_sample``: the sample counter of each point's first and last tension
+    samples (which samples made the point, whatever clock the times are on); none without one."""
+    if run.sample_counter is None:
+        return {}
+    idx = np.asarray(plan.ranges, dtype=np.int64).reshape(-1, 2)
+    ok = idx[:, 1] > idx[:, 0]
+    c = run.sample_counter
+    first = np.where(ok, c[np.minimum(idx[:, 0], len(c) - 1)], -1)
+    last = np.where(ok, c[np.maximum(idx[:, 1] - 1, 0)], -1)
+    return {"first_sample": first, "last_sample": last}
 
 
 def _truth_columns(

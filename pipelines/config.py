@@ -97,7 +97,20 @@ def read_table(
         raise ConfigError(str(p), f"column {missing[0]}", f"missing (have: {list(df.columns)})")
     if len(df) == 0:
         raise ConfigError(str(p), "", f"no data rows in the {what}")
-    for c in required:
+    require_numbers(p, df, required, max_abs)
+    return df
+
+
+def require_numbers(
+    path: str | os.PathLike[str],
+    df: pd.DataFrame,
+    columns: Sequence[str],
+    max_abs: Mapping[str, tuple[float, str]] | None = None,
+) -> None:
+    """Make ``columns`` of a table :func:`read_table` read float64, each value finite (and within
+    ``max_abs``), else a ConfigError naming the file, row and column."""
+    p = Path(path)
+    for c in columns:
         col = pd.to_numeric(df[c], errors="coerce")
         values = col.to_numpy(dtype=np.float64)
         bad = ~np.isfinite(values)
@@ -119,7 +132,6 @@ def read_table(
                     f"absurd value {values[i]:g} (expected |value| <= {limit:g} {unit})",
                 )
         df[c] = col
-    return df
 
 
 def _check_header(p: Path, text: str, what: str) -> int:

@@ -1,7 +1,17 @@
-"""Side tables of ``cdpr import``: tunnel conditions and test-point events from other tools' CSVs.
+"""Side tables of ``cdpr import``: platform poses, tunnel conditions and test-point events from other
+tools' CSVs.
 
-Both files have a time column, ``t_ns`` (integer ns since the Unix epoch) or ``t_s`` (seconds from
+Every file has a time column, ``t_ns`` (integer ns since the Unix epoch) or ``t_s`` (seconds from
 the first CAN frame of the imported log), non-decreasing; ``#`` lines are comments.
+
+- pose CSV: ``x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad`` (platform {P} in {O}, Z-Y-X Euler
+  angles) and optionally its covariance ``cov_00 .. cov_55``: the 6x6 covariance of that row's
+  ``(x, y, z, roll, pitch, yaw)`` in m^2, m rad and rad^2, row-major (``cov_ij`` row i, column j),
+  all 36 columns with a number in every row (symmetric, positive semi-definite) or none.  Each
+  row becomes a ``/pose`` message whose ``covariance`` is in the camera's parametrisation
+  ``[position_O_m, rotation vector in {O}]`` (:func:`cdpr.analysis.rotations.pose_cov_from_euler`),
+  the layout of the recorder's ``/pose``.  Without the columns, a stated per-frame standard
+  deviation (``cdpr import --pose-sd``) may stand for it.
 
 - tunnel CSV: ``airspeed_mps`` and either ``density_kgpm3`` or ``static_pressure_Pa`` +
   ``temperature_K`` (density then ``p / (R T)``, moist air with the humidity); optional
@@ -31,12 +41,14 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from cdpr.analysis.conventions import POSE_COLUMNS
 from cdpr.analysis.errors import ConfigError, InputError
 from cdpr.analysis.flow import air_density, saturation_vapour_pressure
+from cdpr.analysis.rotations import pose_cov_from_euler, quaternion_from_euler
 from cdpr.daq.source import FieldDescription, Reading, StreamDescription
 
 from .campaign import KINDS
-from .config import read_table
+from .config import read_table, require_numbers
 
 EVENT_TARGETS = ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps")
 
@@ -359,3 +371,117 @@ def event_stream(
             )
         out.append(Reading("events", int(t), values))
     return StreamDescription(dict(EVENT_FIELDS), 0.0, "Imported test-point events."), out
+
+
+#: the pose CSV's covariance columns: ``cov_<i><j>``, row i and column j of the 6x6 covariance of
+#: ``(x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad)``
+POSE_COV_COLUMNS = tuple(f"cov_{i}{j}" for i in range(6) for j in range(6))
+#: relative asymmetry |C_ij - C_ji| / sqrt(C_ii C_jj) a covariance written with few digits may have
+_COV_SYMMETRY_TOL = 1e-6
+
+
+def read_pose_csv(path: str | os.PathLike[str]) -> TimedTable:
+    """Read and check a pose CSV (see the module docstring): columns ``pose`` (k, 6) and, with the
+    covariance columns, ``covariance_euler`` (k, 6, 6) (symmetrised)."""
+    p = str(path)
+    df = read_table(p, POSE_COLUMNS, "pose table")
+    tcol, tv = table_times(p, df)
+    cols: dict[str, NDArray[Any]] = {"pose": df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64)}
+    have = [c for c in df.columns if c.startswith("cov_")]
+    if have:
+        odd = [c for c in have if c not in POSE_COV_COLUMNS]
+        if odd:
+            raise ConfigError(p, f"column {odd[0]}", "not a covariance column (cov_00 .. cov_55)")
+        missing = [c for c in POSE_COV_COLUMNS if c not in df.columns]
+        if missing:
+            raise ConfigError(
+                p,
+                f"column {missing[0]}",
+                f"missing: a pose covariance is all 36 columns cov_00 .. cov_55, the file has "
+                f"{len(have)} of them",
+            )
+        require_numbers(p, df, POSE_COV_COLUMNS)  # an empty or NaN cell names its row
+        cols["covariance_euler"] = _checked_covariance(
+            p, df[list(POSE_COV_COLUMNS)].to_numpy(dtype=np.float64).reshape(-1, 6, 6)
+        )
+    return TimedTable(p, tcol, tv, cols)
+
+
+def _checked_covariance(path: str, C: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``C`` (k, 6, 6) symmetrised, or a ConfigError naming the first row and column that is not
+    a covariance (a negative variance, an asymmetry, a negative eigenvalue)."""
+    d = np.diagonal(C, axis1=1, axis2=2)
+    neg = np.argwhere(d < 0)
+    if len(neg):
+        i, j = (int(x) for x in neg[0])
+        raise ConfigError(path, f"row {i + 2}, column cov_{j}{j}", f"negative variance {d[i, j]:g}")
+    scale = np.sqrt(d[:, :, None] * d[:, None, :])
+    asym = np.argwhere(np.abs(C - np.swapaxes(C, 1, 2)) > _COV_SYMMETRY_TOL * scale)
+    if len(asym):
+        i, a, b = (int(x) for x in asym[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, column cov_{a}{b}",
+            f"not symmetric: {C[i, a, b]:g} against cov_{b}{a} = {C[i, b, a]:g}",
+        )
+    S = 0.5 * (C + np.swapaxes(C, 1, 2))
+    lo = np.linalg.eigvalsh(S)[:, 0]
+    tol = 1e-9 * np.max(d, axis=1)
+    neg_ev = np.flatnonzero(lo < -tol)
+    if len(neg_ev):
+        i = int(neg_ev[0])
+        raise ConfigError(
+            path,
+            f"row {i + 2}, columns cov_00 .. cov_55",
+            f"not a covariance: an eigenvalue is {lo[i]:g} < 0 (the variances and correlations "
+            "disagree)",
+        )
+    return S
+
+
+POSE_DESCRIPTION = {
+    "position_O_m": FieldDescription("m", shape=(3,)),
+    "quaternion_xyzw": FieldDescription("", shape=(4,)),
+    "euler_rad": FieldDescription("rad", shape=(3,)),
+    "covariance": FieldDescription("m, rad (6x6 row-major)", shape=(36,)),
+}
+
+
+def pose_stream(
+    table: TimedTable, first_can_ns: int | None, pose_sd: Any = None
+) -> tuple[StreamDescription, list[Reading]]:
+    """The ``/pose`` stream description and readings of a pose table: position, orientation, Euler
+    angles and, from the table's covariance columns or else the stated per-frame standard
+    deviations ``pose_sd`` (6,) (x, y, z m; roll, pitch, yaw rad), the covariance in the camera's
+    parametrisation ``[position_O_m, rotation vector in {O}]`` (none without either)."""
+    t_ns = table.t_ns(first_can_ns).tolist()
+    q6 = table.columns["pose"]
+    cov = table.columns.get("covariance_euler")
+    if cov is None and pose_sd is not None:
+        sd = np.asarray(pose_sd, dtype=np.float64)
+        cov = np.broadcast_to(np.diag(sd**2), (len(q6), 6, 6))
+    fields = dict(POSE_DESCRIPTION)
+    if cov is None:
+        del fields["covariance"]
+    desc = StreamDescription(
+        fields,
+        0.0,
+        "Imported platform pose, P in {O}"
+        + ("; covariance order [position_O_m, rotation_O_rad]" if cov is not None else "."),
+    )
+    q_wxyz = quaternion_from_euler(q6[:, 3:6])
+    q_xyzw = np.concatenate([q_wxyz[:, 1:], q_wxyz[:, :1]], axis=1).tolist()
+    stored = None if cov is None else pose_cov_from_euler(q6[:, 3:6], cov).reshape(-1, 36).tolist()
+    pos, eul = q6[:, :3].tolist(), q6[:, 3:].tolist()
+    out = []
+    for k, t in enumerate(t_ns):
+        values: dict[str, Any] = {
+            "position_O_m": pos[k],
+            "quaternion_xyzw": q_xyzw[k],
+            "euler_rad": eul[k],
+            "frame_id": "O",
+        }
+        if stored is not None:
+            values["covariance"] = stored[k]
+        out.append(Reading("pose", int(t), values))
+    return desc, out

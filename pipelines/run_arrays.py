@@ -25,7 +25,7 @@ from cdpr.analysis.conventions import status_from_channel_bits
 from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.flow import air_density
 from cdpr.analysis.rig import Rig
-from cdpr.analysis.rotations import euler_from_quaternion, euler_rate_matrix
+from cdpr.analysis.rotations import euler_from_quaternion, pose_cov_to_euler
 from cdpr.daq.schema import rig_from_mapping
 
 
@@ -54,6 +54,8 @@ class RunData:
     message has none); None when no tunnel message carries one."""
     recalibration: dict[str, Any] | None = None
     tension_clock: str = ""
+    sample_counter: np.ndarray | None = None
+    """(n,) the tension samples' counter (``seq``), None when the stream has none."""
     """Where the tension samples' times come from: the sample counter (the sampling instants, the
     lower envelope of the reception times: :func:`cdpr.analysis.clock.sample_clock`), or the
     reception times when the stream has no counter."""
@@ -343,7 +345,7 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity, recal, clock,
+                pressure_temperature, humidity, recal, clock, seq,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -351,13 +353,13 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity, recal, clock,
+            events, truth, False, pressure_temperature, humidity, recal, clock, seq,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity, recal, clock,
+        pressure_temperature, humidity, recal, clock, seq,
     )  # fmt: skip
 
 
@@ -372,10 +374,7 @@ def _pose_covariance(pose_df: pd.DataFrame, eul: np.ndarray, bad: np.ndarray) ->
     C = np.column_stack([_column(pose_df, c) for c in ccols]).reshape(-1, 6, 6)
     if not np.isfinite(C[~bad]).any(axis=(1, 2)).all():
         return None
-    J = np.zeros((len(C), 6, 6))
-    J[:, :3, :3] = np.eye(3)
-    J[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-    return J @ C @ np.swapaxes(J, 1, 2)
+    return pose_cov_to_euler(np.nan_to_num(eul), C)
 
 
 def _events(df: pd.DataFrame | None) -> list[tuple[int, dict[str, Any]]]:

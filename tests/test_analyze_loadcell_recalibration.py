@@ -71,12 +71,13 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _raw(run: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Times (n,) and raw counts (n, 8) of the run's ``/tensions``, read with mcap + json."""
+    """Sample counters (n,) and raw counts (n, 8) of the run's ``/tensions``, read with
+    mcap + json."""
     t, c = [], []
     with run.open("rb") as fh:
         for _, _, m in make_reader(fh).iter_messages(["/tensions"]):
             row = json.loads(m.data)
-            t.append(m.log_time)
+            t.append(row["seq"])
             c.append([row[f"raw_{n}_counts"] for n in NAMES])
     return np.array(t, np.int64), np.array(c, float)
 
@@ -112,10 +113,10 @@ def _provenance(out: Path, run: Path) -> dict[str, Any]:
 
 def _point_means(run: Path, df: pd.DataFrame, off: np.ndarray, gain: np.ndarray) -> np.ndarray:
     """(points, 8) mean of (counts - off) * gain over each point's samples, by hand."""
-    t, c = _raw(run)
+    k, c = _raw(run)
     out = []
-    for r in df.itertuples():
-        sel = (t >= r.start_ns) & (t <= r.stop_ns)
+    for r in df.itertuples():  # the point's samples by their counter, whatever the clock
+        sel = (k >= r.first_sample) & (k <= r.last_sample)
         assert sel.sum() == r.n_samples and r.n_masked == 0
         out.append(((c[sel] - off) * gain).mean(axis=0))
     return np.array(out)
@@ -143,13 +144,18 @@ def test_tensions_are_rederived_from_raw_counts_and_the_wrench_follows(
     dT = T_b - T_a
     assert np.abs(dT).max() > 0.1  # the re-calibration really moves the tensions (N)
 
-    # W_i = -A_i T_i + A_j T_j + (weight terms, the same in both analyses: one pose)
+    # W_i = -A_i T_i + A_j T_j + (weight terms, the same in both analyses to ~1e-6: one pose),
+    # A_i at the point's pose as the core used it: its tare's plus the deflection it reports
     i, j = 1, 0
     assert b.tare_point[i] == b.point[j]
     pose = ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"]
-    A_i = statics(ANCHORS, ATTACH, b[pose].to_numpy()[i])
     A_j = statics(ANCHORS, ATTACH, b[pose].to_numpy()[j])
-    dW = -A_i @ dT[i] + A_j @ dT[j]
+
+    def cables(df: pd.DataFrame, T: np.ndarray) -> np.ndarray:
+        q_i = df[pose].to_numpy()[j] + df[[f"deflection_{c}" for c in pose]].to_numpy()[i]
+        return -statics(ANCHORS, ATTACH, q_i) @ T[i] + A_j @ T[j]
+
+    dW = cables(b, T_b) - cables(a, T_a)
     got = b[WRENCH].to_numpy()[i] - a[WRENCH].to_numpy()[i]
     np.testing.assert_allclose(got, dW, rtol=1e-6, atol=1e-6)
     # the offsets cancel against the tare; the gains scale T0 - Tw (the aero load, about 1 N):

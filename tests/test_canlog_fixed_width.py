@@ -15,8 +15,9 @@ import pytest
 from test_storage_canlog import _fields, _python_can
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.daq import canlog
-from cdpr.daq.canlog import FrameColumns, read_candump
+from cdpr.daq import canlog_candump as candump
+from cdpr.daq.can_frames import FrameColumns
+from cdpr.daq.canlog_candump import read_candump
 
 COLUMNS = ("t_s", "arbitration_id", "flags", "dlc", "data", "length", "channel", "line")
 
@@ -98,9 +99,9 @@ def test_fixed_width_logs_equal_python_can_and_the_general_parser(
     n = 3000
     log = _write(tmp_path / "f.log", _lines(n, **LAYOUTS[layout]))
     buf = _block(log)
-    fast = canlog._parse_fixed(buf, str(log), 1)
+    fast = candump._parse_fixed(buf, str(log), 1)
     assert fast is not None and len(fast) == n  # the fast path is taken
-    _assert_same(fast, canlog._parse_general(buf, str(log), 1))
+    _assert_same(fast, candump._parse_general(buf, str(log), 1))
     want = [_fields(m) for m in _python_can(log)]
     assert [_fields(m) for m in fast.messages()] == want
     assert _frames(log) == want
@@ -120,13 +121,13 @@ def test_timestamps_convert_as_float_does() -> None:
             fpart = rng.integers(0, 10**k, 200)
             texts = [f"{i:0{ni}d}.{f:0{k}d}" for i, f in zip(ipart, fpart, strict=True)]
             buf = np.frombuffer("".join(f"({t}) can0 181#00\n" for t in texts).encode(), np.uint8)
-            fast = canlog._parse_fixed(buf, "x.log", 1)
+            fast = candump._parse_fixed(buf, "x.log", 1)
             if ni + k <= 15:
                 assert fast is not None, (ni, k)
             if fast is not None:
                 taken["short" if ni + k <= 15 else "long"] += 1
                 assert fast.t_s.tolist() == [float(t) for t in texts], (ni, k)
-                _assert_same(fast, canlog._parse_general(buf, "x.log", 1))
+                _assert_same(fast, candump._parse_general(buf, "x.log", 1))
     assert taken["short"] > 100 and taken["long"] > 15, taken
 
 
@@ -162,14 +163,14 @@ def test_ids_with_the_error_flag(tmp_path: Path) -> None:
         lines[j] = lines[j].replace(lines[j].split(" ")[2].split("#")[0], cid)
     log = _write(tmp_path / "flag.log", lines)
     buf = _block(log)
-    fast = canlog._parse_fixed(buf, str(log), 1)
+    fast = candump._parse_fixed(buf, str(log), 1)
     assert fast is not None
     assert fast.arbitration_id[[10, 20, 30]].tolist() == [0x1, 0x0, 0x1FFFFF7F]
-    _assert_same(fast, canlog._parse_general(buf, str(log), 1))
+    _assert_same(fast, candump._parse_general(buf, str(log), 1))
     assert [_fields(m) for m in fast.messages()] == [_fields(m) for m in _python_can(log)]
     lines[40] = lines[40].replace(lines[40].split(" ")[2].split("#")[0], "200000C0")
     log = _write(tmp_path / "flag.log", lines)
-    assert canlog._parse_fixed(_block(log), str(log), 1) is None
+    assert candump._parse_fixed(_block(log), str(log), 1) is None
     want = [_fields(m) for m in _python_can(log)]
     assert want[40][4] is True  # python-can: an error frame
     assert _frames(log) == want
@@ -203,8 +204,10 @@ def test_a_differing_line_goes_to_the_general_parser(tmp_path: Path) -> None:
     for name, changed in _variants(lines, 123).items():
         log = _write(tmp_path / "v.log", changed)
         buf = _block(log)
-        assert canlog._parse_fixed(buf, str(log), 1) is None, name
-        _assert_same(canlog._parse_block(buf, str(log), 1), canlog._parse_general(buf, str(log), 1))
+        assert candump._parse_fixed(buf, str(log), 1) is None, name
+        _assert_same(
+            candump._parse_block(buf, str(log), 1), candump._parse_general(buf, str(log), 1)
+        )
         assert _frames(log) == [_fields(m) for m in _python_can(log)], name
         assert _frames(log, block_bytes=1000) == _frames(log), name
 
@@ -217,9 +220,9 @@ def test_a_bad_line_is_the_general_parsers_error(tmp_path: Path, bad: str) -> No
     assert len(lines[200]) == len(lines[0])  # same length: only the row checks can see it
     log = _write(tmp_path / "bad.log", lines)
     buf = _block(log)
-    assert canlog._parse_fixed(buf, str(log), 1) is None
+    assert candump._parse_fixed(buf, str(log), 1) is None
     with pytest.raises(ConfigError) as general:
-        canlog._parse_general(buf, str(log), 1)
+        candump._parse_general(buf, str(log), 1)
     for block_bytes in (8 << 20, 1000):
         with pytest.raises(ConfigError) as got:
             list(read_candump(log, block_bytes=block_bytes))
@@ -234,7 +237,7 @@ def test_crlf_lines_go_to_the_general_parser(tmp_path: Path) -> None:
         _write(tmp_path / "one.log", lines[:150] + [lines[150] + "\r"] + lines[151:]),
     ):
         buf = _block(log)
-        assert canlog._parse_fixed(buf, str(log), 1) is None, log.name
+        assert candump._parse_fixed(buf, str(log), 1) is None, log.name
         assert _frames(log) == [_fields(m) for m in _python_can(log)], log.name
 
 
@@ -252,8 +255,10 @@ def test_a_size_that_is_a_multiple_of_the_first_line_by_coincidence(tmp_path: Pa
     for log in (a_log, b_log):
         buf = _block(log)
         assert len(buf) % width == 0 and len({len(x) for x in log.read_text().splitlines()}) > 1
-        assert canlog._parse_fixed(buf, str(log), 1) is None, log.name
-        _assert_same(canlog._parse_block(buf, str(log), 1), canlog._parse_general(buf, str(log), 1))
+        assert candump._parse_fixed(buf, str(log), 1) is None, log.name
+        _assert_same(
+            candump._parse_block(buf, str(log), 1), candump._parse_general(buf, str(log), 1)
+        )
         assert _frames(log) == [_fields(m) for m in _python_can(log)], log.name
 
 
@@ -266,7 +271,7 @@ def test_small_blocks_and_line_numbers(tmp_path: Path) -> None:
     log = _write(tmp_path / "blocks.log", lines)
     want = [_fields(m) for m in _python_can(log)]
     calls = {"fixed": 0, "general": 0}
-    fixed, general = canlog._parse_fixed, canlog._parse_general
+    fixed, general = candump._parse_fixed, candump._parse_general
 
     def count(kind: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         def wrapped(*args: Any) -> Any:
@@ -279,8 +284,8 @@ def test_small_blocks_and_line_numbers(tmp_path: Path) -> None:
     for block_bytes in (7, 100, 1000, 4096, 65536):
         calls.update(fixed=0, general=0)
         mp = pytest.MonkeyPatch()
-        mp.setattr(canlog, "_parse_fixed", count("fixed", fixed))
-        mp.setattr(canlog, "_parse_general", count("general", general))
+        mp.setattr(candump, "_parse_fixed", count("fixed", fixed))
+        mp.setattr(candump, "_parse_general", count("general", general))
         try:
             cols = list(read_candump(log, block_bytes=block_bytes))
         finally:
@@ -333,9 +338,9 @@ def test_random_layouts_and_damage_give_the_general_parsers_result() -> None:
         if not b.endswith(b"\n"):
             b += b"\n"
         buf = np.frombuffer(bytes(b), np.uint8)
-        want = outcome(canlog._parse_general, buf)
-        got = outcome(canlog._parse_block, buf)
-        fast = canlog._parse_fixed(buf, "f.log", 5)
+        want = outcome(candump._parse_general, buf)
+        got = outcome(candump._parse_block, buf)
+        fast = candump._parse_fixed(buf, "f.log", 5)
         if isinstance(want, str):
             errors += 1
             assert got == want and fast is None, bytes(b)

@@ -126,3 +126,102 @@ def test_import_bad_inputs_one_line_and_no_output(tmp_path: Path, capsys) -> Non
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "c.toml" in err[0] and "gain" in err[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml", "p.csv", "x.log"]
+
+
+# --- issue 19: what import must refuse or count ---------------------------------------------------
+
+
+def _write_frames(
+    path: Path, ids: list[int], data: np.ndarray, cut: dict[tuple[int, int], int]
+) -> None:
+    """The rig's frames through python-can's own writer for the suffix; frame ``(k, j)`` in
+    ``cut`` keeps only its first ``cut[k, j]`` bytes (a truncated frame, as a faulty amplifier or
+    a logger with the wrong DLC gives it)."""
+    logger = can.Logger(str(path))
+    for k in range(data.shape[0]):
+        for j, fid in enumerate(ids):
+            payload = data[k, j].tobytes()[: cut.get((k, j), 8)]
+            logger.on_message_received(
+                can.Message(arbitration_id=fid, data=payload, is_extended_id=False,
+                            timestamp=T_LOG0 + k * 0.01 + j * 1e-4, channel=0)
+            )  # fmt: skip
+    logger.stop()
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
+def test_a_truncated_load_cell_frame_is_counted_and_flags_its_sample(
+    tmp_path: Path, suffix: str, rig_frames, capsys
+) -> None:
+    """A 3-byte frame of an 8-byte load-cell message: counted bad (run_end, inspect), the frame
+    flagged in /can_raw, its sample flagged gap + bad frame with its two channels NaN; every other
+    sample exactly the truth's counts."""
+    from cdpr.daq.run_reader import open_run
+    from cdpr.daq.source import STATUS_BAD_FRAME, STATUS_GAP
+
+    vr, ids, data = rig_frames
+    log = tmp_path / f"short{suffix}"
+    _write_frames(log, ids, data, {(5, 2): 3})
+    out = tmp_path / "short.mcap"
+    assert main(["import", "--can-log", str(log), "--dbc", str(DBC), "--rig", str(RIG),
+                 "--out", str(out)]) == 0  # fmt: skip
+    assert "1 load-cell frame(s) of the wrong length" in capsys.readouterr().out
+    truth = vr.truth()
+    cables = list(load_rig(RIG).cable_names)
+    with open_run(out) as run:
+        ten = run.table("/tensions")
+        raw = run.table("/can_raw")
+        end = run.metadata["run_end"]
+    assert len(ten) == data.shape[0] and len(raw) == data.size // 8
+    status = ten["status"].to_numpy()
+    assert status[5] == STATUS_GAP | STATUS_BAD_FRAME
+    assert (np.delete(status, 5) == 0).all()
+    counts = ten[[f"raw_{c}_counts" for c in cables]].to_numpy()
+    want = truth["counts"].astype(np.int64)
+    from cdpr.daq.loadcell import RAW_MISSING_COUNTS
+
+    want[5, 4:6] = RAW_MISSING_COUNTS  # the frame of channels 5 and 6 of sample 5
+    assert np.array_equal(counts, want)
+    assert np.isnan(ten[f"T_{cables[4]}_N"][5]) and np.isnan(ten[f"T_{cables[5]}_N"][5])
+    bad = raw[raw["status"] != 0]
+    assert (
+        len(bad) == 1 and bad["arbitration_id"].iloc[0] == ids[2] and len(bad["data"].iloc[0]) == 3
+    )
+    assert '"bad": 1' in end["source_stats"] and '"bad_frames": 1' in end["can_log"]
+    assert main(["inspect", str(out)]) == 0
+    shown = capsys.readouterr().out.splitlines()
+    row = next(line.split() for line in shown if line.strip().startswith("can_log"))
+    assert row[1:] == [str(data.size // 8), "0", "0", "1", "0"]  # read dropped lost bad errors
+    assert next(line.split() for line in shown if line.strip().startswith("/can_raw"))[-1] == "1"
+
+
+def test_a_dbc_without_a_cable_s_counts_is_refused(tmp_path: Path, capsys) -> None:
+    """A DBC with Ch8's status bits but not its counts (the rig has 8 cables): one line naming the
+    DBC and the cable, exit 2, no run (the cable would otherwise read 0.0 N, status 0)."""
+    dbc = tmp_path / "no_ch8.dbc"
+    text = DBC.read_text()
+    line = ' SG_ Ch8_Counts : 24|24@1- (1,0) [-8388608|8388607] "counts" DAQ\n'
+    assert line in text
+    dbc.write_text(text.replace(line, ""))
+    log = tmp_path / "x.log"
+    log.write_text("(1700000000.000000) can0 181#0011223344556677\n")
+    out = tmp_path / "o.mcap"
+    assert main(["import", "--can-log", str(log), "--dbc", str(dbc), "--rig", str(RIG),
+                 "--out", str(out)]) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    last = list(load_rig(RIG).cable_names)[7]
+    assert len(err) == 1 and "no_ch8.dbc" in err[0] and repr(last) in err[0], err
+    assert "Ch8_Counts" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["no_ch8.dbc", "x.log"]
+
+
+def test_an_unknown_key_in_the_calibration_table_is_refused(tmp_path: Path, capsys) -> None:
+    log = tmp_path / "x.log"
+    log.write_text("(1700000000.000000) can0 181#0011223344556677\n")
+    cal = tmp_path / "c.toml"
+    cal.write_text("[calibration]\noffset_counts = 0.0\ngain_N_per_count = 5e-5\n"
+                   "gian_N_per_count = 1.0\n")  # fmt: skip
+    assert main(["import", "--can-log", str(log), "--dbc", str(DBC), "--rig", str(RIG),
+                 "--calibration", str(cal), "--out", str(tmp_path / "o.mcap")]) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "c.toml: calibration.gian_N_per_count: unknown key" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml", "x.log"]

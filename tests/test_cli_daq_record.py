@@ -88,7 +88,7 @@ def test_kill_9_then_recover_loses_at_most_about_a_second(tmp_path: Path) -> Non
     rec = path.with_name(path.stem + ".recovered.mcap")
     node = node_read(rec)
     assert node["complete"] and node["error"] is None
-    got = node["topics"]["/can_raw"]
+    got = node["samples"]["/can_raw"]  # frames (in frame blocks)
     lost_s = (sent_at_kill - got) / (RATE_HZ * FRAMES_PER_SAMPLE)
     print(f"kill -9: sent {sent_at_kill} frames, recovered {got}, lost {lost_s:.3f} s")
     # chunks are closed and fsynced every 0.25 s: typically ~0.2 s is lost; "about a second" leaves

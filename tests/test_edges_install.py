@@ -77,7 +77,7 @@ def test_wheel_installs_and_runs_the_cli_smoke_commands(tmp_path):
     work = tmp_path / "work"
     work.mkdir()
     cdpr = str(venv / "bin" / "cdpr")
-    probe = "import cdpr.daq.can_source as c; print(c.__file__); print(c.DEFAULT_DBC.is_file())"
+    probe = "import cdpr.daq.can_dbc as c; print(c.__file__); print(c.DEFAULT_DBC.is_file())"
     where, dbc_ok = _run([str(py), "-c", probe], work).stdout.split()
     assert Path(where).is_relative_to(site) and dbc_ok == "True"
     assert _run([cdpr, "--version"], work).stdout.startswith("cdpr ")

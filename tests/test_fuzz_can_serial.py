@@ -15,7 +15,9 @@ from _fuzz_contract import FUZZ, check_cli, mutated
 from hypothesis import given
 from hypothesis import strategies as st
 
-from cdpr.daq.can_source import DEFAULT_DBC, LoadCellDecoder, load_dbc
+from cdpr.daq.can_dbc import DEFAULT_DBC, load_dbc
+from cdpr.daq.can_decoder import LoadCellDecoder
+from cdpr.daq.can_frames import FrameColumns
 from cdpr.daq.loadcell import Calibration
 from cdpr.daq.schema import load_rig
 from cdpr.daq.serial_protocol import LineError, format_loadcell_line, parse_loadcell_line
@@ -186,10 +188,12 @@ def test_fuzz_can_frames(frames):
     names = [f"c{i}" for i in range(8)]
     dec = LoadCellDecoder(db, names, Calibration(np.zeros(8), np.full(8, 1e-3)), 100.0)
     out = []
-    for k, (fid, payload) in enumerate(frames):
-        msg = can.Message(arbitration_id=fid, data=payload, is_extended_id=False)
-        out += dec.decode(msg, 1_000_000 * k)
-    out += dec.flush()
+    msgs = [can.Message(arbitration_id=fid, data=p, is_extended_id=False) for fid, p in frames]
+    cut = len(msgs) // 2  # two blocks: a sample may straddle them
+    for a, b in ((0, cut), (cut, len(msgs))):
+        block = FrameColumns.from_messages(msgs[a:b])
+        out += dec.decode_frames(block, 1_000_000 * np.arange(a, b)).readings()
+    out += dec.flush().readings()
     for r in out:
         vals = [v for key, v in r.values.items() if key.startswith("T_")]
         assert r.status != 0 or all(math.isfinite(v) for v in vals), r

@@ -171,7 +171,7 @@ def test_fuzz_daq_config(data):
 
 # every driver kind a daq config can name, each setting on its schema (daq/source_schema.py);
 # only files of data_samples/ are named (the replay's log need only exist to be built)
-SOURCES = """[run]
+SOURCES = f"""[run]
 label = "fuzz"
 [sources.cells]
 kind = "can_loadcell"
@@ -200,7 +200,7 @@ airspeed_mps = 25.51
 temperature_K = 290.0
 [sources.log]
 kind = "can_replay"
-path = "loadcell.dbc"
+path = "{ROOT / "tests" / "data" / "can" / "issue_1299.asc"}"
 speed = "max"
 decode = false
 [sources.cam]

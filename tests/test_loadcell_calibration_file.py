@@ -140,6 +140,12 @@ def test_import_reads_the_file_the_virtual_rig_writes(tmp_path: Path) -> None:
             "calibration.gain_N_per_count",
             "non-zero",
         ),
+        # a misspelt key inside the table (issue 19): refused as a top-level one is
+        (
+            "[calibration]\noffset_counts = 0.0\ngain_N_per_count = 5e-5\ngian_N_per_count = 1.0\n",
+            "calibration.gian_N_per_count",
+            "unknown key",
+        ),
     ],
 )
 def test_bad_calibration_file_names_file_and_key(

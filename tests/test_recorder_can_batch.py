@@ -1,9 +1,8 @@
-"""The raw-CAN hot path: the CAN driver's frame batches (``CanFrameBatch``) and the writer's batch
-formatting of ``/can_raw``, checked against hand-built expectations and the independent reader."""
+"""The raw-CAN hot path: the CAN driver's frame batches (``CanFrameBatch``) written as ``/can_raw``
+frame blocks, checked against hand-built expectations and the independent reader."""
 
 from __future__ import annotations
 
-import json
 import time
 import uuid
 from pathlib import Path
@@ -12,7 +11,7 @@ import can
 from test_recorder_helpers import node_read
 
 import cdpr.daq.drivers  # noqa: F401  (registers the drivers)
-from cdpr.daq.can_source import CanFrameBatch
+from cdpr.daq.can_raw import CanFrameBatch
 from cdpr.daq.mcap_io import McapRunWriter, read_run
 from cdpr.daq.recorder import Recorder
 from cdpr.daq.source import Reading, create_source
@@ -103,45 +102,38 @@ def test_batch_is_a_sequence_of_readings() -> None:
 
 
 def test_frame_batches_written_exactly_with_small_chunks(tmp_path: Path) -> None:
+    """The driver's batches into a declared /can_raw (as the recorder writes it): frame blocks,
+    every frame read back equal to its hand-written body by the streaming reader, the columnar
+    reader (a time window too) and @mcap/core; blocks closed at every chunk close."""
+    from cdpr.daq.can_raw import DESCRIPTION
+    from cdpr.daq.run_reader import open_run
+
     frames = _mixed_frames(3000)
     p = tmp_path / "frames.mcap"
     w = McapRunWriter(p, chunk_size=4096)
+    w.add_stream("can_raw", DESCRIPTION)
     ten = Reading("tensions", T0 + 5, {"T_c1_N": 3.5})
     for a in range(0, 3000, 700):  # batches of 700 frames; a tension reading in the second one
-        b = CanFrameBatch("can_raw", frames[a : a + 700], [T0 + i for i in range(a, a + 700)][:700])
+        chunk = frames[a : a + 700]
+        b = CanFrameBatch("can_raw", chunk, [T0 + i for i in range(a, a + len(chunk))])
         if a == 700:
             b.add_reading(ten)
         w.write_many(b)
+        if a == 1400:
+            w.flush()  # a chunk closed mid-run: the open block goes with it
     w.finish()
     node = node_read(p)  # also compares the indexed reader (chunk + message indexes)
-    assert node["topics"] == {"/can_raw": 3000, "/tensions": 1}
+    assert node["samples"]["/can_raw"] == 3000 and node["topics"]["/tensions"] == 1
+    assert node["topics"]["/can_raw"] >= 3  # blocks: at most 2048 frames, cut at the flush
     rc = read_run(p)
     got = rc.messages["/can_raw"]
     assert [t for t, _ in got] == [T0 + i for i in range(3000)]
     assert [body for _, body in got] == [_expected(m) for m in frames]
     assert rc.messages["/tensions"] == [(T0 + 5, {"T_c1_N": 3.5, "status": 0})]
-
-    from mcap.reader import make_reader
-
-    with open(p, "rb") as fh:
-        reader = make_reader(fh)
-        seqs = [m.sequence for _, ch, m in reader.iter_messages(topics=["/can_raw"])]
-        assert seqs == list(range(3000))
-        # a time-range query through the message indexes: [T0 + 1000, T0 + 1500)
-        sel = list(reader.iter_messages(starting_at=T0 + 1000, ending_before=T0 + 1500))
-        assert [m.log_time for _, _, m in sel] == list(range(T0 + 1000, T0 + 1500))
-        summary = reader.get_summary()
-        assert summary is not None
-        sizes = [ci.uncompressed_size for ci in summary.chunk_indexes]
-    # a chunk is closed as soon as it outgrows chunk_size: at most one record (<= 31 + 300 bytes)
-    # beyond it, and the batches were split over many chunks
-    assert len(sizes) > 100 and max(sizes) <= 4096 + 31 + 300
-    # the formatted bodies are plain JSON with the same values as the compact encoder's
-    assert json.loads('{"arbitration_id":      385,"data":[  0,255],"dlc":8}') == {
-        "arbitration_id": 385,
-        "data": [0, 255],
-        "dlc": 8,
-    }
+    with open_run(p) as run:
+        win = run.table("/can_raw", start_ns=T0 + 1000, stop_ns=T0 + 1500)
+    assert win["t_ns"].tolist() == list(range(T0 + 1000, T0 + 1500))
+    assert win["data"].tolist() == [bytes(m.data) for m in frames[1000:1500]]
 
 
 def _sender(channel: str, frames: list[can.Message]) -> None:
@@ -221,7 +213,7 @@ def test_two_can_drivers_recorded_through_batches(tmp_path: Path) -> None:
     node = node_read(p)
     rc = read_run(p)
     for name, n in n_samples.items():
-        assert node["topics"][f"/{name}/can_raw"] == 4 * n
+        assert node["samples"][f"/{name}/can_raw"] == 4 * n  # frame blocks
         bodies = [b for _, b in rc.messages[f"/{name}/can_raw"]]
         # received frames carry the channel of the bus they came in on
         assert bodies == [{**_expected(m), "channel": chans[name]} for m in sent[name]]

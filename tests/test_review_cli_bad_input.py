@@ -188,7 +188,7 @@ def test_import_dbc_error_names_the_dbc(tmp_path: Path, can_log, capsys) -> None
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("t_s,x_m,y_m,z_m\n0.0,1,2,3\n", "first frame"),  # a CSV, not a CAN log
+        ("t_s,x_m,y_m,z_m\n0.0,1,2,3\n", "line 1: not a candump -L line"),  # not a CAN log
         ("", "no CAN frames"),
     ],
 )
@@ -353,7 +353,9 @@ def test_import_rig_with_more_cables_than_the_dbc(tmp_path: Path, can_log, capsy
     rig = _rig_with(tmp_path, 10)
     argv = ["import", "--can-log", str(can_log), "--dbc", str(DBC), "--rig", str(rig)]
     assert main([*argv, "--out", str(tmp_path / "o.mcap")]) == 2
-    line = _one_error_line(capsys, "rig.toml: cables: DBC has no Ch<k>_Counts for channels [9, 10]")
+    line = _one_error_line(
+        capsys, "loadcell.dbc: no Ch9_Counts signal for cable", "nor for 1 more", "rig.toml"
+    )
     assert "run.log" not in line
     assert _files(tmp_path) == ["rig.toml"]
 

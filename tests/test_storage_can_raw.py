@@ -11,12 +11,13 @@ from pathlib import Path
 
 import can
 import numpy as np
+from test_recorder_helpers import node_read
 
 import cdpr.daq.drivers  # noqa: F401  (registers the drivers)
-from cdpr.daq.can_source import CanFrameBatch, raw_reading
+from cdpr.daq.can_raw import CanFrameBatch, raw_reading
 from cdpr.daq.mcap_io import McapRunWriter
 from cdpr.daq.run_reader import open_run
-from cdpr.daq.source import create_source
+from cdpr.daq.source import FieldDescription, Reading, StreamDescription, create_source
 
 T0 = 1_700_000_000_000_000_000
 FIELDS = (
@@ -83,6 +84,28 @@ def test_every_field_round_trips_through_single_readings_and_batches(tmp_path: P
         assert run.streams["/can_raw"].fields["data"].type == "array"
 
 
+def test_single_readings_into_a_declared_stream_are_frame_blocks(tmp_path: Path) -> None:
+    """A source that gives ``can_raw`` readings one by one (not the driver's batches) into a stream
+    declared with the frame description: the same frame blocks as the batches, every field back;
+    a ``can_raw`` stream declared with other fields stays one JSON message per reading."""
+    from cdpr.daq.can_raw import DESCRIPTION
+
+    frames = _frames()
+    p = tmp_path / "raw.mcap"
+    w = McapRunWriter(p)
+    w.add_stream("can_raw", DESCRIPTION)
+    w.add_stream("bus/can_raw", StreamDescription({"i": FieldDescription("", "int64")}, 0.0, ""))
+    for i, m in enumerate(frames):
+        w.write(raw_reading(m, T0 + i))
+    w.write(Reading("bus/can_raw", T0, {"i": 7}))
+    w.finish()
+    with open_run(p) as run:
+        _same(run.table("/can_raw"), frames)
+        assert run.table("/bus/can_raw")["i"].tolist() == [7]
+    node = node_read(p)
+    assert node["samples"]["/can_raw"] == len(frames) and node["topics"]["/bus/can_raw"] == 1
+
+
 def test_recorded_frames_from_a_virtual_bus_read_back_identical(tmp_path: Path) -> None:
     """The CAN driver on a python-can virtual bus: FD, remote, error and extended frames among the
     load-cell frames are recorded as they arrived; an extended frame with a load-cell id is not
@@ -126,7 +149,7 @@ def test_recorded_frames_from_a_virtual_bus_read_back_identical(tmp_path: Path) 
             got_frames += len(batch.messages)
             received += batch.messages
             w.write_many(batch)
-        for r in src.decoder.flush():
+        for r in src.decoder.flush().readings():
             w.write(r)
     w.finish()
     assert got_frames == len(sent)

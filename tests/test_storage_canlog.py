@@ -13,7 +13,8 @@ import pytest
 from _block_reader import samples
 
 from cdpr.analysis.errors import ConfigError
-from cdpr.daq.canlog import read_asc, read_candump
+from cdpr.daq.canlog_asc import read_asc
+from cdpr.daq.canlog_candump import read_candump
 from cdpr.daq.run_reader import open_run
 from cdpr.pipelines.cli import main
 
@@ -189,14 +190,14 @@ def test_import_of_a_malformed_log_names_the_line_and_writes_nothing(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.log"]
 
 
-def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
-    """The import's whole-sample decoding (numpy) against the driver's frame-by-frame decoder on
-    the same frames: counter wraps, lost samples (a gap), a sample missing a frame in the middle,
-    status bits set: the /tensions messages are byte for byte the same."""
+def test_imported_samples_equal_the_frame_by_frame_rules(tmp_path: Path) -> None:
+    """The import's decoding (whole blocks with numpy) against the separately written
+    frame-by-frame reference of the rules (``tests/_can_reference.py``) on the frames python-can
+    reads from the same log: counter wraps, lost samples (a gap), a sample missing a frame in the
+    middle, status bits: every /tensions field equal."""
+    from _can_reference import Frame, Reference
     from mcap.reader import make_reader
 
-    from cdpr.daq.can_source import build_decoder
-    from cdpr.daq.mcap_io import McapRunWriter
     from cdpr.pipelines.config import load_rig
 
     lines: list[str] = []
@@ -214,48 +215,69 @@ def test_block_decoding_equals_frame_by_frame_decoding(tmp_path: Path) -> None:
     out = tmp_path / "blocks.mcap"
     assert _import(log, out) == 0
 
-    cables = list(load_rig(RIG).cable_names)
-    dec, _ = build_decoder("<test>", "sources.can", str(DBC), cables, None, None)
-    ref = tmp_path / "ref.mcap"
-    w = McapRunWriter(ref)
-    w.add_stream("tensions", dec.describe(0.0), blocks=True)
+    ref = Reference([0.0] * 8, [5e-5] * 8)  # the import's default calibration
     for m in _python_can(log):
-        for r in dec.decode(m, round(m.timestamp * 1e9)):
-            w.write(r)
-    w.finish()
+        t = round(m.timestamp * 1e9)
+        ref.feed(Frame(t, t, m.arbitration_id, bytes(m.data), m.is_extended_id))
+    ref.flush()
+    want = ref.samples[:-1] if ref.samples[-1]["status"] & 16 else ref.samples  # cut at the end
 
-    def columns(p: Path) -> dict[str, np.ndarray]:
-        with p.open("rb") as fh:
-            rows = samples(make_reader(fh), "/tensions")
-        return {k: np.array([r[k] for r in rows]) for k in rows[0]}
-
-    got, want = columns(out), columns(ref)
-    assert len(want["t_ns"]) == 690 and list(got) == list(want)
-    for k in want:
-        assert np.array_equal(got[k], want[k], equal_nan=True), k
+    with out.open("rb") as fh:
+        rows = samples(make_reader(fh), "/tensions")
+    cables = list(load_rig(RIG).cable_names)
+    assert len(rows) == len(want) == 690
+    for r, w in zip(rows, want, strict=True):
+        assert r["t_ns"] == w["t_ns"] and r["status"] == w["status"]
+        assert [r[f"raw_{c}_counts"] for c in cables] == w["raw"]
+        assert [r[f"status_{c}"] for c in cables] == w["ch_status"]
+        assert (r["counter"], r["seq"], r["t_bus_ns"]) == (w["counter"], w["seq"], w["t_bus_ns"])
+        got_T = [np.nan if r[f"T_{c}_N"] is None else r[f"T_{c}_N"] for c in cables]
+        assert np.array_equal(got_T, w["T"], equal_nan=True)
     with open_run(out) as run:
         ten = run.table("/tensions")
     assert ten["status"].astype(bool).sum() > 10  # status bits and the gap sample are there
 
 
-def test_a_real_log_damaged_midway_is_an_error_naming_the_frame(
+def test_a_real_log_damaged_midway_is_an_error_naming_the_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """python-can's reader raising on a damaged frame of a TRC log: one error line naming the file
-    and the frame, exit 2, no output (never a silent stop with the frames read so far)."""
+    """A frame line of a real TRC log damaged (python-can's reader raises there): one error line
+    naming the file and the line, exit 2, no output (never a silent stop with the frames read so
+    far)."""
     src = (DATA / "test_CanMessage_V2_1.trc").read_text().splitlines()
     body = [k for k, line in enumerate(src) if line.strip() and not line.lstrip().startswith(";")]
     src[body[3]] = "     4      17.000 DT 1 0FF Rx - 8 zz zz"
     log = tmp_path / "bad.trc"
     log.write_text("\n".join(src) + "\n")
-    good = 0  # the frames python-can reads before it raises
     with pytest.raises(ValueError):
+        list(can.LogReader(str(log)))
+    assert _import(log, tmp_path / "bad.mcap") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"bad.trc: line {body[3] + 1}: bad data" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]
+
+
+def test_a_log_python_can_reads_for_us_damaged_midway_names_the_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A format read through python-can (its SQLite log, ``.db``) with a row its reader cannot
+    make a frame of: the frame named, exit 2, no output."""
+    import sqlite3
+
+    log = tmp_path / "bad.db"
+    with can.SqliteWriter(str(log)) as w:
+        for m in _python_can(DATA / "test_CanMessage_V2_1.trc"):
+            w.on_message_received(m)
+    with sqlite3.connect(log) as db:  # the fourth frame's data: text, not bytes
+        db.execute("UPDATE messages SET data = 'zz' WHERE rowid = 4")
+    good = 0
+    with pytest.raises(Exception):  # noqa: B017 - whatever python-can's reader raises
         for _ in can.LogReader(str(log)):
             good += 1
     assert _import(log, tmp_path / "bad.mcap") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"bad.trc: frame {good + 1}: python-can cannot read it" in err[0]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc"]
+    assert len(err) == 1 and f"bad.db: frame {good + 1}: python-can cannot read it" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.db"]
 
 
 # --- Vector ASC: the numpy parser (read_asc) against python-can's ASCReader ----------------------
@@ -415,3 +437,53 @@ def test_import_of_a_generated_asc_keeps_every_frame_as_python_can_reads_it(
     log = _write_asc(tmp_path / "gen.asc", _asc_lines(np.random.default_rng(3), 500, 16))
     assert _import(log, tmp_path / "gen.mcap") == 0
     assert _same_as_python_can(tmp_path / "gen.mcap", log) > 400
+
+
+def test_a_classic_asc_frame_of_64_bytes_is_read_as_python_can_reads_it_and_flagged(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """python-can's real ``single_frame.asc``: a classic frame line ``d 40`` with 64 bytes (no
+    classic bus carries it).  python-can reads it (dlc 64, the first 8 bytes); so does the import,
+    which flags that frame bad (status 8) and says so, instead of refusing the file."""
+    log = DATA / "single_frame.asc"
+    out = tmp_path / "run.mcap"
+    assert _import(log, out) == 0
+    assert "1 frame(s) no classic CAN bus carries" in capsys.readouterr().out
+    assert _same_as_python_can(out, log) == 1
+    with open_run(out) as run:
+        raw = run.table("/can_raw")
+    assert raw["status"].tolist() == [8] and raw["dlc"].tolist() == [64]
+    assert raw["data"].iloc[0] == bytes(range(8))
+    # a normal frame of the same log layout is not flagged
+    normal = DATA / "single_frame_us_locale.asc"
+    assert _import(normal, tmp_path / "n.mcap") == 0
+    with open_run(tmp_path / "n.mcap") as run:
+        assert run.table("/can_raw")["status"].tolist() == [0]
+
+
+@pytest.mark.parametrize("base", [16, 10])
+def test_asc_classic_frames_with_a_long_dlc_match_python_can(tmp_path: Path, base: int) -> None:
+    """Classic frame lines with DLC 9..15 (8 bytes on the bus) and past 15, carrying from 8 up to
+    their DLC's length in bytes (as Vector's ``d 40`` line): the fields equal python-can's, and a
+    frame is flagged ODD exactly when its DLC is past 15 or it carries more than 8 bytes."""
+    from cdpr.daq.can_frames import ODD
+
+    rng = np.random.default_rng(5)
+    lens = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64]
+    lines, want_odd = [], []
+    for i in range(300):
+        dlc = int(rng.integers(9, 16) if i % 2 else rng.integers(9, 100 if base == 10 else 256))
+        full = lens[dlc] if dlc <= 15 else 64
+        nb = 8 if i % 4 == 1 else int(rng.integers(8, full + 1))  # a quarter: 8 bytes, DLC 9..15
+        data = " ".join(f"{b:02X}" if base == 16 else str(b) for b in rng.integers(0, 256, nb))
+        d = f"{dlc:X}" if base == 16 else str(dlc)
+        tail = "  Length = 0 BitCount = 0" if i % 3 == 0 else ""
+        lines.append(f"{0.001 * (i + 1):11.6f} 1  181             Rx   d {d} {data}{tail}")
+        want_odd.append(dlc > 15 or nb > 8)
+    log = _write_asc(tmp_path / "long.asc", lines, "hex" if base == 16 else "dec")
+    want = [_fields(m) for m in _python_can(log)]
+    assert len(want) == 300
+    cols = list(read_asc(log, block_bytes=2048))
+    assert [_fields(m) for c in cols for m in c.messages()] == want
+    got_odd = np.concatenate([(c.flags & ODD) != 0 for c in cols])
+    assert got_odd.tolist() == want_odd and 0 < sum(want_odd) < 300

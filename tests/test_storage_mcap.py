@@ -213,7 +213,7 @@ def test_can_raw_frames_read_back_exactly(tmp_path: Path) -> None:
     """The fast can_raw encoder gives the same JSON as the values (all frame shapes)."""
     import can
 
-    from cdpr.daq.can_source import raw_reading
+    from cdpr.daq.can_raw import raw_reading
 
     frames = [
         can.Message(

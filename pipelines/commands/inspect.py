@@ -48,6 +48,9 @@ def inspect_run(path: str, recover: bool = False) -> dict[str, Any]:
                     continue
                 src, _, what = str(k).rpartition("_")
                 drops.setdefault(src, {})[what] = int(v)
+        elif "source_stats" in metadata.get("run_end", {}):  # `cdpr import`: the log's counters
+            stats = json.loads(metadata["run_end"]["source_stats"])
+            drops["can_log"] = {k: int(v) for k, v in stats.items() if isinstance(v, int)}
         recovered, warning = rc.recovered, rc.warning
     first = [s.first_ns for s in streams if s.first_ns is not None]
     last = [s.last_ns for s in streams if s.last_ns is not None]
