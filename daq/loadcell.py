@@ -216,7 +216,7 @@ _CAL_KEYS_REQUIRED = ("offset_counts", "gain_N_per_count")
 #: loadcells` writes (kept in :attr:`LoadCellCalibrationFile.extra`); any other key is an error
 _CAL_KEYS_OPTIONAL = (
     "kind", "id", "cables", "source", "created_utc", "software_version", "sd_offset_counts",
-    "sd_gain_N_per_count", "residual_rms_N", "nonlinearity_pct", "n_points",
+    "sd_gain_N_per_count", "corr_offset_gain", "residual_rms_N", "nonlinearity_pct", "n_points",
 )  # fmt: skip
 
 
