@@ -12,6 +12,7 @@ model.  Pure numpy/scipy: arrays in, arrays out.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -44,13 +45,16 @@ def quadratic_jacobian(wrench: ArrayLike) -> FloatArray:
 @dataclass(frozen=True)
 class SecondOrderFit:
     """``W_applied ~ K1 W + K2 q(W)``: K1 (6, 6), K2 (6, 21); residual RMS per component of the
-    first-order and second-order fits; the F-test p-value per component (the smallest decides)."""
+    first-order and second-order fits; the F-test p-value per component (the smallest decides);
+    fit: the covariance of ``[K1 K2]`` (a :class:`cdpr.analysis.systematic.BalanceFitCovariance`
+    over the 27 regressors ``[W, q(W)]``, k - 27 degrees of freedom)."""
 
     K1: FloatArray
     K2: FloatArray
     rms_first: FloatArray
     rms_second: FloatArray
     p_value: FloatArray
+    fit: Any = None
 
 
 def fit_second_order(
@@ -91,8 +95,13 @@ def fit_second_order(
     # back to unscaled wrenches: Rs = R / s, q(Rs) = q(R) / (s_i s_j)
     K1 = (B2[:6] / scale[:, None]).T
     K2 = (B2[6:] / (scale[_I] * scale[_J])[:, None]).T
+    from .systematic import BalanceFitCovariance  # here: systematic imports this module
+
+    E = np.concatenate([scale, scale[_I] * scale[_J]])  # X2 = [R, q(R)] / E, column-wise
+    M = np.linalg.pinv(X2.T @ X2) / np.outer(E, E)
+    cov = BalanceFitCovariance(r2.T @ r2 / dof2, 0.5 * (M + M.T), float(dof2))
     fit = SecondOrderFit(
-        K1, K2, np.sqrt(ss1 / k), np.sqrt(ss2 / k), np.asarray(p, dtype=np.float64)
+        K1, K2, np.sqrt(ss1 / k), np.sqrt(ss2 / k), np.asarray(p, dtype=np.float64), cov
     )
     return fit, f"second order fitted from {k} check loads (smallest p = {p.min():.3g})"
 

@@ -30,6 +30,12 @@ Rig file layout (all SI)::
     EA_N = 70000.0                                # optional, default DEFAULT_CABLE_EA_N
     max_speed_mps = 0.5                           # optional: the winch's largest cable speed
     max_accel_mps2 = 20.0                         # optional: and acceleration (none: unchecked)
+    anchor_sd_m = 0.5e-3                          # optional: σ of each coordinate of b_i (m), or
+    attach_sd_m = [1e-4, 1e-4, 2e-4]              # [x, y, z]; σ of pp_i (rig geometry's error)
+
+    [uncertainty]                                 # optional: the same σ for every cable that
+    anchor_sd_m = 0.5e-3                          # gives none (default: ISO 2768-1 class m,
+    attach_sd_m = 0.1e-3                          # cdpr.analysis.systematic.default_geometry_sd)
 
     [assumptions]                                 # optional free text, kept with the rig
     layout = "..."
@@ -92,6 +98,8 @@ class Rig:
     cable_max_speed_mps, cable_max_accel_mps2: (m,) the winches' largest cable speed (m/s) and
       acceleration (m/s^2), ``inf`` where the rig file gives none (the motion planner then says
       it could not check them).
+    anchor_sd_m, attach_sd_m: (m, 3) σ of each coordinate of b_i and pp_i (m), NaN where the rig
+      file gives none (:func:`cdpr.analysis.systematic.rig_geometry_sd` then takes the default).
     """
 
     name: str
@@ -115,6 +123,8 @@ class Rig:
     platform_drag_area_m2: float = 0.0
     cable_max_speed_mps: Any = None
     cable_max_accel_mps2: Any = None
+    anchor_sd_m: Any = None
+    attach_sd_m: Any = None
 
     def __post_init__(self) -> None:
         src = self.source
@@ -228,6 +238,8 @@ class Rig:
             raise ConfigError(
                 src, "cables", f"bad diameter_m, drag_coefficient or EA_N: {exc}"
             ) from None
+        for key in ("anchor_sd_m", "attach_sd_m"):
+            object.__setattr__(self, key, _geometry_sd(src, key, getattr(self, key), m))
         try:
             cda = float(self.platform_drag_area_m2)
         except (TypeError, ValueError):
@@ -271,6 +283,26 @@ class Rig:
         }
 
 
+def _geometry_sd(src: str, key: str, value: Any, m: int) -> FloatArray:
+    """σ per cable and coordinate (m, 3): None (not given: NaN), a scalar, (m,) or (m, 3); each
+    value NaN (not given) or finite and >= 0."""
+    try:
+        a = np.array(np.nan if value is None else value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(src, f"cables.{key}", "expected numbers") from None
+    if a.shape == (m,):
+        a = a[:, None]
+    if a.ndim > 2 or (a.ndim and a.shape not in ((m, 1), (m, 3))):
+        raise ConfigError(src, f"cables.{key}", f"expected a number or 3 per cable, got {a.shape}")
+    a = np.array(np.broadcast_to(a, (m, 3)))
+    bad = np.flatnonzero(((a < 0) | np.isinf(a)).any(axis=1))
+    if bad.size:
+        raise ConfigError(
+            src, f"cables[{bad[0]}].{key}", f"must be finite and >= 0 m, got {a[bad[0]]}"
+        )
+    return _frozen(a, (m, 3))
+
+
 def rig_to_mapping(rig: Rig) -> dict[str, Any]:
     """The inverse of :func:`cdpr.daq.schema.rig_from_mapping`: a nested dict ready to be written
     as TOML."""
@@ -309,6 +341,10 @@ def rig_to_mapping(rig: Rig) -> dict[str, Any]:
             cab["max_speed_mps"] = float(rig.cable_max_speed_mps[i])
         if math.isfinite(rig.cable_max_accel_mps2[i]):
             cab["max_accel_mps2"] = float(rig.cable_max_accel_mps2[i])
+        for key in ("anchor_sd_m", "attach_sd_m"):
+            sd = getattr(rig, key)[i]
+            if not np.isnan(sd).any():
+                cab[key] = float(sd[0]) if np.all(sd == sd[0]) else sd.tolist()
     if rig.platform_drag_area_m2 != 0.0:
         out["platform"]["windage_drag_area_m2"] = rig.platform_drag_area_m2
     if rig.description:

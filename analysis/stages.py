@@ -59,6 +59,13 @@ from .reduction import (
 )
 from .rig import Rig
 from .rotations import rotation_from_euler, skew
+from .systematic import (
+    INSTRUMENT_KEYS,
+    BalanceFitCovariance,
+    InstrumentAccuracy,
+    LoadCellCalibrationSd,
+)
+from .systematic_stages import flow_uncertainty_stage, systematic_stage
 from .tare import weight_tare
 from .test_section import SectionGeometry
 from .uncertainty import expanded_uncertainty, propagate
@@ -67,6 +74,7 @@ from .weight import WeightModel, fit_weight_model, weight_model_note
 __all__ = [
     "STEADY_STAGES",
     "Corrections",
+    "SystematicInputs",
     "PointSamples",
     "ReduceSettings",
     "core_stages",
@@ -367,6 +375,11 @@ def uncertainty_stage(p: Points, *, geometry: ModelGeometry | None, level: float
             R[have], q_Pa[have], g.area_m2, g.span_m, g.chord_m, g.mrp_P_m, g.nose_P, g.up_P
         )
     m = p["tension_N"].shape[1]
+    extra = None
+    C_flow = p.arrays.get("coefficient_cov_flow")
+    if C_flow is not None:  # the instruments' part of the coefficients (not of the wrench)
+        extra = np.zeros((s, 12))
+        extra[:, 6:] = np.nan_to_num(np.diagonal(np.asarray(C_flow), axis1=1, axis2=2))
     eu = expanded_uncertainty(
         dict(p.cov_terms),
         np.concatenate([X, Kc], axis=1),
@@ -376,7 +389,9 @@ def uncertainty_stage(p: Points, *, geometry: ModelGeometry | None, level: float
         p.arrays.get("tension_cov_raw_N2", p["tension_cov_N2"]),
         p.arrays.get("n_used", np.full(s, 2)),
         p.arrays.get("longrun_bandwidth"),
+        extra_systematic_u2=extra,
         level=level,
+        term_dof=p.meta.get("systematic_dof"),
     )
     names = [*WRENCH_COLUMNS, *COEFFICIENTS]
     out: dict[str, NDArray[Any]] = {}
@@ -427,9 +442,11 @@ STEADY_STAGES: tuple[Callable[..., Points], ...] = (
     flow_conditions_stage,
     windage_stage,
     inertia_stage,
+    systematic_stage,
     balance_interaction,
     axes_stage,
     coefficients_stage,
+    flow_uncertainty_stage,
     uncertainty_stage,
     wall_corrections_stage,
     repeatability_stage,
@@ -479,6 +496,20 @@ class ReduceSettings:
 
 
 @dataclass(frozen=True)
+class SystematicInputs:
+    """What the systematic σ stages need (``cdpr analyze``; :mod:`cdpr.analysis.systematic`):
+    the load-cell calibration's own σ (None: not given, flagged
+    ``loadcell_calibration_sd_not_given``), the balance calibration's fit covariance (None with a
+    balance calibration: flagged ``interaction_matrix_sd_not_given``), the tunnel instruments'
+    stated accuracy (None: every default, flagged ``tunnel_instrument_sd_default``); the rig
+    geometry's σ comes from the rig file (default flagged ``rig_geometry_sd_default``)."""
+
+    loadcell: LoadCellCalibrationSd | None = None
+    balance_fit: BalanceFitCovariance | None = None
+    instruments: InstrumentAccuracy | None = None
+
+
+@dataclass(frozen=True)
 class Corrections:
     """What the correction stages need (``cdpr analyze --matrix``): the test section's geometry
     (None: no windage model) and wall parameters (None: no wall corrections, flagged), the
@@ -501,6 +532,7 @@ def core_stages(
     samples: PointSamples | None = None,
     motion: tuple[FloatArray, FloatArray] | None = None,
     coefficients: bool = True,
+    systematic: SystematicInputs | None = None,
 ) -> list[Stage]:
     """The stages of :data:`STEADY_STAGES` with a run's settings bound, in that order.
 
@@ -512,6 +544,7 @@ def core_stages(
     rate and acceleration (s, 6) each of a moving platform (the inertia stage); coefficients:
     False leaves out the axes and coefficients (``cdpr wrench`` without flow conditions: the wrench
     at P only, no ``no_geometry`` flag).
+    systematic: the systematic σ terms' inputs (None: those stages left out, ``cdpr wrench``).
     """
     s = settings
     bound: dict[Callable[..., Points], Stage | None] = {
@@ -558,6 +591,16 @@ def core_stages(
         inertia_stage: None
         if motion is None
         else functools.partial(inertia_stage, rig=rig, pose_rate=motion[0], pose_accel=motion[1]),
+        systematic_stage: None
+        if systematic is None
+        else functools.partial(
+            systematic_stage,
+            rig=rig,
+            loadcell=systematic.loadcell,
+            balance_fit=systematic.balance_fit,
+            interaction=interaction,
+            second_order=second_order,
+        ),
         balance_interaction: functools.partial(
             balance_interaction, interaction=interaction, second_order=second_order
         ),
@@ -567,6 +610,12 @@ def core_stages(
         )
         if coefficients
         else None,
+        flow_uncertainty_stage: None
+        if systematic is None or not coefficients
+        else functools.partial(
+            flow_uncertainty_stage,
+            instruments=systematic.instruments or InstrumentAccuracy(defaulted=INSTRUMENT_KEYS),
+        ),
         uncertainty_stage: functools.partial(uncertainty_stage, geometry=geometry),
         wall_corrections_stage: None
         if corrections is None or geometry is None
@@ -585,6 +634,8 @@ RUNS_WHEN: dict[str, str] = {
     **{name: "with the corrections (`--matrix`)" for name in CORRECTION_STAGES},
     "zero_drift": "always (without the corrections: flags `uncorrected`)",
     "inertia": "a moving platform (`cdpr wrench --dynamic`)",
+    "systematic": "`cdpr analyze` (not `cdpr wrench`)",
+    "flow_uncertainty": "`cdpr analyze`, when coefficients are wanted",
     "axes_and_moments": "when coefficients are wanted",
     "coefficients": "when coefficients are wanted (`no_geometry` without a model geometry)",
 }

@@ -16,7 +16,8 @@ Validated against a Monte Carlo run in ``tests/test_uncertainty_montecarlo.py``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -232,6 +233,7 @@ def expanded_uncertainty(
     bandwidth: ArrayLike | None = None,
     extra_systematic_u2: ArrayLike | None = None,
     level: float = 0.95,
+    term_dof: Mapping[str, float] | None = None,
 ) -> ExpandedUncertainty:
     """Random and systematic parts and the expanded uncertainty of linear outputs of the wrench.
 
@@ -246,7 +248,12 @@ def expanded_uncertainty(
     ``n_eff = c Gamma_0 c^T / c C c^T``); the pose and the systematic
     terms count with infinite degrees of freedom (calibrations and stated accuracies);
     extra_systematic_u2: (s, p) systematic variance not in the wrench (q and rho on the
-    coefficients).  The total's degrees of freedom by Welch-Satterthwaite, ``k`` from Student's t.
+    coefficients, :func:`cdpr.analysis.systematic.flow_coefficient_covariance`); term_dof: the
+    degrees of freedom of systematic terms fitted from data (the load-cell calibration's
+    ``n_points - 2``, the interaction matrix's check loads minus regressors:
+    ``meta["systematic_dof"]`` of the ``systematic`` stage), each then its own part of the sum
+    (terms not named: infinite).  The total's degrees of freedom by Welch-Satterthwaite, ``k`` from
+    Student's t.
     """
     L = as_float_array(out_map, "out_map")
     s, p, _ = L.shape
@@ -275,8 +282,18 @@ def expanded_uncertainty(
     u_pose2 = u2.get("pose", zero)
     u_load2 = np.sum(uk, axis=1)
     nu_load = welch_satterthwaite(np.moveaxis(uk, 1, -1), np.moveaxis(nu_k, 1, -1))
-    parts = np.stack([u_load2, u_pose2 + (u_rand2 - u_load2 - u_pose2), u_sys2], axis=-1)
-    nus = np.stack([nu_load, np.full((s, p), np.inf), np.full((s, p), np.inf)], axis=-1)
+    # the systematic part term by term: a fitted calibration brings its own degrees of freedom
+    tdof = dict(term_dof or {})
+    fitted = [k for k in u2 if k not in RANDOM_TERMS and math.isfinite(tdof.get(k, math.inf))]
+    u_sys_rest = u_sys2 - sum((u2[k] for k in fitted), zero)
+    parts = np.stack(
+        [u_load2, u_pose2 + (u_rand2 - u_load2 - u_pose2), u_sys_rest, *(u2[k] for k in fitted)],
+        axis=-1,
+    )
+    nus = np.stack(
+        [nu_load, *(np.full((s, p), v) for v in [np.inf, np.inf, *(tdof[k] for k in fitted)])],
+        axis=-1,
+    )
     dof = welch_satterthwaite(np.clip(parts, 0.0, None), nus)
     dof_random = welch_satterthwaite(np.clip(parts[..., :2], 0.0, None), nus[..., :2])
     k = coverage_factor(dof, level)

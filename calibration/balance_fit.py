@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cdpr.analysis.errors import InputError
+from cdpr.analysis.systematic import BalanceFitCovariance, regression_fit_covariance
 
 FloatArray = NDArray[np.float64]
 
@@ -29,8 +30,11 @@ class LoadCellFit:
     """Straight-line calibration of one channel: ``T_N = (counts - offset_counts) * gain``.
 
     offset_counts, gain_N_per_count: fitted values; sd_offset_counts, sd_gain_N_per_count: their
-    standard deviations (from the residual scatter); residual_rms_N: RMS of the fit residual in N;
-    nonlinearity_pct: largest |residual| in % of the applied load range; n_points.
+    standard deviations (from the residual scatter, over n_points - 2 degrees of freedom);
+    residual_rms_N: RMS of the fit residual in N; nonlinearity_pct: largest |residual| in % of the
+    applied load range; n_points; corr_offset_gain: the correlation of the offset's and the gain's
+    errors (with the two σ, the fit's parameter covariance: what the reduction needs for the
+    load-cell calibration's systematic term, :mod:`cdpr.analysis.systematic`).
     """
 
     offset_counts: float
@@ -40,6 +44,7 @@ class LoadCellFit:
     residual_rms_N: float
     nonlinearity_pct: float
     n_points: int
+    corr_offset_gain: float = 0.0
 
 
 def fit_load_cell(load_N: ArrayLike, counts: ArrayLike) -> LoadCellFit:
@@ -72,15 +77,19 @@ def fit_load_cell(load_N: ArrayLike, counts: ArrayLike) -> LoadCellFit:
     # offset = -c/gain: first-order propagation
     J = np.array([c / gain**2, -1.0 / gain])
     sd_off = float(np.sqrt(max(J @ cov @ J, 0.0)))
+    sd_gain = float(np.sqrt(cov[0, 0]))
+    c_og = float(J @ cov[:, 0])  # cov(offset, gain)
+    corr = c_og / (sd_off * sd_gain) if sd_off > 0 and sd_gain > 0 else 0.0
     span = float(np.ptp(y))
     return LoadCellFit(
         offset_counts=offset,
         gain_N_per_count=gain,
         sd_offset_counts=sd_off,
-        sd_gain_N_per_count=float(np.sqrt(cov[0, 0])),
+        sd_gain_N_per_count=sd_gain,
         residual_rms_N=float(np.sqrt(np.mean(r**2))),
         nonlinearity_pct=float(100.0 * np.abs(r).max() / span) if span > 0 else 0.0,
         n_points=len(y),
+        corr_offset_gain=float(np.clip(corr, -1.0, 1.0)),
     )
 
 
@@ -92,7 +101,10 @@ class CheckLoadResult:
     error: (k, 6) recovered - applied; rms_error, max_abs_error: (6,) per component;
     interaction: (6, 6) least-squares ``K`` with ``applied ~ K recovered``;
     corrected_rms_error: (6,) RMS of ``K recovered - applied``; full_scale: (6,) the largest
-    |applied| per component, to express errors in % of full scale.
+    |applied| per component, to express errors in % of full scale; fit: the covariance of ``K``
+    (:class:`cdpr.analysis.systematic.BalanceFitCovariance`: ``cov(K[i, j], K[k, l]) =
+    residual_cov[i, k] inverse_gram[j, l]``, over k - 6 degrees of freedom; None with exactly 6
+    check loads).
     """
 
     recovered: FloatArray
@@ -103,6 +115,7 @@ class CheckLoadResult:
     interaction: FloatArray
     corrected_rms_error: FloatArray
     full_scale: FloatArray
+    fit: BalanceFitCovariance | None = None
 
 
 def check_loads(recovered: ArrayLike, applied: ArrayLike, ridge: float = 1e-9) -> CheckLoadResult:
@@ -125,6 +138,13 @@ def check_loads(recovered: ArrayLike, applied: ArrayLike, ridge: float = 1e-9) -
     G = Rs.T @ Rs + ridge * np.eye(6)
     K = np.linalg.solve(G, Rs.T @ W).T / scale[None, :]
     corrected = R @ K.T - W
+    # the fit's covariance: a multivariate least-squares fit W = R K^T (ridge included)
+    D = np.diag(1.0 / scale)
+    fit = (
+        regression_fit_covariance(R, corrected, np.linalg.inv(D) @ G @ np.linalg.inv(D))
+        if R.shape[0] > 6
+        else None
+    )
     return CheckLoadResult(
         recovered=R,
         applied=W,
@@ -134,4 +154,5 @@ def check_loads(recovered: ArrayLike, applied: ArrayLike, ridge: float = 1e-9) -
         interaction=K,
         corrected_rms_error=np.sqrt(np.mean(corrected**2, axis=0)),
         full_scale=np.abs(W).max(axis=0),
+        fit=fit,
     )

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cdpr.analysis.errors import ConfigError
+from cdpr.analysis.systematic import LoadCellCalibrationSd, loadcell_sd_from_fit
 
 FloatArray = NDArray[np.float64]
 
@@ -195,16 +196,6 @@ def calibration_from_settings(
     return Calibration(off, gain)
 
 
-def calibration_from_mapping(
-    data: Mapping[str, Any], origin: str, key_prefix: str, n_channels: int
-) -> Calibration:
-    """:func:`calibration_from_settings` from a mapping with keys ``offset_counts`` and
-    ``gain_N_per_count``."""
-    return calibration_from_settings(
-        origin, key_prefix, n_channels, data.get("offset_counts"), data.get("gain_N_per_count")
-    )
-
-
 # --------------------------------------------------------------------------------------------
 # the load-cell calibration file: one format, written by `cdpr calibrate loadcells` (and the
 # virtual rig), read by record, import, simulate and the campaign file
@@ -215,7 +206,7 @@ _CAL_KEYS_REQUIRED = ("offset_counts", "gain_N_per_count")
 #: loadcells` writes (kept in :attr:`LoadCellCalibrationFile.extra`); any other key is an error
 _CAL_KEYS_OPTIONAL = (
     "kind", "id", "cables", "source", "created_utc", "software_version", "sd_offset_counts",
-    "sd_gain_N_per_count", "residual_rms_N", "nonlinearity_pct", "n_points",
+    "sd_gain_N_per_count", "corr_offset_gain", "residual_rms_N", "nonlinearity_pct", "n_points",
 )  # fmt: skip
 
 
@@ -264,13 +255,43 @@ class LoadCellCalibrationFile:
         """``offset_counts`` / ``gain_N_per_count`` driver settings for ``cables``."""
         return self.for_cables(cables).to_mapping()
 
+    def sd_for_cables(self, cables: Sequence[str]) -> LoadCellCalibrationSd | None:
+        """The calibration's own uncertainty for ``cables`` in that order (the fit's parameter
+        covariance, :func:`cdpr.analysis.systematic.loadcell_sd_from_fit`), or None when the file
+        does not give it (no ``sd_offset_counts`` / ``sd_gain_N_per_count``: the reduction then
+        flags ``loadcell_calibration_sd_not_given``).  Without ``corr_offset_gain`` the two σ are
+        used with the bound of :func:`cdpr.analysis.systematic.loadcell_calibration_covariance`."""
+        names = list(cables)
+        cal = self.for_cables(names)  # checks the names
+        sd = _calibration_sd(self.path, self.extra, len(self.cables or names))
+        if sd is None:
+            return None
+        order = (
+            list(range(len(names)))
+            if self.cables is None
+            else [self.cables.index(n) for n in names]
+        )
+        so, sg, corr, n = (None if v is None else v[order] for v in sd)
+        assert so is not None and sg is not None and n is not None
+        return loadcell_sd_from_fit(cal.gain_N_per_count, so, sg, corr, n)
+
 
 def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFile:
     """Read a load-cell calibration file (errors name the file and key)."""
     from .files import load_toml
 
-    p = str(path)
-    data = load_toml(p)
+    return parse_calibration_file(str(path), load_toml(str(path)))
+
+
+def is_calibration_file(data: Mapping[str, Any]) -> bool:
+    """True when a parsed TOML document is a load-cell calibration file (its ``[calibration]``
+    says ``kind = "loadcells"``): how a run's attached calibrations are told apart."""
+    cal = data.get("calibration")
+    return isinstance(cal, Mapping) and cal.get("kind") == CALIBRATION_FILE_KIND
+
+
+def parse_calibration_file(p: str, data: Mapping[str, Any]) -> LoadCellCalibrationFile:
+    """A load-cell calibration file's parsed TOML (``p`` names it in errors)."""
     other = sorted(set(data) - {"calibration"})
     if other:
         raise ConfigError(
@@ -318,6 +339,7 @@ def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFi
         calibration_from_settings(
             p, "calibration", n, cal["offset_counts"], cal["gain_N_per_count"]
         )
+        _calibration_sd(p, cal, n)
     extra = {k: v for k, v in cal.items() if k not in (*_CAL_KEYS_REQUIRED, "cables", "id", "kind")}
     return LoadCellCalibrationFile(
         p,
@@ -327,6 +349,59 @@ def read_calibration_file(path: str | os.PathLike[str]) -> LoadCellCalibrationFi
         cal["gain_N_per_count"],
         extra,
     )
+
+
+CALIBRATION_SD_KEYS: tuple[str, ...] = (
+    "sd_offset_counts",
+    "sd_gain_N_per_count",
+    "corr_offset_gain",
+    "n_points",
+)
+"""The fit statistics of ``[calibration]`` that give the calibration's parameter covariance (one
+value or one per cable): the two σ are needed together, ``n_points`` with them (the degrees of
+freedom ``n_points - 2``), ``corr_offset_gain`` is optional (older files lack it)."""
+
+
+def _calibration_sd(
+    path: str, cal: Mapping[str, Any], n: int
+) -> tuple[FloatArray | None, ...] | None:
+    """The values of :data:`CALIBRATION_SD_KEYS` as arrays (n,) each for the file's n cables
+    (``corr_offset_gain`` None when not given), None when the file gives no σ; a bad value is a
+    :class:`ConfigError` naming the file and key."""
+    if "sd_offset_counts" not in cal and "sd_gain_N_per_count" not in cal:
+        return None
+    out: list[FloatArray | None] = []
+    for key in CALIBRATION_SD_KEYS:
+        if key not in cal:
+            if key == "corr_offset_gain":
+                out.append(None)
+                continue
+            raise ConfigError(
+                path, f"calibration.{key}", "missing (the fit's σ need sd_offset_counts, "
+                "sd_gain_N_per_count and n_points together)",
+            )  # fmt: skip
+        v = cal[key]
+        vals = v if isinstance(v, list) else [v]
+        if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in vals):
+            raise ConfigError(path, f"calibration.{key}", f"expected numbers, got {v!r}")
+        a = np.asarray(vals, dtype=np.float64)
+        if a.size == 1:
+            a = np.full(n, a[0])
+        if a.size != n:
+            raise ConfigError(
+                path, f"calibration.{key}", f"expected {n} values (one per cable), got {a.size}"
+            )
+        lo, hi, what = {
+            "corr_offset_gain": (-1.0, 1.0, "a correlation in [-1, 1]"),
+            "n_points": (3.0, math.inf, "at least 3 calibration points"),
+        }.get(key, (0.0, math.inf, "a standard deviation >= 0"))
+        bad = np.flatnonzero(~np.isfinite(a) | (a < lo) | (a > hi))
+        if bad.size:
+            raise ConfigError(
+                path, f"calibration.{key}[{bad[0]}]", f"expected {what}, got {a[bad[0]]:g}"
+            )
+        out.append(a)
+    return tuple(out)
 
 
 def calibration_file_text(

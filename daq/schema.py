@@ -228,6 +228,11 @@ class PlatformSection(Schema):
     windage_drag_area_m2: Area_m2 = 0.0
 
 
+GeometrySd_m = Annotated[float, _bounded(0.0, 0.1)]
+"""σ of a coordinate of the rig geometry (m): 0.1 m is not a measured rig."""
+GeometrySd3_m = Annotated[list[GeometrySd_m], Field(min_length=3, max_length=3)]
+
+
 class CableSection(Schema):
     name: Text | None = None
     anchor_O_m: Vec3_m
@@ -239,14 +244,24 @@ class CableSection(Schema):
     EA_N: Stiffness_N | None = None
     max_speed_mps: Annotated[float, _bounded(0.0, 1e3, gt=True)] | None = None
     max_accel_mps2: Annotated[float, _bounded(0.0, 1e5, gt=True)] | None = None
+    anchor_sd_m: GeometrySd_m | GeometrySd3_m | None = None
+    attach_sd_m: GeometrySd_m | GeometrySd3_m | None = None
+
+
+class UncertaintySection(Schema):
+    """``[uncertainty]``: the rig geometry's σ per coordinate for every cable that gives none."""
+
+    anchor_sd_m: GeometrySd_m | GeometrySd3_m | None = None
+    attach_sd_m: GeometrySd_m | GeometrySd3_m | None = None
 
 
 class RigFile(Schema):
-    """A rig file: ``[rig]``, ``[platform]``, ``[[cables]]``, ``[assumptions]``."""
+    """A rig file: ``[rig]``, ``[platform]``, ``[[cables]]``, ``[uncertainty]``, ``[assumptions]``."""
 
     rig: RigSection = Field(default_factory=RigSection)
     platform: PlatformSection
     cables: Annotated[list[CableSection], Field(min_length=1, max_length=1000)]
+    uncertainty: UncertaintySection = Field(default_factory=UncertaintySection)
     assumptions: dict[Text, Text | int | float | bool] = Field(default_factory=dict)
 
 
@@ -280,7 +295,20 @@ def rig_from_mapping(data: Mapping[str, Any], source: str = "<mapping>") -> Rig:
         platform_drag_area_m2=f.platform.windage_drag_area_m2,
         cable_max_speed_mps=_per_cable([c.max_speed_mps for c in cables], math.inf),
         cable_max_accel_mps2=_per_cable([c.max_accel_mps2 for c in cables], math.inf),
+        anchor_sd_m=_sd_per_cable([c.anchor_sd_m for c in cables], f.uncertainty.anchor_sd_m),
+        attach_sd_m=_sd_per_cable([c.attach_sd_m for c in cables], f.uncertainty.attach_sd_m),
     )
+
+
+def _sd_per_cable(values: list[Any], rig_wide: Any) -> np.ndarray:
+    """A geometry σ per cable and coordinate (m, 3): the cable's own, else ``[uncertainty]``'s,
+    else NaN (not given: the analysis takes its default and says so)."""
+    out = np.full((len(values), 3), np.nan)
+    for i, v in enumerate(values):
+        v = rig_wide if v is None else v
+        if v is not None:
+            out[i] = v
+    return out
 
 
 def _per_cable(values: list[float | None], default: float) -> np.ndarray:

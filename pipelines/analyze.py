@@ -31,10 +31,16 @@ from cdpr.analysis.errors import CdprError, ConfigError
 from cdpr.analysis.point_inputs import points_from_samples
 from cdpr.analysis.reduction import POSE, Points, run_stages, with_updates
 from cdpr.analysis.rotations import rotation_from_euler
-from cdpr.analysis.stages import Corrections, PointSamples, ReduceSettings, core_stages
+from cdpr.analysis.stages import (
+    Corrections,
+    PointSamples,
+    ReduceSettings,
+    SystematicInputs,
+    core_stages,
+)
 
 from . import __version__
-from .config import file_sha256, read_balance_calibration
+from .config import file_sha256, read_balance_calibration, read_balance_fit
 from .freshness import fingerprint
 from .online_compare import compare_online
 from .point_plan import PointPlan, plan_points, point_conditions
@@ -51,7 +57,9 @@ PAPER_POSE_SD: tuple[float, ...] = (5e-4, 5e-4, 5e-4, *(float(np.deg2rad(0.1)),)
 INFO_FLAGS: frozenset[str] = frozenset(
     {"tare", "weight_model", "weight_model_prior_com_z", "weight_model_prior_com_x",
      "weight_model_prior_com_y", "weight_model_prior_mass", "geometry_from_options",
-     "windage_tare", "wall_corrected", "uncorrected", "pose_cov_stated"}
+     "windage_tare", "wall_corrected", "uncorrected", "pose_cov_stated",
+     "rig_geometry_sd_default", "tunnel_instrument_sd_default",
+     "loadcell_calibration_correlation_not_given"}
 )  # fmt: skip
 """Flag words that describe what was done; every other word is a warning (exit code 1)."""
 
@@ -74,6 +82,9 @@ class AnalyzeOptions:
         tension is re-derived from the run's recorded raw counts, ``T = (counts - offset) * gain``,
         before the reduction (None: the recorded tensions); loadcell_calibration_from: who named
         it (``--loadcell-calibration`` or the test matrix), said in the summary and report.
+    instruments: the tunnel instruments' stated accuracy (the test matrix's ``[instruments]``,
+        :class:`cdpr.analysis.systematic.InstrumentAccuracy`); None: the stated defaults (flagged
+        ``tunnel_instrument_sd_default``).
     """
 
     geometry: ModelGeometry | None = None
@@ -87,6 +98,7 @@ class AnalyzeOptions:
     matrix_file: str | None = None
     loadcell_calibration_file: str | None = None
     loadcell_calibration_from: str | None = None
+    instruments: Any = None
 
 
 def _input_words(run: RunData, plan: PointPlan, words: Any) -> np.ndarray:
@@ -141,6 +153,11 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
             section=None if t is None else t.geometry, walls=None if t is None else t.walls
         )
     K, second = read_balance_calibration(opts.balance_file)
+    systematic = SystematicInputs(
+        loadcell=run.loadcell_sd,
+        balance_fit=read_balance_fit(opts.balance_file),
+        instruments=opts.instruments,
+    )
     stages = core_stages(
         rig,
         opts.geometry,
@@ -149,6 +166,7 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         second_order=second,
         corrections=corrections,
         samples=PointSamples(run.t_ns, run.tensions_N, plan.ranges),
+        systematic=systematic,
     )
     out = run_stages(with_updates(pts, arrays=arrays), stages)
     after: dict[str, Any] = {
@@ -189,6 +207,35 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         else "not applied (no test matrix given: cdpr analyze --matrix)",
     }
     return df, info
+
+
+def systematic_sources(run: RunData, opts: AnalyzeOptions) -> dict[str, str]:
+    """Where each systematic σ term of a run's points comes from (summary and report)."""
+    from cdpr.analysis.systematic import rig_geometry_sd
+
+    g = rig_geometry_sd(run.rig)
+    inst = opts.instruments
+    return {
+        "loadcell_calibration": run.loadcell_sd_from
+        + ("" if run.loadcell_sd is not None else " (term left out)"),
+        "rig_geometry": "the rig file's anchor_sd_m / attach_sd_m"
+        if not g.defaulted.any()
+        else f"ISO 2768-1 class m default for {int(g.defaulted.sum())} of {run.rig.n_cables} cables "
+        f"(anchors {1e3 * float(np.max(g.anchor_sd_m)):.2f} mm, attachments "
+        f"{1e3 * float(np.max(g.attach_sd_m)):.2f} mm)",
+        "interaction_matrix": "no balance calibration applied"
+        if opts.balance_file is None
+        else f"{Path(opts.balance_file).name}"
+        + (
+            ""
+            if read_balance_fit(opts.balance_file) is not None
+            else ": no fit covariance (term left out)"
+        ),
+        "tunnel_instruments": "the stated defaults (no test matrix [instruments])"
+        if inst is None
+        else "the test matrix's [instruments]"
+        + (f", defaults for {', '.join(inst.defaulted)}" if inst.defaulted else ""),
+    }
 
 
 def _sample_counters(run: RunData, plan: PointPlan) -> dict[str, np.ndarray]:
@@ -310,6 +357,7 @@ def analyze_run(
             "rig": run.rig.name,
             "pose_source": run.pose_source,
             "tension_clock": run.tension_clock,
+            "systematic_sources": systematic_sources(run, opts),
             "options": options_json(opts),
             "balance_file": None
             if opts.balance_file is None

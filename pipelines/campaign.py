@@ -59,6 +59,7 @@ from cdpr.analysis.errors import ConfigError
 from cdpr.analysis.motion import ANGULAR_AXES, MOTION_AXES, Oscillation, OscillationFields
 from cdpr.analysis.rig import Rig
 from cdpr.analysis.rotations import euler_from_rotation
+from cdpr.analysis.systematic import INSTRUMENT_KEYS, InstrumentAccuracy
 from cdpr.daq.files import load_toml
 from cdpr.daq.virtual_rig import Schedule, schedule_from_mapping
 from cdpr.daq.vrig_events import oscillation_event_fields
@@ -68,7 +69,10 @@ from .tunnel_section import TunnelSection, tunnel_section_from_mapping
 _WIND_OFF = (*WIND_OFF_KINDS, "oscillation_tare")
 """Kinds whose airspeed must be 0: the wind-off ones at rest and the inertia tare."""
 
-_TOP = {"campaign", "model", "tunnel", "defaults", "points", "virtual_rig", "aero_estimate"}
+_TOP = {
+    "campaign", "model", "tunnel", "instruments", "defaults", "points", "virtual_rig",
+    "aero_estimate",
+}  # fmt: skip
 _CAMPAIGN = {
     "name", "rig", "loadcell_calibration", "balance_calibration", "camera", "markers", "pose_sd",
 }  # fmt: skip
@@ -194,6 +198,12 @@ class TestMatrix:
     tunnel: TunnelSection | None = None
     """The ``[tunnel]`` table with the wall-correction keys of ``[model]`` (None: no test section
     given: no wall corrections and no windage model, said by the reduction's flags)."""
+    instruments: InstrumentAccuracy = field(
+        default_factory=lambda: InstrumentAccuracy(defaulted=INSTRUMENT_KEYS)
+    )
+    """The tunnel instruments' stated accuracy (``[instruments]``; the keys not given take their
+    defaults, named in ``instruments.defaulted``: the reduction flags
+    ``tunnel_instrument_sd_default``)."""
     pose_sd: tuple[float, ...] | None = None
     """``campaign.pose_sd``: the camera's precision per frame (x, y, z in m; roll, pitch, yaw in
     rad), used for runs whose pose stream carries no covariance (None: not stated)."""
@@ -337,6 +347,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         raise ConfigError(src, "model", "missing [model] table")
     model = model_geometry_from_mapping(data["model"], src)
     tunnel = _tunnel(data, src, model)
+    instruments = _instruments(data, src)
 
     dft = _table(src, "defaults", data.get("defaults", {}), _DEFAULTS)
     dft_dur = _num(src, "defaults.duration_s", dft.get("duration_s", 1.0), 0.0, True)
@@ -449,6 +460,7 @@ def test_matrix_from_mapping(data: Mapping[str, Any], source: str, base: Path) -
         points=points,
         virtual_rig=dict(vrig),
         tunnel=tunnel,
+        instruments=instruments,
         aero_estimate=None if aero_estimate is None else dict(aero_estimate),
         pose_sd=pose_sd,
         **optional,
@@ -473,6 +485,38 @@ def _tunnel(data: Mapping[str, Any], src: str, model: ModelGeometry) -> TunnelSe
             src, "model.reference_area_m2", f"{ref} contradicts model.area_m2 = {model.area_m2}"
         )
     return tunnel_section_from_mapping({**data, "model": mod}, src)
+
+
+_INSTRUMENT_LIMITS = {
+    "airspeed_sd_mps": 100.0,
+    "airspeed_rel_sd": 1.0,
+    "static_pressure_sd_Pa": 1e5,
+    "temperature_sd_K": 100.0,
+    "relative_humidity_sd": 1.0,
+}
+"""The largest plausible value of each ``[instruments]`` key (a larger one is a typo)."""
+
+
+def _instruments(data: Mapping[str, Any], src: str) -> InstrumentAccuracy:
+    """The ``[instruments]`` table: the tunnel instruments' standard uncertainties (each >= 0; a
+    key not given takes the default of :class:`~cdpr.analysis.systematic.InstrumentAccuracy`, except
+    that the airspeed's absolute and relative parts are one statement: given one, the other is 0)."""
+    t = _table(src, "instruments", data.get("instruments", {}), set(INSTRUMENT_KEYS))
+    given: dict[str, float] = {}
+    for k in INSTRUMENT_KEYS:
+        if k in t:
+            v = _num(src, f"instruments.{k}", t[k], 0.0)
+            if v > _INSTRUMENT_LIMITS[k]:
+                raise ConfigError(
+                    src, f"instruments.{k}", f"must be <= {_INSTRUMENT_LIMITS[k]:g}, got {v:g}"
+                )
+            given[k] = v
+    pair = ("airspeed_sd_mps", "airspeed_rel_sd")  # one instrument: absolute + relative part
+    if any(k in given for k in pair):
+        given = {**{k: 0.0 for k in pair}, **given}
+    return InstrumentAccuracy(
+        **given, defaulted=tuple(k for k in INSTRUMENT_KEYS if k not in given)
+    )
 
 
 def _check_repeat(src: str, key: str, p: TestPoint, before: Sequence[TestPoint]) -> None:

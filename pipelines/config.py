@@ -266,3 +266,51 @@ def read_balance_calibration(path: str | None) -> tuple[Any, Any]:
     if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(K2))):
         raise ConfigError(path, "second_order", "expected finite values")
     return K, (K1, K2)
+
+
+def read_balance_fit(path: str | None) -> Any:
+    """The fit covariance of the balance model :func:`read_balance_calibration` returns (the
+    second-order model's where the file has one, else the interaction matrix's) as a
+    :class:`cdpr.analysis.systematic.BalanceFitCovariance`; None without a file or when the file
+    does not give it (written before the fit covariance was: the reduction flags
+    ``interaction_matrix_sd_not_given``)."""
+    if path is None:
+        return None
+    from cdpr.analysis.errors import InputError
+    from cdpr.analysis.systematic import BalanceFitCovariance
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ConfigError(path, "", f"cannot read the balance calibration: {exc}") from None
+    so = doc.get("second_order")
+    key, fit = (
+        ("second_order.fit", so.get("fit"))
+        if isinstance(so, dict)
+        else ("interaction_matrix_fit", doc.get("interaction_matrix_fit"))
+    )
+    if fit is None:
+        return None
+    if not isinstance(fit, dict):
+        raise ConfigError(path, key, "expected an object (residual_cov, inverse_gram, dof)")
+    for k in ("residual_cov", "inverse_gram", "dof"):
+        if k not in fit:
+            raise ConfigError(path, f"{key}.{k}", "missing")
+    p = 27 if key == "second_order.fit" else 6
+    try:
+        S = np.asarray(fit["residual_cov"], dtype=np.float64)
+        M = np.asarray(fit["inverse_gram"], dtype=np.float64)
+        dof = float(fit["dof"])
+    except (TypeError, ValueError):
+        raise ConfigError(path, key, "expected numbers") from None
+    if S.shape != (6, 6) or M.shape != (p, p):
+        raise ConfigError(
+            path, key, f"expected residual_cov (6, 6), inverse_gram ({p}, {p}), got {S.shape}, "
+            f"{M.shape}",
+        )  # fmt: skip
+    if np.any(np.diagonal(S) < 0) or np.any(np.diagonal(M) < 0):
+        raise ConfigError(path, key, "a variance is negative")
+    try:
+        return BalanceFitCovariance(S, M, dof)
+    except InputError as exc:
+        raise ConfigError(path, key, str(exc)) from None

@@ -383,5 +383,9 @@ def online_options(matrix_file: str | None) -> AnalyzeOptions:
 
     m = load_test_matrix(matrix_file)
     return AnalyzeOptions(
-        geometry=m.model, corrections=True, tunnel=m.tunnel, matrix_file=str(matrix_file)
+        geometry=m.model,
+        corrections=True,
+        tunnel=m.tunnel,
+        matrix_file=str(matrix_file),
+        instruments=m.instruments,
     )

@@ -53,14 +53,19 @@ class RunData:
     """Relative humidity (0..1) on ``t_ns``, held from the last tunnel message (NaN where that
     message has none); None when no tunnel message carries one."""
     recalibration: dict[str, Any] | None = None
+    """When the tensions were re-derived from the raw counts: the calibration's file, id, date and
+    the largest change against the recorded tensions per cable (N); None: tensions as recorded."""
     tension_clock: str = ""
-    sample_counter: np.ndarray | None = None
-    """(n,) the tension samples' counter (``seq``), None when the stream has none."""
     """Where the tension samples' times come from: the sample counter (the sampling instants, the
     lower envelope of the reception times: :func:`cdpr.analysis.clock.sample_clock`), or the
     reception times when the stream has no counter."""
-    """When the tensions were re-derived from the raw counts: the calibration's file, id, date and
-    the largest change against the recorded tensions per cable (N); None: tensions as recorded."""
+    sample_counter: np.ndarray | None = None
+    """(n,) the tension samples' counter (``seq``), None when the stream has none."""
+    loadcell_sd: Any = None
+    """The load-cell calibration's own σ (:class:`cdpr.analysis.systematic.LoadCellCalibrationSd`)
+    of the calibration that made the tensions, None when no σ is known (see ``loadcell_sd_from``)."""
+    loadcell_sd_from: str = "no load-cell calibration attached to the run"
+    """Where ``loadcell_sd`` comes from (said in the summary and report)."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -206,6 +211,31 @@ def _run_calibration(cal_file: Any, rig: Rig, p: Path) -> Any:
         raise ConfigError(exc.source, exc.key, f"{exc.problem}, for run {p.name}") from None
 
 
+def _loadcell_sd(run: Any, rig: Rig, p: Path, recalibration: Any) -> tuple[Any, str]:
+    """The σ of the load-cell calibration that made the run's tensions and where it comes from:
+    the file the tensions are re-derived with (``--loadcell-calibration``), else a load-cell
+    calibration attached to the run (the recorder attaches the one its config names); None (flag
+    ``loadcell_calibration_sd_not_given``) when that file gives no σ or none is known."""
+    from cdpr.daq.loadcell import is_calibration_file, parse_calibration_file
+
+    if recalibration is not None:
+        sd = recalibration.sd_for_cables(rig.cable_names)
+        return sd, f"{Path(recalibration.path).name} (the tensions re-derived with it)" + (
+            "" if sd is not None else ": it gives no σ"
+        )
+    for name, (_, data) in run.attachments.items():
+        if not (name.startswith("calibration/") and name.endswith(".toml")):
+            continue
+        try:
+            doc = tomllib.loads(data.decode())
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+            continue  # another kind of calibration (the camera's)
+        if is_calibration_file(doc):
+            sd = parse_calibration_file(f"{p}:{name}", doc).sd_for_cables(rig.cable_names)
+            return sd, f"{name} attached to the run" + ("" if sd is not None else ": it gives no σ")
+    return None, "no load-cell calibration attached to the run"
+
+
 def check_recalibration(path: str | os.PathLike[str], cal_file: Any) -> None:
     """Before any output: the run's cables match ``cal_file`` and its tension stream declares
     the ``raw_<cable>_counts`` columns (a stream without declared fields is checked on reading)."""
@@ -268,6 +298,7 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         pose_df = _slim_table(run, pose_topic, _POSE_COLUMNS) if pose_topic else None
         ev_topic = _topic(run, "events")
         ev_df = run.table(ev_topic) if ev_topic else None
+        lc_sd, lc_from = _loadcell_sd(run, rig, p, loadcell_calibration)
     t_ns, T, bits, seq, clock = tension_arrays(t_ns, T, st, seq)
 
     tunnel = pressure_temperature = humidity = None
@@ -284,6 +315,13 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         with np.load(truth_path) as z:
             truth = {k: z[k] for k in z.files}
 
+    if lc_sd is None and truth is not None and "no load-cell" in lc_from:
+        from cdpr.analysis.systematic import LoadCellCalibrationSd
+
+        m = rig.n_cables  # the virtual rig's counts are made with its calibration: exact
+        lc_sd = LoadCellCalibrationSd(np.zeros((m, 2, 2)), np.full(m, np.inf))
+        lc_from = f"the virtual rig's load cells (exact; {truth_path.name})"
+    sd_fields = {"loadcell_sd": lc_sd, "loadcell_sd_from": lc_from}
     events = _events(ev_df)
     if pose_df is not None and len(pose_df):
         tp = pose_df["t_ns"].to_numpy(np.int64)
@@ -303,7 +341,7 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity, recal, clock, seq,
+                pressure_temperature, humidity, recal, clock, seq, **sd_fields,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -311,13 +349,13 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity, recal, clock, seq,
+            events, truth, False, pressure_temperature, humidity, recal, clock, seq, **sd_fields,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity, recal, clock, seq,
+        pressure_temperature, humidity, recal, clock, seq, **sd_fields,
     )  # fmt: skip
 
 

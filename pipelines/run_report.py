@@ -219,6 +219,10 @@ def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
         "",
         f"- rig: **{run.rig.name}** ({run.rig.n_cables} cables); pose from: {run.pose_source}",
         f"- tension times from {run.tension_clock}",
+        "- systematic σ from: "
+        + "; ".join(
+            f"{k.replace('_', ' ')}: {v}" for k, v in summary["systematic_sources"].items()
+        ),
         f"- {len(df)} test points from **{red['point_source']}**"
         f" ({'the /events stream' if red['point_source'] == 'events' else 'steady-point detection'})"
         f", {int(df.kind.isin(('tare', 'zero')).sum())} wind-off",

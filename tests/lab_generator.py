@@ -868,7 +868,7 @@ def _calibration(
         extra: dict[str, Any] = {"source": "exact (lab generator)"}
     elif how == "fitted":
         off, g = np.empty(len(names)), np.empty(len(names))
-        sd_off, sd_g, rms = [], [], []
+        sd_off, sd_g, rms, corr = [], [], [], []
         for i in range(len(names)):
             L = np.linspace(0.0, 0.8 * rig.t_max_N[i], 9)
             c = offset[i] + (L + rng.normal(0, 0.05 / np.sqrt(2000), L.size)) / gain[i]
@@ -880,11 +880,14 @@ def _calibration(
             off[i], g[i] = beta[0], 1.0 / beta[1]
             sd_off.append(float(np.sqrt(cov[0, 0])))
             sd_g.append(float(np.sqrt(cov[1, 1]) / beta[1] ** 2))
+            # gain = 1/beta1: its error is -d(beta1)/beta1^2, so the correlation changes sign
+            corr.append(float(-cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1])))
             rms.append(float(np.sqrt(np.mean(r**2))) * g[i])
         extra = {
             "source": "lab generator: 9 hung loads per cell, 2000 readings each, 0.05 N noise",
             "sd_offset_counts": sd_off,
             "sd_gain_N_per_count": sd_g,
+            "corr_offset_gain": corr,
             "residual_rms_N": rms,
             "n_points": [9] * len(names),
         }

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
-from truth_rig import RIG_FILE, Sweep, alpha_sweep
+from truth_rig import RIG_FILE, Sweep, alpha_sweep, exact_loadcell_calibration
 
 from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.daq.mcap_io import McapRunWriter
@@ -48,6 +48,7 @@ def write_run(
     gives it: NaN pose and covariance, flag no_pose, status bad frame)."""
     w = McapRunWriter(path)
     w.add_attachment(f"rig/{RIG_FILE.name}", sw.rig_text.encode())
+    w.add_attachment(*exact_loadcell_calibration(CABLES))
     readings = []
     for i, t in enumerate(sw.t_ns):
         vals = {f"T_{c}_N": float(sw.tensions_N[i, k]) for k, c in enumerate(CABLES)}
@@ -216,7 +217,7 @@ def test_balance_calibration_with_second_order_is_applied(
     bal = tmp_path / "balance.json"
     bal.write_text(json.dumps(doc))
     args = ["analyze", str(run), "--out", str(tmp_path / "cal"), "--balance", str(bal), *GEO]
-    assert main(args) == 0
+    assert main(args) == 1  # a balance calibration without its fit covariance: said, exit 1
     plain = pd.read_csv(plain_folder / "points.csv")
     cal = pd.read_csv(tmp_path / "cal" / "sweep" / "points.csv")
     on = plain.kind == "wind_on"
@@ -228,3 +229,7 @@ def test_balance_calibration_with_second_order_is_applied(
     notes = {s["stage"]: s["note"] for s in summary["reduction"]["stages"]}
     assert notes["balance_interaction"] == "second-order balance model applied"
     assert summary["balance_file"].startswith(str(bal))
+    assert cal["flags"].str.contains("interaction_matrix_sd_not_given").all()
+    assert (
+        "no fit covariance (term left out)" in summary["systematic_sources"]["interaction_matrix"]
+    )

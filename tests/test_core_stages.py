@@ -20,6 +20,7 @@ from cdpr.analysis.stages import (
     STEADY_STAGES,
     Corrections,
     PointSamples,
+    SystematicInputs,
     core_stages,
     stage_table,
 )
@@ -98,6 +99,7 @@ def test_every_stage_calls_the_function_it_names(monkeypatch: pytest.MonkeyPatch
         corrections=Corrections(section=tunnel.geometry, walls=tunnel.walls),
         samples=samples,
         motion=motion,
+        systematic=SystematicInputs(),
     )
     out = run_stages(pts, stages)
     ran = [step.name for step in out.steps]

@@ -16,7 +16,15 @@ import pandas as pd
 import pytest
 from _cable_drag_truth import string_end_force
 from scipy.spatial.transform import Rotation
-from truth_rig import RIG_FILE, SPEEDS_MPS, aero_wrench, controller, statics, weight
+from truth_rig import (
+    RIG_FILE,
+    SPEEDS_MPS,
+    aero_wrench,
+    controller,
+    exact_loadcell_calibration,
+    statics,
+    weight,
+)
 
 from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.daq.mcap_io import McapRunWriter
@@ -158,6 +166,7 @@ def write_run(path: Path, g: dict) -> None:
     names = [c["name"] for c in __import__("tomllib").loads(g["rig_text"])["cables"]]
     w = McapRunWriter(path)
     w.add_attachment(f"rig/{RIG_FILE.name}", g["rig_text"].encode())
+    w.add_attachment(*exact_loadcell_calibration(names))
     readings = []
     C = np.diag(g["sd"] ** 2)  # small angles: rotation-vector covariance = Euler covariance
     for i, t in enumerate(g["t"]):

@@ -25,6 +25,21 @@ SPEEDS_MPS = (17.27, 25.51, 41.42)
 AOA_DEG = (-4.0, -2.0, 0.0, 2.0, 4.0, 6.0)
 
 
+def exact_loadcell_calibration(cables: list[str]) -> tuple[str, bytes]:
+    """The attachment (name, TOML bytes) of the load-cell calibration this world's tensions were
+    made with: exact (σ 0), as the recorder attaches the one its config names."""
+    names = ", ".join(f'"{c}"' for c in cables)
+    text = (
+        "[calibration]\n"
+        'kind = "loadcells"\nid = "exact"\n'
+        f"cables = [{names}]\n"
+        "offset_counts = 0.0\ngain_N_per_count = 1.0\n"
+        "sd_offset_counts = 0.0\nsd_gain_N_per_count = 0.0\ncorr_offset_gain = 0.0\n"
+        "n_points = 11\n"
+    )
+    return "calibration/loadcells_exact.toml", text.encode()
+
+
 def rot(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cr, sr, cp, sp, cy, sy = (
         np.cos(roll),

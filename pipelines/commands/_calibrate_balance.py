@@ -4,14 +4,16 @@
 ``channel`` (cable name), ``load_N`` (known tension applied through that cable, e.g. dead weights)
 and ``counts`` (the amplifier's reading); >= 3 distinct loads per channel.  Writes a calibration
 file with an id: ``offset_counts`` and ``gain_N_per_count`` per cable (the keys a load-cell source
-takes, see ``calibration_file`` in docs/recording.md), their standard deviations, the residual RMS
-and the non-linearity; and ``<out>.png`` with the residuals.
+takes, see ``calibration_file`` in docs/recording.md), their standard deviations and correlation
+(the fit's parameter covariance, used by the reduction's systematic term), the residual RMS and the
+non-linearity; and ``<out>.png`` with the residuals.
 
 ``cdpr calibrate balance CHECKLOADS.csv --rig R --out balance.json``: CHECKLOADS.csv has the pose
 columns, one ``T_<cable>_N`` column per cable (measured) and the applied wrench
 ``fx_N .. mz_Nm`` (at P, {O} axes); rows whose applied wrench is zero are wind-off tares, used by the
 tare method for the loaded rows at the same pose (else the absolute method).  Writes the check-load
-errors, the 6x6 interaction matrix, ``<out>.png`` (recovered vs applied) and an id.
+errors, the 6x6 interaction matrix with its fit covariance (``interaction_matrix_fit``; the
+second-order model's under ``second_order.fit``), ``<out>.png`` (recovered vs applied) and an id.
 """
 
 from __future__ import annotations
@@ -91,6 +93,7 @@ def run_loadcells(args: argparse.Namespace) -> int:
             "software_version": __version__,
             "sd_offset_counts": [f.sd_offset_counts for f in fits],
             "sd_gain_N_per_count": [f.sd_gain_N_per_count for f in fits],
+            "corr_offset_gain": [f.corr_offset_gain for f in fits],
             "residual_rms_N": [f.residual_rms_N for f in fits],
             "nonlinearity_pct": [f.nonlinearity_pct for f in fits],
             "n_points": [f.n_points for f in fits],
@@ -187,6 +190,7 @@ def run_balance(args: argparse.Namespace) -> int:
         "max_abs_error_pct_fs": pct_fs,
         "interaction_matrix": res.interaction.tolist(),
         "corrected_rms_error": res.corrected_rms_error.tolist(),
+        "interaction_matrix_fit": fit_json(res.fit),
     }
     second, why = fit_second_order(rec[loaded], W[loaded])
     doc["second_order"] = (
@@ -199,6 +203,7 @@ def run_balance(args: argparse.Namespace) -> int:
             "rms_error_first_order": second.rms_first.tolist(),
             "rms_error_second_order": second.rms_second.tolist(),
             "p_value": second.p_value.tolist(),
+            "fit": fit_json(second.fit),
         }
     )
     doc["second_order_note"] = why
@@ -215,6 +220,20 @@ def run_balance(args: argparse.Namespace) -> int:
     )
     print(f"  {why}")
     return 0
+
+
+def fit_json(fit) -> dict | None:  # type: ignore[no-untyped-def,type-arg]
+    """The balance fit's covariance as JSON (read back by
+    :func:`cdpr.pipelines.config.read_balance_fit`); None without one."""
+    if fit is None:
+        return None
+    return {
+        "residual_cov": fit.residual_cov.tolist(),
+        "inverse_gram": fit.inverse_gram.tolist(),
+        "dof": fit.dof,
+        "covariance": "cov(K[i, j], K[k, l]) = residual_cov[i, k] * inverse_gram[j, l] "
+        "(K: the model's coefficients, rows per component, columns per regressor)",
+    }
 
 
 def _check_plot(res, path) -> None:  # type: ignore[no-untyped-def]

@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         if not all(math.isfinite(v) and v > 0 for v in args.pose_sd):
             raise InputError(f"--pose-sd: expected 6 finite values > 0, got {args.pose_sd}")
         pose_sd, pose_sd_from = tuple(args.pose_sd), "--pose-sd"
-    tunnel = None
+    tunnel = instruments = None
     lc_file: str | None = args.loadcell_calibration
     lc_from = "--loadcell-calibration"
     if args.matrix is not None:
@@ -160,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
         if pose_sd is None and m.pose_sd is not None:
             pose_sd, pose_sd_from = m.pose_sd, f"the test matrix {args.matrix} (campaign.pose_sd)"
         tunnel = m.tunnel
+        instruments = m.instruments
         if m.loadcell_calibration is not None:
             if lc_file is None:
                 lc_file = str(m.loadcell_calibration)
@@ -193,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
         matrix_file=args.matrix,
         loadcell_calibration_file=lc_file,
         loadcell_calibration_from=lc_from if lc_file is not None else None,
+        instruments=instruments,
         reduce=ReduceSettings(method=args.method, check_limit_N=args.check_limit_N),
         **({} if pose_sd is None else {"pose_sd_fallback": pose_sd, "pose_sd_from": pose_sd_from}),
     )
