@@ -51,8 +51,9 @@ def zero_drift_stage(p: Points, *, apply: bool = True) -> Points:
     """Remove each cable's zero drift from the tensions of every point.
 
     The wind-off zeros are the points of kind ``zero`` (level, wind off: before and after a run and
-    between blocks); their mean tensions are interpolated linearly in time
-    (:func:`cdpr.analysis.corrections.zero_drift`, relative to the first zero) and subtracted.  A
+    between blocks); their mean tensions are interpolated linearly in time to the middle of each
+    point's window (:func:`cdpr.analysis.corrections.zero_drift`, relative to the first zero) and
+    subtracted.  A
     point's corrected tensions are then a combination of several points' raw means (its own and the
     zeros'), ``tension_mix`` (s, s): the covariance is carried as one, so that the drift a wind-on
     point shares with its tare cancels in their difference (``tension_cov_raw_N2`` keeps each
@@ -81,7 +82,9 @@ def zero_drift_stage(p: Points, *, apply: bool = True) -> Points:
         )
     raw = p["tension_cov_N2"]
     zsd = np.sqrt(np.clip(np.diagonal(raw[zero], axis1=1, axis2=2), 0.0, None))
-    d = zero_drift(p["start_ns"], p["start_ns"][zero], p["tension_N"][zero], zsd)
+    # at the middle of each window: a point's mean is its tensions there (a drift is linear)
+    t_mid = np.asarray(p.arrays.get("mid_ns", p["start_ns"]), dtype=np.int64)
+    d = zero_drift(t_mid, t_mid[zero], p["tension_N"][zero], zsd)
     mix = np.asarray(p.arrays.get("tension_mix", np.eye(s)), dtype=np.float64)
     mix = mix - d.weights @ mix[zero]  # T'_i = T_i - sum_z w_iz T_z, on the raw means
     return with_updates(

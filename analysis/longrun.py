@@ -22,6 +22,18 @@ residuals, then recolouring**.
    :data:`MIN_BANDWIDTH_FRACTION` of the window.
 3. Recoloured: ``Omega = (I - sum A_k)^-1 Omega_u (I - sum A_k)^-T``.
 
+Before all this a straight line in time is taken out of each channel of the window (least
+squares over the usable samples; the mean itself is untouched): a linear trend inside a point, the
+load cells' zero drift or a slowly settling load, makes the window's mean the value at the
+window's middle, not a random error of it, yet it would weigh in the long-run sum at every lag
+(the drift of 0.002 N/s typical of strain-gauge cells made the wrench's load-cell σ 1.2-1.5 times
+the scatter of 3 s points).  What a line removes from a stationary process is one of its lowest
+frequencies, negligible when the correlation time is well under the window (and a window that is
+not is flagged ``window_too_short``).  The mean and the line taken out bias the Bartlett sum low
+by a known amount (about the bandwidth over the window, twice that with the line: 5-10 % with the
+floor below); the sum is divided by its exact expectation for white residuals
+(:func:`_regression_bias`), so that white noise gets sd**2 / n on average.
+
 Effective number of independent samples of a linear combination c of the channels:
 ``n_eff = n c^T Gamma_0 c / c^T Omega c`` (n for white noise, ``n (1 - rho)/(1 + rho)`` for an
 AR(1)).  Degrees of freedom of the variance estimate (for the coverage factor of an expanded
@@ -172,10 +184,29 @@ def _andrews_bandwidth(u: FloatArray, ok: NDArray[np.bool_]) -> int:
     return int(max(1, min(n // 2, np.floor(1.1447 * (a1 * n) ** (1.0 / 3.0)))))
 
 
-def long_run(x: ArrayLike, usable: ArrayLike | None = None, max_order: int = MAX_ORDER) -> LongRun:
+def _regression_bias(Q: FloatArray, ok: NDArray[np.bool_], w: FloatArray) -> float:
+    """The expected Bartlett sum of white residuals after the regressors ``Q`` (n, r), orthonormal
+    over the usable samples, were taken out, per unit variance: ``E[G_0] = 1 - r/n``,
+    ``E[G_k] = -sum_t H_{t,t-k} / pairs_k`` with ``H = Q Q^T``.  Below 1 (a mean or a line removed
+    takes the lowest frequencies with it); dividing by it makes the estimate unbiased for white
+    residuals (about ``1 - b + b^2/3`` for the mean alone, b the bandwidth over n: Kiefer and
+    Vogelsang 2005, Econometric Theory 21, 1130; twice that deficit with the line too)."""
+    GQ = _autocov(Q, ok, w.size)
+    tr = np.trace(GQ, axis1=1, axis2=2)
+    return float(max(1.0 - tr[0] - 2.0 * (w @ tr[1:]), 0.5))
+
+
+def long_run(
+    x: ArrayLike,
+    usable: ArrayLike | None = None,
+    max_order: int = MAX_ORDER,
+    detrend: bool = True,
+) -> LongRun:
     """The long-run covariance of the samples ``x`` (n, m) of one window (see the module docstring).
 
-    usable: (n,) bool, the samples that count (default: the finite rows).  Needs at least
+    usable: (n,) bool, the samples that count (default: the finite rows); detrend: take a straight
+    line in time (sample index) out of each channel first (False: the deviations from the mean
+    only, the classical estimator).  Needs at least
     ``8 * (max_order + 1) * m`` usable samples for the VAR; fewer: the order is lowered until it
     fits (order 0 is ``Gamma_0`` with the Bartlett kernel only)."""
     a = np.asarray(x, dtype=np.float64)
@@ -196,6 +227,15 @@ def long_run(x: ArrayLike, usable: ArrayLike | None = None, max_order: int = MAX
         return LongRun(nan, nan, n, 0, 0, True)
     mean = a[ok].mean(axis=0)
     d = np.where(ok[:, None], a - mean, 0.0)
+    # the regressors taken out, orthonormal over the usable samples (zero elsewhere): Q (n, r)
+    Q = [np.where(ok, 1.0 / np.sqrt(n), 0.0)]
+    if detrend and n > 2:
+        k = np.arange(n_all, dtype=np.float64)
+        k = np.where(ok, k - k[ok].mean(), 0.0)
+        kk = float(k @ k)
+        if kk > 0:
+            d = d - np.outer(k, (k @ d) / kk)  # zero where not usable (k is)
+            Q.append(k / np.sqrt(kk))
     g0 = d[ok].T @ d[ok] / n
     p_max = int(min(max_order, max(0, n // (8 * m) - 1)))
     # order by AIC on a common sample (t >= p_max)
@@ -224,6 +264,7 @@ def long_run(x: ArrayLike, usable: ArrayLike | None = None, max_order: int = MAX
     G = _autocov(res, good, L)
     w = 1.0 - np.arange(1, L + 1) / (L + 1.0)
     omega_u = G[0] + np.einsum("k,kij->ij", w, G[1:] + np.swapaxes(G[1:], 1, 2))
+    omega_u = omega_u / _regression_bias(np.column_stack(Q), ok, w)
     stationary = True
     if p:
         comp = np.zeros((m * p, m * p))
@@ -243,10 +284,11 @@ def window_long_runs(
     ranges: Sequence[tuple[int, int]],
     mask_bits: ArrayLike | None = None,
     max_order: int = MAX_ORDER,
+    detrend: bool = True,
 ) -> list[LongRun]:
     """:func:`long_run` of each ``[start, stop)`` window of the samples ``x`` (n, m), counting only
     samples whose mask bits are 0 (one estimate per test point; the loop is over points, the work
     inside vectorised over samples)."""
     a = np.asarray(x, dtype=np.float64)
     bits = np.zeros(a.shape[0], np.int64) if mask_bits is None else np.asarray(mask_bits)
-    return [long_run(a[i:j], bits[i:j] == 0, max_order) for i, j in ranges]
+    return [long_run(a[i:j], bits[i:j] == 0, max_order, detrend) for i, j in ranges]

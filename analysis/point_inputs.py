@@ -123,6 +123,7 @@ def points_from_samples(
     pts = new_points(
         kind=kind,
         start_ns=start_ns,
+        mid_ns=start_ns + (stop_ns - start_ns) // 2,
         tension_N=st.mean,
         tension_cov_N2=tcov,
         **{POSE: ps.mean, POSE_COV: np.array(pcov)},

@@ -66,7 +66,7 @@ from .systematic import (
     LoadCellCalibrationSd,
 )
 from .systematic_stages import flow_uncertainty_stage, systematic_stage
-from .tare import weight_tare
+from .tare import TARE_POSE_SD_REL, weight_tare
 from .test_section import SectionGeometry
 from .uncertainty import expanded_uncertainty, propagate
 from .weight import WeightModel, fit_weight_model, weight_model_note
@@ -170,7 +170,7 @@ def weight_tare_stage(
     prior_mass_rel_sd: float = 0.05,
     prior_com_sd_m: float = 0.01,
     tare_shares_pose: bool = False,
-    tare_pose_sd_rel: float | None = 0.5,
+    tare_pose_sd_rel: float | None = TARE_POSE_SD_REL,
 ) -> Points:
     """Remove the weight (:func:`cdpr.analysis.tare.weight_tare`): the point's wind-off twin at
     the same pose (flag ``tare``), else the weight model (``weight_model``), else NaN and
@@ -492,7 +492,7 @@ class ReduceSettings:
     wind_off_mps: float = 1.0
     fit_weight_model: bool = True
     tare_shares_pose: bool = False
-    tare_pose_sd_rel: float | None = 0.5
+    tare_pose_sd_rel: float | None = TARE_POSE_SD_REL
 
 
 @dataclass(frozen=True)

@@ -83,6 +83,15 @@ CHI2_6_999: float = 22.4577
 """The 99.9 % point of the chi-square distribution with 6 degrees of freedom."""
 
 
+TARE_POSE_SD_REL: float = 0.5
+"""The stiffness model's relative σ for the deflection between a point and its tare
+(:func:`tare_pose`): the cables' EA and the geometry may be known to a few per cent, but the
+frame's compliance, the cables' sag and their end fittings are not modelled (0.2 made the chi-square
+check below fire on the virtual rig's own alpha sweep).  Where the model is off by more than this, the camera sees it (the
+chi-square check at 0.1 %) and its measured difference is used instead, flagged
+``tare_pose_model_disagrees``."""
+
+
 def tare_pose(
     rig: Rig,
     pose_point: ArrayLike,
@@ -91,7 +100,7 @@ def tare_pose(
     cov_tare: ArrayLike,
     tensions_tare_N: ArrayLike,
     load_change_N_Nm: ArrayLike,
-    sigma_rel: float = 0.5,
+    sigma_rel: float = TARE_POSE_SD_REL,
 ) -> TarePose:
     """The pose difference between a wind-on point and its wind-off tare, from what it really is.
 
@@ -197,7 +206,7 @@ def weight_tare(
     tare_shares_pose: bool = False,
     tension_mix: ArrayLike | None = None,
     tension_cov_raw_N2: ArrayLike | None = None,
-    tare_pose_sd_rel: float | None = 0.5,
+    tare_pose_sd_rel: float | None = TARE_POSE_SD_REL,
 ) -> WeightTare:
     """Remove the weight from every point's cable load (see the module docstring).
 

@@ -144,3 +144,28 @@ def test_a_drifting_window_has_not_converged_and_bad_shapes_raise() -> None:
         long_run(np.zeros((10, 2)), np.ones(9, bool))
     with pytest.raises(InputError, match="expected"):
         long_run(np.zeros((2, 3, 4)))
+
+
+def test_a_linear_zero_drift_inside_the_window_does_not_widen_sigma() -> None:
+    """A load cell's zero drift (a straight line in time) makes the window's mean the value at its
+    middle, not a random error: with the line taken out, sigma is the noise's own (white here,
+    sd/sqrt(n)); the classical estimator (detrend=False) counts the drift as slow noise."""
+    rng = np.random.default_rng(7)
+    t = np.arange(3000) * 1e-3  # a 3 s point at 1 kHz
+    ratios_detrended, ratios_classical = [], []
+    for _ in range(60):
+        x = rng.normal(0.0, 0.05, (t.size, 2))
+        x[:, 0] += 0.02 * t  # 0.02 N/s, ten times the typical strain-gauge drift
+        white = 0.05 / np.sqrt(t.size)
+        ratios_detrended.append(np.sqrt(long_run(x).cov_of_mean[0, 0]) / white)
+        ratios_classical.append(np.sqrt(long_run(x, detrend=False).cov_of_mean[0, 0]) / white)
+    assert np.median(ratios_detrended) == pytest.approx(1.0, abs=0.08)
+    assert np.median(ratios_classical) > 1.3
+    # masked samples are left out of the line fit too: a masked run of outliers changes nothing
+    x = rng.normal(0.0, 0.05, (t.size, 2)) + 0.02 * t[:, None]
+    bad = np.zeros(t.size, bool)
+    bad[1000:1100] = True
+    y = x.copy()
+    y[bad] = 1e3
+    a, b = long_run(x[~bad]), long_run(y, ~bad)
+    assert np.sqrt(b.cov_of_mean[0, 0]) == pytest.approx(np.sqrt(a.cov_of_mean[0, 0]), rel=0.1)
