@@ -54,6 +54,9 @@ class RunData:
     recalibration: dict[str, Any] | None = None
     """When the tensions were re-derived from the raw counts: the calibration's file, id, date and
     the largest change against the recorded tensions per cable (N); None: tensions as recorded."""
+    seq: np.ndarray | None = None
+    """(n,) the load cells' unwrapped sample counter (None when the stream has none): their own
+    clock for the dynamic reduction (:func:`cdpr.analysis.oscillation.sample_clock`)."""
 
 
 def _topic(run: Any, suffix: str) -> str | None:
@@ -341,7 +344,7 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
             return RunData(
                 p, rig, t_ns, T, bits, tunnel, tp, poses, pose_cov, bad, src, events, truth, True,
-                pressure_temperature, humidity, recal,
+                pressure_temperature, humidity, recal, seq,
             )  # fmt: skip
     if truth is not None and "position_O_m" in truth:
         q6 = np.concatenate([truth["position_O_m"], truth["euler_rad"]], axis=1)
@@ -349,13 +352,13 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
         tp = np.asarray(truth["t_ns"], dtype=np.int64)
         return RunData(
             p, rig, t_ns, T, bits, tunnel, tp, q6, None, np.zeros(len(tp), bool), src,
-            events, truth, False, pressure_temperature, humidity, recal,
+            events, truth, False, pressure_temperature, humidity, recal, seq,
         )  # fmt: skip
     ref = np.concatenate([rig.reference_position_O_m, rig.reference_euler_rad])
     return RunData(
         p, rig, t_ns, T, bits, tunnel, t_ns.copy(), np.tile(ref, (len(t_ns), 1)), None,
         np.zeros(len(t_ns), bool), "rig reference pose (no pose stream)", events, truth, False,
-        pressure_temperature, humidity, recal,
+        pressure_temperature, humidity, recal, seq,
     )  # fmt: skip
 
 
