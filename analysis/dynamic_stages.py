@@ -193,7 +193,7 @@ def clock_offset_stage(
         t, T, u = _slice(samples, i)
         a, b = (int(x) for x in p["window_ns"][i])
         tares.append(OffsetInput(t, T, u, f, (a, b)))
-    co = clock_offset(rig, tares, body, settings.offset_probe_ns, settings.max_offset_sd_ns)
+    co = clock_offset(rig, tares, body, settings.offset_prior_ns, settings.max_offset_sd_ns)
     moving = _moving(p)
     off = co.offset_ns if co.identified else 0.0
     sd = co.sd_ns if co.identified else math.nan

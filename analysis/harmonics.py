@@ -56,9 +56,11 @@ def harmonic_basis(phase_rad: ArrayLike, n_harmonics: int) -> FloatArray:
     ph = np.asarray(phase_rad, dtype=np.float64)
     out = np.empty(ph.shape + (n_terms(n_harmonics),))
     out[..., 0] = 1.0
-    for h in range(1, int(n_harmonics) + 1):
-        np.sin(h * ph, out=out[..., 2 * h - 1])
-        np.cos(h * ph, out=out[..., 2 * h])
+    s1, c1 = np.sin(ph, out=out[..., 1]), np.cos(ph, out=out[..., 2])
+    for h in range(2, int(n_harmonics) + 1):  # sin, cos of h phi by the angle sum (harmonics)
+        s0, c0 = out[..., 2 * h - 3], out[..., 2 * h - 2]
+        np.subtract(s0 * c1, -c0 * s1, out=out[..., 2 * h - 1])
+        np.subtract(c0 * c1, s0 * s1, out=out[..., 2 * h])
     return out
 
 
@@ -200,9 +202,8 @@ def harmonic_fit(
         if u.shape != (n,):
             raise InputError(f"usable: expected ({n},), got {u.shape}")
         ok &= u
-    if weights is None:
-        w = np.ones((n, k))
-    else:
+    w = None
+    if weights is not None:
         w = np.asarray(weights, dtype=np.float64)
         w = np.broadcast_to(w[:, None] if w.ndim == 1 else w, (n, k))
         ok &= np.isfinite(w).all(axis=1) & (w > 0).all(axis=1)
@@ -211,27 +212,34 @@ def harmonic_fit(
     if idx.size < 2 * p:
         raise InputError(f"harmonic_fit: {idx.size} usable samples, at least {2 * p} needed")
     X = harmonic_basis(ph[idx], n_harmonics)  # (N, p)
-    Yu = Y[idx]
-    Wu = np.ascontiguousarray(w[idx])
+    Yu = Y[idx] if idx.size < n else Y
+    Wu = None if w is None else np.ascontiguousarray(w[idx])
     coef = np.empty((k, p))
     Ginv = np.empty((k, p, p))
-    if weights is None or bool(np.all(Wu == Wu[:1])):  # each channel's weight constant
+    if Wu is None or bool(np.all(Wu == Wu[:1])):  # each channel's weight constant
         Gi = np.linalg.inv(X.T @ X)
         coef[:] = (Gi @ (X.T @ Yu)).T
-        Ginv[:] = Gi[None] / Wu[0][:, None, None]
+        Ginv[:] = Gi[None] / (1.0 if Wu is None else Wu[0][:, None, None])
     else:
         for c in range(k):  # channels, not samples
             Xw = X * Wu[:, c, None]
             Gi = np.linalg.inv(Xw.T @ X)
             Ginv[c] = Gi
             coef[c] = Gi @ (Xw.T @ Yu[:, c])
-    E = Yu - X @ coef.T  # (N, k)
+    E = Yu.copy()  # (N, k) the residuals, term by term (a thin product: no BLAS threads)
+    for j in range(p):
+        E -= X[:, j, None] * coef[None, :, j]
+    WE = E if Wu is None else Wu * E
     # scores z_t = w_t x_t e_t, summed per cycle of the motion
     cyc = cycle_index(ph[idx])
     starts = np.flatnonzero(np.r_[True, np.diff(cyc) != 0])
     n_c = starts.size
-    Z = ((Wu * E)[:, :, None] * X[:, None, :]).reshape(idx.size, k * p)
-    S = np.add.reduceat(Z, starts, axis=0)  # (n_c, k p)
+    bounds = np.r_[starts, idx.size]
+    S3 = np.empty((n_c, k, p))
+    for c in range(n_c):  # cycles, not samples: one small product each
+        a, b = bounds[c], bounds[c + 1]
+        S3[c] = WE[a:b].T @ X[a:b]
+    S = S3.reshape(n_c, k * p)
     if n_c < 3:
         raise InputError(f"harmonic_fit: the samples span {n_c} cycle(s), at least 3 needed")
     lr = long_run(S, max_order=1)

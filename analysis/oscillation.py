@@ -121,10 +121,10 @@ class DynamicSettings:
     ``motion_amplitude_off_plan``, ``motion_frequency_off_plan``); nonlinear_threshold: the
     higher harmonics' amplitude over the fundamental's above which a response is flagged
     ``nonlinear_response`` (when they are also significant, 3 σ); max_offset_sd_ns: a clock offset
-    with a larger σ is ``clock_offset_not_identified``; offset_probe_ns: the step of the offset's
-    linearisation; n_grid: phases per cycle of the series' maps; loop_bins: phase bins of the
-    hysteresis loops; goals: the derivatives' accuracy goals for the dwell time (95 % half-width
-    of ``goal_inphase_rel`` of the in-phase value, of ``goal_outphase_rel`` or
+    with a larger σ is ``clock_offset_not_identified``; offset_prior_ns: where the offset's
+    Newton step starts (a known offset, or 0); n_grid: phases per cycle of the series' maps;
+    loop_bins: phase bins of the hysteresis loops; goals: the derivatives' accuracy goals for
+    the dwell time (95 % half-width of ``goal_inphase_rel`` of the in-phase value, of ``goal_outphase_rel`` or
     ``goal_outphase_abs`` per rad, whichever is larger, of the out-of-phase one); min_frames:
     camera frames per cycle below which the motion is not fitted; wind_off_mps: below it a point
     has no coefficients.
@@ -135,7 +135,7 @@ class DynamicSettings:
     frequency_tol_rel: float = 0.002
     nonlinear_threshold: float = 0.10
     max_offset_sd_ns: float = 100_000.0
-    offset_probe_ns: int = 1_000_000
+    offset_prior_ns: float = 0.0
     n_grid: int = 128
     loop_bins: int = 48
     goal_inphase_rel: float = 0.02
@@ -475,7 +475,7 @@ def wrench_harmonics(
         raise InputError(f"wrench_harmonics: {idx.size} usable samples in the window")
     body = body or Body.of(rig)
     ph = motion.phase(t[idx], offset_ns)
-    q, _, _ = motion.pose(ph)
+    q = harmonic_values(motion.coef, ph).T
     Tu = T[idx]
     W = _cable_wrench(rig, body, q, Tu)
     hf = harmonic_fit(ph, W, H)
@@ -561,15 +561,17 @@ def clock_offset(
     rig: Rig,
     tares: Sequence[OffsetInput],
     body: Body | None = None,
-    probe_ns: float = 1_000_000.0,
+    prior_ns: float = 0.0,
     max_sd_ns: float = 100_000.0,
 ) -> ClockOffset:
     """The camera's clock offset from the wind-off oscillations: with the right offset the cable
     wrench of a wind-off motion (inertia, gravity and the pretension's geometry, all functions of
     ``sin(theta)``) has no quadrature at the fundamental in any component; an offset error
     ``dt`` puts ``K qdot dt`` (the structure matrix at the wrong pose) and ``omega dt`` times the
-    in-phase part (the phase) into it.  Per tare the six quadratures at offsets 0 and
-    ``probe_ns`` give the line whose zero is the estimate (generalised least squares over the
+    in-phase part (the phase) into it.  Per tare the six quadratures at the ``prior_ns`` offset
+    and their derivatives with respect to it (:attr:`WrenchHarmonics.d_offset`: exact at the
+    fundamental to first order, the sensitivity's variation over the cycle only feeds the even
+    harmonics) give the Newton step to the estimate (generalised least squares over the
     components with their covariance: load cells and pose); the tares' estimates are averaged with
     their weights.  Without a tare, or with a σ above ``max_sd_ns``: not identified (offset 0
     with its σ, the caller flags it)."""
@@ -581,15 +583,12 @@ def clock_offset(
     est, sd = [], []
     for tr in tares:  # tares, not samples
         w0 = wrench_harmonics(
-            rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, 0.0, tr.window_ns, body
-        )
-        w1 = wrench_harmonics(
-            rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, probe_ns, tr.window_ns, body
+            rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, prior_ns, tr.window_ns, body
         )
         p = w0.coef.shape[1]
         sel = np.arange(6) * p + 2
         q0 = w0.coef[:, 2]
-        s = (w1.coef[:, 2] - q0) / probe_ns
+        s = w0.d_offset[:, 2]  # d quadrature / d offset: K qdot and the phase (per ns)
         C = (w0.cov_load_cells + w0.cov_pose)[np.ix_(sel, sel)]
         Ci = np.linalg.pinv(C, rcond=1e-12)
         info = float(s @ Ci @ s)
@@ -597,7 +596,7 @@ def clock_offset(
             est.append(0.0)
             sd.append(math.inf)
             continue
-        est.append(float(-(s @ Ci @ q0) / info))
+        est.append(prior_ns - float((s @ Ci @ q0) / info))
         sd.append(float(1.0 / math.sqrt(info)))
     e, d = np.asarray(est), np.asarray(sd)
     fin = np.isfinite(d)

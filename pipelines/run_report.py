@@ -394,15 +394,13 @@ def hysteresis_figures(loops: list[dict[str, Any]], folder: Path) -> list[str]:
                     ax = axes[r, j]
                     i = d["coefficients"].index(c)
                     L = d["loops"][:, :, i]
-                    cyc = np.concatenate([L, L[:, :1]], axis=1)
-                    ax.plot(x, cyc.T, color="C0", lw=0.5, alpha=0.15)
-                    with np.errstate(invalid="ignore"):
-                        import warnings
-
-                        with warnings.catch_warnings():
-                            warnings.simplefilter("ignore", RuntimeWarning)
-                            avg = np.nanmean(L, axis=0)
-                    ax.plot(x, np.append(avg, avg[:1]), color="C0", lw=2.0, label="cycle average")
+                    # every cycle, closed, NaN between them: one line for all (cheap to draw)
+                    cyc = np.concatenate([L, L[:, :1], np.full((L.shape[0], 1), np.nan)], axis=1)
+                    xs = np.tile(np.append(x, np.nan), L.shape[0])
+                    ax.plot(xs, cyc.reshape(-1), color="C0", lw=0.5, alpha=0.2)
+                    n_ok = np.isfinite(L).sum(axis=0)
+                    avg = np.where(n_ok > 0, np.nansum(L, axis=0) / np.maximum(n_ok, 1), np.nan)
+                    ax.plot(x, np.append(avg, avg[:1]), color="navy", lw=1.8, label="cycle average")
                     ym = d["mean_loop"][:, i]
                     ax.plot(
                         xm, np.append(ym, ym[:1]), "--", color="C3", lw=1.2, label="harmonic fit"
