@@ -41,6 +41,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "target_aoa_deg, target_sideslip_deg, target_airspeed_mps, repeat_of): /events",
     )
     p.add_argument(
+        "--cable-lengths",
+        help="the controller's cable-length log (CSV: t_ns or t_s, L_<cable>_m per cable): the "
+        "pose by forward kinematics with its covariance, instead of --poses "
+        "(docs/dynamic_tests.md)",
+    )
+    p.add_argument(
+        "--length-sd-m",
+        type=float,
+        help="σ of each logged cable length, m (required with --cable-lengths)",
+    )
+    p.add_argument(
         "--raw-only",
         action="store_true",
         help="keep the log's frames (/can_raw) even when none is a load-cell frame of the DBC "
@@ -97,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         poses = (tcol, tv, df[list(POSE_COLUMNS)].to_numpy(dtype=np.float64))
 
     side = _read_side_tables(args)
+    lengths = _read_cable_lengths(args, rig)
 
     try:
         src = CanReplaySource(
@@ -151,6 +163,11 @@ def run(args: argparse.Namespace) -> int:
                     "can_log_sha256": file_sha256(args.can_log),
                     "poses": Path(args.poses).name if args.poses else "",
                     "poses_sha256": file_sha256(args.poses) if args.poses else "",
+                    "cable_lengths": Path(args.cable_lengths).name if args.cable_lengths else "",
+                    "cable_lengths_sha256": file_sha256(args.cable_lengths)
+                    if args.cable_lengths
+                    else "",
+                    "cable_length_sd_m": args.length_sd_m,
                     **_side_provenance(args),
                 },
             )
@@ -219,6 +236,8 @@ def run(args: argparse.Namespace) -> int:
                             },
                         )
                     )
+            if lengths is not None:
+                _write_length_poses(w, args, lengths, first_ns)
             _write_side_tables(w, args, side, first_ns)
             counts = dict(w.counts)
             w.add_metadata(
@@ -438,6 +457,46 @@ def _pose_times(path: str, df: Any, tcol: str) -> Any:
     from ..import_tables import table_times
 
     return table_times(path, df)[1]
+
+
+def _read_cable_lengths(args: argparse.Namespace, rig: Any) -> Any:
+    """The ``--cable-lengths`` log as poses (:mod:`cdpr.pipelines.cable_lengths`), checked before
+    anything is written; one pose source only."""
+    from cdpr.analysis.errors import ConfigError
+
+    if not args.cable_lengths:
+        if args.length_sd_m is not None:
+            raise ConfigError("--length-sd-m", "", "given without --cable-lengths")
+        return None
+    if args.poses:
+        raise ConfigError(
+            args.cable_lengths, "--cable-lengths", "one pose source: not with --poses"
+        )
+    from ..cable_lengths import read_cable_lengths
+
+    return read_cable_lengths(args.cable_lengths, rig, args.length_sd_m)
+
+
+def _write_length_poses(w: Any, args: argparse.Namespace, lengths: Any, first_ns: Any) -> None:
+    """Attach the cable-length log and write its poses as ``/pose``."""
+    import numpy as np
+
+    from cdpr.analysis.errors import ConfigError
+    from cdpr.daq.recorder import Attachment
+
+    from ..cable_lengths import pose_readings
+
+    a = Attachment.from_file(args.cable_lengths, "cable_lengths/" + Path(args.cable_lengths).name)
+    w.add_attachment(a.name, a.data, a.media_type)
+    if lengths.time_column == "t_s":
+        if first_ns is None:
+            raise ConfigError(args.cable_lengths, "column t_s", "relative times need CAN frames")
+        t_ns = first_ns + np.round(lengths.times.astype(np.float64) * 1e9).astype(np.int64)
+    else:
+        t_ns = lengths.times.astype(np.int64)
+    desc, readings = pose_readings(lengths, t_ns)
+    w.add_stream("pose", desc)
+    w.write_many(readings)
 
 
 def _read_side_tables(args: argparse.Namespace) -> dict[str, Any]:
