@@ -133,8 +133,9 @@ def motion_fit_stage(p: Points, *, samples: DynamicSamples, settings: DynamicSet
         a, b, n_c = analysis_window(int(t[0]), int(t[-1]), osc)
         win[i], cyc[i] = (a, b), n_c
         flags["too_few_cycles"][i] = n_c < osc.cycles
-        sel = (samples.pose_t_ns >= a) & (samples.pose_t_ns <= b) & samples.pose_usable
-        if n_c < 3 or sel.sum() < max(4 * pp, settings.min_frames_per_cycle * n_c):
+        lo, hi = np.searchsorted(samples.pose_t_ns, (a, b))  # frames in time order
+        n_frames = int(np.count_nonzero(samples.pose_usable[lo:hi]))
+        if n_c < 3 or n_frames < max(4 * pp, settings.min_frames_per_cycle * n_c):
             flags["motion_not_fitted"][i] = True
             pose[i] = np.nan
             continue

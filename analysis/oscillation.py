@@ -300,13 +300,16 @@ def fit_motion(
     (:func:`cdpr.analysis.harmonics.harmonic_fit`).  The phase is then turned so the moved
     coordinate's fundamental is ``A sin(theta)``.
 
-    t_cam_ns: (k,) camera times; poses: (k, 6); usable: (k,) frames that count.
+    t_cam_ns: (k,) camera times, sorted; poses: (k, 6); usable: (k,) frames that count.
     """
-    t = np.asarray(t_cam_ns, dtype=np.int64)
-    q = np.asarray(poses, dtype=np.float64)
-    var = np.asarray(pose_var, dtype=np.float64)
-    ok = np.asarray(usable, dtype=bool) & (t >= window_ns[0]) & (t <= window_ns[1])
-    ok &= np.isfinite(q).all(axis=1) & np.isfinite(var).all(axis=1) & (var > 0).all(axis=1)
+    t_all = np.asarray(t_cam_ns, dtype=np.int64)
+    lo = int(np.searchsorted(t_all, window_ns[0], side="left"))  # the frames are time-sorted
+    hi = int(np.searchsorted(t_all, window_ns[1], side="right"))
+    t = t_all[lo:hi]
+    q = np.asarray(poses, dtype=np.float64)[lo:hi]
+    var = np.asarray(pose_var, dtype=np.float64)[lo:hi]
+    ok = np.asarray(usable, dtype=bool)[lo:hi]
+    ok = ok & np.isfinite(q).all(axis=1) & np.isfinite(var).all(axis=1) & (var > 0).all(axis=1)
     idx = np.flatnonzero(ok)
     p = n_terms(n_harmonics)
     if idx.size < 4 * p:

@@ -36,7 +36,7 @@ from cdpr.analysis.stages import Corrections, PointSamples, ReduceSettings, core
 
 from . import __version__
 from .config import file_sha256, read_balance_calibration
-from .dynamic import merge_dynamic, reduce_dynamic, split_plan
+from .dynamic import merge_dynamic, reduce_dynamic, samples_of, split_plan
 from .freshness import fingerprint
 from .point_plan import PointPlan, plan_points, point_conditions
 from .points_table import points_table, steps_log
@@ -124,7 +124,9 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
     steady, moving = split_plan(plan)
     if not moving.ranges:
         return _reduce_steady(run, plan, opts)[:2]
-    df, info, out = _reduce_steady(run, steady, opts) if steady.ranges else (None, None, None)
+    df, info, out = (
+        _reduce_steady(*samples_of(run, steady), opts) if steady.ranges else (None, None, None)
+    )
     wm = None if out is None else out.meta.get("weight_model")
     return merge_dynamic(df, info, *reduce_dynamic(run, moving, opts, wm))
 

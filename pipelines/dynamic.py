@@ -51,6 +51,74 @@ def _subset(plan: PointPlan, idx: list[int]) -> PointPlan:
     )
 
 
+def samples_of(run: RunData, plan: PointPlan) -> tuple[RunData, PointPlan]:
+    """``run`` with only the load-cell samples (and the camera frames, :func:`frames_of`) within
+    ``plan``'s points, and the plan with its ranges into those samples: a reduction of some of
+    a run's points (the steady zeros of an hour of oscillations) does not pass over the rest."""
+    run = frames_of(run, plan)
+    n = len(run.t_ns)
+    if not plan.ranges:
+        return run, plan
+    idx = np.asarray(plan.ranges, dtype=np.int64)
+    mark = np.zeros(n + 1, np.int64)
+    np.add.at(mark, idx[:, 0], 1)
+    np.add.at(mark, idx[:, 1], -1)
+    sel = np.cumsum(mark)[:n] > 0
+    if sel.all():
+        return run, plan
+    new_index = np.cumsum(sel) - 1  # the kept samples' new indexes
+    starts = [int(new_index[a]) if b > a else 0 for a, b in plan.ranges]
+    ranges = [(s0, s0 + (b - a)) for s0, (a, b) in zip(starts, plan.ranges, strict=True)]
+
+    def cut(x: Any) -> Any:
+        return None if x is None else x[sel]
+
+    out = replace(
+        run,
+        t_ns=run.t_ns[sel],
+        tensions_N=run.tensions_N[sel],
+        mask_bits=run.mask_bits[sel],
+        tunnel=None if run.tunnel is None else (run.tunnel[0][sel], run.tunnel[1][sel]),
+        pressure_temperature=None
+        if run.pressure_temperature is None
+        else (run.pressure_temperature[0][sel], run.pressure_temperature[1][sel]),
+        humidity=cut(run.humidity),
+        seq=cut(run.seq),
+    )
+    return out, replace(plan, ranges=ranges)
+
+
+def frames_of(run: RunData, plan: PointPlan) -> RunData:
+    """``run`` with only the camera frames within the time spans of ``plan``'s points (each
+    reduction looks at no other frame; a 200 Hz camera over the dynamic points need not be
+    averaged again for the steady ones)."""
+    if not plan.ranges or len(run.pose_t_ns) == 0:
+        return run
+    idx = np.asarray(plan.ranges, dtype=np.int64)
+    last = len(run.t_ns) - 1
+    a = run.t_ns[np.clip(idx[:, 0], 0, last)]
+    b = run.t_ns[np.clip(idx[:, 1] - 1, 0, last)]
+    if plan.event_ns:
+        ev = np.asarray(plan.event_ns, dtype=np.int64)
+        a, b = np.minimum(a, ev[:, 0]), np.maximum(b, ev[:, 1])
+    margin = 1_000_000_000  # a camera clock offset is far below a second
+    lo = np.searchsorted(run.pose_t_ns, a - margin, side="left")
+    hi = np.searchsorted(run.pose_t_ns, b + margin, side="right")
+    keep = np.zeros(len(run.pose_t_ns) + 1, np.int64)
+    np.add.at(keep, lo, 1)
+    np.add.at(keep, hi, -1)
+    sel = np.cumsum(keep)[:-1] > 0
+    if sel.all():
+        return run
+    return replace(
+        run,
+        pose_t_ns=run.pose_t_ns[sel],
+        poses=run.poses[sel],
+        pose_cov=None if run.pose_cov is None else run.pose_cov[sel],
+        pose_bad=run.pose_bad[sel],
+    )
+
+
 def split_plan(plan: PointPlan) -> tuple[PointPlan, PointPlan]:
     """The steady points (every kind but the oscillation ones) and the oscillation points with
     the run's ``zero`` points (for the zero drift), each in run order."""
@@ -122,6 +190,7 @@ def reduce_dynamic(
     the harmonics table and the hysteresis bins for the report)."""
     from .analyze import _input_words  # the same input words as the steady points'
 
+    run = frames_of(run, plan)  # every load-cell sample stays: the points cover most of them
     rig = run.rig
     settings: DynamicSettings = getattr(opts, "dynamic", None) or DynamicSettings()
     airspeed, density = run.tunnel if run.tunnel is not None else (None, None)

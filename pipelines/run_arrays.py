@@ -335,10 +335,9 @@ def load_run(path: str | os.PathLike[str], loadcell_calibration: Any = None) -> 
                 # the camera reports [position, rotation vector in {O}]; Euler angles:
                 # dpsi = H^-1 dtheta
                 Hinv = np.linalg.inv(euler_rate_matrix(np.nan_to_num(eul)))
-                J = np.zeros((len(tp), 6, 6))
-                J[:, :3, :3] = np.eye(3)
-                J[:, 3:, 3:] = Hinv
-                pose_cov = J @ C @ np.swapaxes(J, 1, 2)
+                C[:, 3:, :] = Hinv @ C[:, 3:, :]  # J C J^T, J = diag(I, H^-1), block by block
+                C[:, :, 3:] = C[:, :, 3:] @ np.swapaxes(Hinv, 1, 2)
+                pose_cov = C
                 bad |= ~np.isfinite(pose_cov).all(axis=(1, 2))
         if (~bad).sum() >= 2:
             src = "camera (/pose stream)" + ("" if pose_cov is not None else ", no covariance")
