@@ -2,8 +2,8 @@
 
 ``write_dynamic_run(path, duration_s)`` writes what an hour of dynamic tests records: 8 load cells
 at 1 kHz (``/tensions`` with ``seq`` and the per-cable status, column blocks), the camera's pose at
-200 Hz with its covariance and a 3 ms clock offset (``/pose``, one message a frame as the pose
-camera writes them), 10 Hz tunnel conditions and the test-point events with their motion fields.
+200 Hz (``camera_hz``) with its covariance and a 3 ms clock offset (``/pose``, one message a frame
+as the pose camera writes them), 10 Hz tunnel conditions and the test-point events with their motion fields.
 The physics is the independent lab generator's (``tests/_lab_physics.py``: Newton-Euler with the
 centre of mass off P, the controller's tension distribution; ``tests/_lab_aero.py``: the aero
 model with its dynamic derivatives), on the flat optimum rig.  A block of points repeats for as
@@ -93,9 +93,10 @@ def _quat_xyzw(euler: np.ndarray) -> np.ndarray:
 
 
 def write_dynamic_run(
-    path: str | Path, duration_s: float = 3600.0, seed: int = 1
+    path: str | Path, duration_s: float = 3600.0, seed: int = 1, camera_hz: float = CAMERA_HZ
 ) -> dict[str, Any]:
-    """Write the run; returns counts per stream and the points (label, kind, start, end)."""
+    """Write the run (the camera at ``camera_hz``); returns counts per stream and the points
+    (label, kind, start, end)."""
     rng = np.random.default_rng(seed)
     nominal = LabRig.from_toml(RIG_FILE)
     true = nominal.with_body(
@@ -151,7 +152,7 @@ def write_dynamic_run(
                 readings: list[Reading] = []
                 # camera: frames on its clock, OFFSET_NS ahead; the pose at t_cam - offset
                 a_ns, b_ns = T0_NS + int(t_rel[0]), T0_NS + int(t_rel[-1])
-                tc = np.arange(a_ns + OFFSET_NS, b_ns + OFFSET_NS, 10**9 // CAMERA_HZ)
+                tc = np.arange(a_ns + OFFSET_NS, b_ns + OFFSET_NS, int(round(1e9 / camera_hz)))
                 ts = (tc - OFFSET_NS - start_ns) * 1e-9
                 Q = _pose_at(nominal, p, np.clip(ts, 0.0, None))
                 Q = Q + rng.normal(0.0, 1.0, Q.shape) * sd_pose

@@ -347,8 +347,8 @@ def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
 # ------------------------------------------------------------------------------------------------
 # dynamic (forced-oscillation) points
 # ------------------------------------------------------------------------------------------------
-LOOPS_PER_FIGURE = 8
-"""Points per hysteresis figure (``hysteresis.png``, ``hysteresis_1.png``, ...)."""
+LOOPS_PER_FIGURE = 12
+"""Points per hysteresis figure (``hysteresis.png``, ``hysteresis_1.png``, ...): 4 a row."""
 
 
 def dynamic_outputs(df: pd.DataFrame, red: dict[str, Any], folder: Path) -> dict[str, Any]:
@@ -373,8 +373,8 @@ def hysteresis_figures(loops: list[dict[str, Any]], folder: Path) -> list[str]:
     """Per wind-on oscillation point, its primary coefficients (Cm and CL in pitch, Cn and Cl in
     yaw, ...) against the instantaneous angle (deg; m for a translation) along the motion: every
     cycle faint behind (the cycle's phase bins), the cycle average bold (mean over the cycles per
-    bin) and the fitted series dashed.  One column per point, ``LOOPS_PER_FIGURE`` points per
-    file.  Returns the file names."""
+    bin) and the fitted series dashed.  Small multiples: each point a column of two panels, four
+    points a row, ``LOOPS_PER_FIGURE`` points a file.  Returns the file names."""
     from cdpr.analysis.motion import ANGULAR_AXES
 
     from .plotting import png_figure
@@ -383,15 +383,20 @@ def hysteresis_figures(loops: list[dict[str, Any]], folder: Path) -> list[str]:
     for k in range(0, len(loops), LOOPS_PER_FIGURE):
         part = loops[k : k + LOOPS_PER_FIGURE]
         name = "hysteresis.png" if k == 0 else f"hysteresis_{k // LOOPS_PER_FIGURE}.png"
-        ncol = len(part)
-        with png_figure(folder / name, 2, ncol, (3.3 * ncol + 0.6, 6.4)) as (fig, axes):
+        ncol = min(4, len(part))
+        nrow = -(-len(part) // ncol)
+        size = (3.0 * ncol + 0.5, 4.6 * nrow + 0.6)
+        with png_figure(folder / name, 2 * nrow, ncol, size, dpi=90, tight=False) as (fig, axes):
+            for j in range(len(part), nrow * ncol):  # the empty places of the last row
+                for r in (0, 1):
+                    axes[2 * (j // ncol) + r, j % ncol].set_visible(False)
             for j, d in enumerate(part):
                 ang = d["axis"] in ANGULAR_AXES
                 scale = np.degrees(1.0) if ang else 1.0
                 x = np.append(d["loop_angle"], d["loop_angle"][:1]) * scale
                 xm = np.append(d["mean_angle"], d["mean_angle"][:1]) * scale
                 for r, c in enumerate(_loop_coefficients(d["axis"])):
-                    ax = axes[r, j]
+                    ax = axes[2 * (j // ncol) + r, j % ncol]
                     i = d["coefficients"].index(c)
                     L = d["loops"][:, :, i]
                     # every cycle, closed, NaN between them: one line for all (cheap to draw)
@@ -405,18 +410,21 @@ def hysteresis_figures(loops: list[dict[str, Any]], folder: Path) -> list[str]:
                     ax.plot(
                         xm, np.append(ym, ym[:1]), "--", color="C3", lw=1.2, label="harmonic fit"
                     )
-                    ax.set_ylabel(c)
+                    ax.set_ylabel(c, fontsize=8, labelpad=1)
+                    ax.tick_params(labelsize=7)
                     ax.grid(alpha=0.3)
                     if r == 0:
                         ax.set_title(f"{d['point']}", fontsize=8)
-                    if r == 1:
-                        ax.set_xlabel(f"{d['axis']} ({'deg' if ang else 'm'})")
+                    else:
+                        ax.set_xlabel(f"{d['axis']} ({'deg' if ang else 'm'})", fontsize=8)
             axes[0, 0].legend(fontsize=7, loc="best")
             fig.suptitle(
                 "Hysteresis loops: coefficient against the instantaneous angle "
                 f"({len(part)} point(s); each cycle faint, the cycle average bold, the fit dashed)",
                 fontsize=9,
             )
+            fig.subplots_adjust(left=0.08, right=0.98, bottom=0.06, top=1 - 0.8 / size[1],
+                                wspace=0.38, hspace=0.42)  # fmt: skip
         names.append(name)
     return names
 
