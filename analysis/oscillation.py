@@ -566,6 +566,7 @@ def clock_offset(
     body: Body | None = None,
     prior_ns: float = 0.0,
     max_sd_ns: float = 100_000.0,
+    max_newton: int = 4,
 ) -> ClockOffset:
     """The camera's clock offset from the wind-off oscillations: with the right offset the cable
     wrench of a wind-off motion (inertia, gravity and the pretension's geometry, all functions of
@@ -573,10 +574,11 @@ def clock_offset(
     ``dt`` puts ``K qdot dt`` (the structure matrix at the wrong pose) and ``omega dt`` times the
     in-phase part (the phase) into it.  Per tare the six quadratures at the ``prior_ns`` offset
     and their derivatives with respect to it (:attr:`WrenchHarmonics.d_offset`: exact at the
-    fundamental to first order, the sensitivity's variation over the cycle only feeds the even
-    harmonics) give the Newton step to the estimate (generalised least squares over the
-    components with their covariance: load cells and pose); the tares' estimates are averaged with
-    their weights.  Without a tare, or with a σ above ``max_sd_ns``: not identified (offset 0
+    fundamental to first order) give a Newton step (generalised least squares over the
+    components with their covariance: load cells and pose), repeated until a step is below a
+    fifth of the σ (at most ``max_newton`` evaluations; each tare starts from the previous one's
+    estimate, so the later ones take one); the tares' estimates are averaged with their
+    weights.  Without a tare, or with a σ above ``max_sd_ns``: not identified (offset 0
     with its σ, the caller flags it)."""
     if not tares:
         return ClockOffset(
@@ -584,23 +586,29 @@ def clock_offset(
             "no wind-off oscillation (oscillation_tare) in the run",
         )  # fmt: skip
     est, sd = [], []
+    at = float(prior_ns)
     for tr in tares:  # tares, not samples
-        w0 = wrench_harmonics(
-            rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, prior_ns, tr.window_ns, body
-        )
-        p = w0.coef.shape[1]
-        sel = np.arange(6) * p + 2
-        q0 = w0.coef[:, 2]
-        s = w0.d_offset[:, 2]  # d quadrature / d offset: K qdot and the phase (per ns)
-        C = (w0.cov_load_cells + w0.cov_pose)[np.ix_(sel, sel)]
-        Ci = np.linalg.pinv(C, rcond=1e-12)
-        info = float(s @ Ci @ s)
-        if not info > 0:
-            est.append(0.0)
-            sd.append(math.inf)
-            continue
-        est.append(prior_ns - float((s @ Ci @ q0) / info))
-        sd.append(float(1.0 / math.sqrt(info)))
+        e_k, sd_k = at, math.inf
+        for _ in range(max_newton):  # Newton steps until the step is within a fifth of σ
+            w0 = wrench_harmonics(
+                rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, at, tr.window_ns, body
+            )
+            p = w0.coef.shape[1]
+            sel = np.arange(6) * p + 2
+            q0 = w0.coef[:, 2]
+            s = w0.d_offset[:, 2]  # d quadrature / d offset: K qdot and the phase (per ns)
+            C = (w0.cov_load_cells + w0.cov_pose)[np.ix_(sel, sel)]
+            Ci = np.linalg.pinv(C, rcond=1e-12)
+            info = float(s @ Ci @ s)
+            if not info > 0:
+                break
+            step = -float((s @ Ci @ q0) / info)
+            e_k, sd_k = at + step, float(1.0 / math.sqrt(info))
+            at = e_k
+            if abs(step) < max(0.2 * sd_k, 1.0):
+                break
+        est.append(e_k)
+        sd.append(sd_k)
     e, d = np.asarray(est), np.asarray(sd)
     fin = np.isfinite(d)
     if not fin.any():
