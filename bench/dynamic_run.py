@@ -34,8 +34,10 @@ from _lab_physics import (  # noqa: E402
     structure_matrix,
 )
 
-from cdpr.daq.mcap_writer import McapRunWriter  # noqa: E402
-from cdpr.daq.source import FieldDescription, Reading, StreamDescription  # noqa: E402
+from cdpr.daq.source import Reading  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "bench"))
+from campaign_run import _quat_xyzw, run_writer  # noqa: E402
 
 RIG_FILE = ROOT / "data_samples" / "flat_optimum.toml"
 RATE_HZ = 1000
@@ -85,13 +87,6 @@ def _pose_at(rig: LabRig, p: dict[str, Any], t_s: np.ndarray) -> np.ndarray:
     return Motion("pitch", AMPLITUDE, p["f"], 60, 2, tuple(q0), 0.0).states(t_s)[0]
 
 
-def _quat_xyzw(euler: np.ndarray) -> np.ndarray:
-    r, p, y = euler[:, 0] / 2, euler[:, 1] / 2, euler[:, 2] / 2
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.stack([sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-                     cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy], axis=1)  # fmt: skip
-
-
 def write_dynamic_run(
     path: str | Path, duration_s: float = 3600.0, seed: int = 1, camera_hz: float = CAMERA_HZ
 ) -> dict[str, Any]:
@@ -109,21 +104,7 @@ def write_dynamic_run(
     cables = nominal.cable_names
     sd_pose = np.array([0.05e-3] * 3 + [np.deg2rad(0.01)] * 3)
     cov = np.diag(sd_pose**2).reshape(-1).tolist()
-    w = McapRunWriter(Path(path), chunk_size=1024 * 1024, background_compression=True)
-    w.add_attachment(f"rig/{RIG_FILE.name}", RIG_FILE.read_bytes())
-    fields = {f"T_{c}_N": FieldDescription("N") for c in cables}
-    fields.update({f"status_{c}": FieldDescription("", "int64") for c in cables})
-    fields["seq"] = FieldDescription("", "int64")
-    w.add_stream("tensions", StreamDescription(fields, RATE_HZ, "load-cell tensions"))
-    w.add_stream(
-        "tunnel",
-        StreamDescription(
-            {"airspeed_mps": FieldDescription("m/s"), "density_kgpm3": FieldDescription("kg/m^3")},
-            TUNNEL_HZ,
-        ),
-    )
-    w.add_stream("pose")
-    w.add_stream("events")
+    w = run_writer(Path(path), RIG_FILE.name, RIG_FILE.read_bytes(), cables, RATE_HZ)
     counts = {"tensions": 0, "pose": 0, "tunnel": 0, "events": 0}
     points: list[tuple[str, str, int, int]] = []
     t = 0.0

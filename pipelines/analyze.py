@@ -131,14 +131,14 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
     return merge_dynamic(df, info, *reduce_dynamic(run, moving, opts, wm))
 
 
-def _reduce_steady(
+def run_point_inputs(
     run: RunData, plan: PointPlan, opts: AnalyzeOptions
-) -> tuple[pd.DataFrame, dict[str, Any], Points]:
-    """The steady points of ``plan`` through the steady order: their table, the summary parts
-    and the reduced points."""
-    rig = run.rig
+) -> tuple[Points, dict[str, Any]]:
+    """The core's inputs of ``plan``'s points from the run's samples
+    (:func:`cdpr.analysis.point_inputs.points_from_samples`; the steady and the dynamic
+    reductions both start here)."""
     airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
-    pts, extra = points_from_samples(
+    return points_from_samples(
         kind=plan.kind,
         ranges=plan.ranges,
         t_ns=run.t_ns,
@@ -152,6 +152,15 @@ def _reduce_steady(
         pose_sd_fallback=None if run.pose_cov is not None else np.array(opts.pose_sd_fallback),
         pose_bad=run.pose_bad,
     )
+
+
+def _reduce_steady(
+    run: RunData, plan: PointPlan, opts: AnalyzeOptions
+) -> tuple[pd.DataFrame, dict[str, Any], Points]:
+    """The steady points of ``plan`` through the steady order: their table, the summary parts
+    and the reduced points."""
+    rig = run.rig
+    pts, extra = run_point_inputs(run, plan, opts)
     arrays = {"input_flags": _input_words(run, plan, pts["input_flags"])}
     corrections = None
     if opts.corrections:

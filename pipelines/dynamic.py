@@ -29,7 +29,6 @@ from cdpr.analysis.oscillation import (
     InertiaRemoval,
     sample_clock,
 )
-from cdpr.analysis.point_inputs import points_from_samples
 from cdpr.analysis.reduction import Points, run_stages, with_updates
 from cdpr.analysis.stages import Corrections, DynamicSamples, dynamic_stages
 
@@ -188,26 +187,12 @@ def reduce_dynamic(
     """The oscillation points of ``plan`` (with its zeros) through the dynamic order: their rows
     of the per-point table and the summary parts (stage log, the clock offset, the run's clock,
     the harmonics table and the hysteresis bins for the report)."""
-    from .analyze import _input_words  # the same input words as the steady points'
+    from .analyze import _input_words, run_point_inputs  # the steady points' inputs and words
 
     run = frames_of(run, plan)  # every load-cell sample stays: the points cover most of them
     rig = run.rig
     settings: DynamicSettings = getattr(opts, "dynamic", None) or DynamicSettings()
-    airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
-    pts, extra = points_from_samples(
-        kind=plan.kind,
-        ranges=plan.ranges,
-        t_ns=run.t_ns,
-        tensions_N=run.tensions_N,
-        mask_bits=run.mask_bits,
-        airspeed_mps=airspeed,
-        density_kgpm3=density,
-        pose_t_ns=run.pose_t_ns,
-        poses=run.poses,
-        pose_cov=run.pose_cov,
-        pose_sd_fallback=None if run.pose_cov is not None else np.array(opts.pose_sd_fallback),
-        pose_bad=run.pose_bad,
-    )
+    pts, extra = run_point_inputs(run, plan, opts)
     s = len(plan.kind)
     mo = plan.motion
     arrays: dict[str, Any] = {

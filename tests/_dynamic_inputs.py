@@ -18,8 +18,9 @@ from cdpr.analysis.point_inputs import points_from_samples
 from cdpr.analysis.reduction import Points, with_updates
 
 
-def dynamic_inputs(case: lg.LabCase) -> tuple[Points, DynamicSamples, list[str]]:
-    """Points (every point of the case, zeros included), the samples, the labels."""
+def lab_samples(case: lg.LabCase) -> tuple[np.ndarray, ...]:
+    """The case's load cells (times, tensions by its calibration) and camera (times, poses,
+    covariance (k, 6, 6)), decoded by the generator's own reader."""
     f = case.files
     cal = tomllib.loads(f["calibration"].read_text())["calibration"]
     t_ns, counts = lg.read_candump(f["can_log"])
@@ -28,6 +29,13 @@ def dynamic_inputs(case: lg.LabCase) -> tuple[Points, DynamicSamples, list[str]]
     tp = poses["t_ns"].to_numpy(np.int64)
     q = poses[list(lg.POSE_COLUMNS)].to_numpy()
     cov = poses[list(lg.COV_COLUMNS)].to_numpy().reshape(-1, 6, 6)
+    return t_ns, T, tp, q, cov
+
+
+def dynamic_inputs(case: lg.LabCase) -> tuple[Points, DynamicSamples, list[str]]:
+    """Points (every point of the case, zeros included), the samples, the labels."""
+    f = case.files
+    t_ns, T, tp, q, cov = lab_samples(case)
     tun = pd.read_csv(f["tunnel"])
     tt = tun["t_ns"].to_numpy(np.int64)
     V = np.interp(t_ns, tt, tun["airspeed_mps"].to_numpy())

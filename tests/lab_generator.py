@@ -817,9 +817,7 @@ def generate(
     files["matrix"].write_text(matrix_text(plan, files["rig"].name, geometry, transition_s, name))
     if enc_t is not None and enc_L is not None:
         files["cable_lengths"] = out / "lengths.csv"
-        write_table(
-            files["cable_lengths"], enc_t, [f"L_{c}_m" for c in nominal.cable_names], enc_L
-        )
+        write_table(files["cable_lengths"], enc_t, [f"L_{c}_m" for c in nominal.cable_names], enc_L)
     truth: dict[str, Any] = {
         "generator": "tests/lab_generator.py (independent of cdpr: _lab_physics, _lab_aero, "
         "_lab_noise)",

@@ -37,8 +37,16 @@ from cdpr.analysis.oscillation import NAMED_DERIVATIVES  # noqa: E402
 def specs(scale: float) -> tuple[lg.OscSpec, ...]:
     """The issue's points with ``scale`` of their cycles (at least 4)."""
     return tuple(
-        lg.OscSpec(s.axis, s.amplitude, s.frequency_Hz, s.speeds_mps, max(4, round(s.cycles * scale)),
-                   s.aoa_deg, s.sideslip_deg, s.settling_cycles)  # fmt: skip
+        lg.OscSpec(
+            s.axis,
+            s.amplitude,
+            s.frequency_Hz,
+            s.speeds_mps,
+            max(4, round(s.cycles * scale)),
+            s.aoa_deg,
+            s.sideslip_deg,
+            s.settling_cycles,
+        )  # fmt: skip
         for s in lg.ISSUE22_SPECS
     )
 
@@ -101,7 +109,9 @@ def main(argv: list[str] | None = None) -> int:
             seed = a.seed0 + k
             work = root / f"seed{seed}"
             enc = lg.Encoders() if "lengths" in poses else None
-            case = lg.oscillation_case(work / "case", specs(a.cycles_scale), seed=seed, encoders=enc)
+            case = lg.oscillation_case(
+                work / "case", specs(a.cycles_scale), seed=seed, encoders=enc
+            )
             for pose in poses:
                 rows += rows_of(case, run_case(case, work, pose), pose, seed)
             print(f"seed {seed}: {len(rows)} derivatives so far, {time.perf_counter() - t0:.0f} s",

@@ -57,7 +57,7 @@ def _poses(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(euler (k, 3), position (k, 3), cov (k, 6, 6), status) of /pose, by the mcap library."""
     pos, quat, cov, st = [], [], [], []
     with open(path, "rb") as fh:
-        for _, ch, msg in make_reader(fh).iter_messages(topics=["/pose"]):
+        for _, _ch, msg in make_reader(fh).iter_messages(topics=["/pose"]):
             b = json.loads(msg.data)
             p, o = b["pose"]["position"], b["pose"]["orientation"]
             pos.append([p["x"], p["y"], p["z"]])
@@ -109,7 +109,9 @@ def test_a_jumped_length_marks_its_frame(small: lg.LabCase, tmp_path: Path) -> N
     "case",
     ["both sources", "no sd", "missing column", "negative length"],
 )
-def test_refusals_are_one_line_and_write_nothing(small: lg.LabCase, tmp_path: Path, case: str) -> None:
+def test_refusals_are_one_line_and_write_nothing(
+    small: lg.LabCase, tmp_path: Path, case: str
+) -> None:
     csv = tmp_path / "lengths.csv"
     _lengths_csv(small, csv, 20e-6)
     text = csv.read_text().splitlines()

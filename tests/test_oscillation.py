@@ -7,12 +7,11 @@ controller and aero model, a 3 ms camera clock offset, 0.05 mm / 0.01 deg camera
 from __future__ import annotations
 
 import math
-import tomllib
 
 import lab_generator as lg
 import numpy as np
-import pandas as pd
 import pytest
+from _dynamic_inputs import lab_samples
 
 from cdpr.analysis.harmonics import grid_phases, harmonics_from_grid
 from cdpr.analysis.motion import Oscillation
@@ -144,13 +143,8 @@ def lab(tmp_path_factory: pytest.TempPathFactory):
     )
     case = lg.oscillation_case(out, specs, seed=21)
     f = case.files
-    cal = tomllib.loads(f["calibration"].read_text())["calibration"]
-    t_ns, counts = lg.read_candump(f["can_log"])
-    T = (counts - np.array(cal["offset_counts"])) * np.array(cal["gain_N_per_count"])
-    df = pd.read_csv(f["poses"])
-    tc = df["t_ns"].to_numpy(np.int64)
-    q = df[list(lg.POSE_COLUMNS)].to_numpy()
-    var = np.diagonal(df[list(lg.COV_COLUMNS)].to_numpy().reshape(-1, 6, 6), axis1=1, axis2=2)
+    t_ns, T, tc, q, cov = lab_samples(case)
+    var = np.diagonal(cov, axis1=1, axis2=2)
     pts = {p["point"]: p for p in case.truth["points"]}
     fits, wins = {}, {}
     for lab_, p in pts.items():
