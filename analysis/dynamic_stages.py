@@ -139,9 +139,15 @@ def motion_fit_stage(p: Points, *, samples: DynamicSamples, settings: DynamicSet
             flags["motion_not_fitted"][i] = True
             pose[i] = np.nan
             continue
-        f = fit_motion(
-            samples.pose_t_ns, samples.poses, samples.pose_var, samples.pose_usable, (a, b), osc, H
-        )
+        try:
+            f = fit_motion(
+                samples.pose_t_ns, samples.poses, samples.pose_var, samples.pose_usable, (a, b),
+                osc, H,
+            )  # fmt: skip
+        except InputError:  # too few usable frames or cycles in the window: NaN and the flag
+            flags["motion_not_fitted"][i] = True
+            pose[i] = np.nan
+            continue
         fits[i] = f
         amp[i], sd_amp[i] = f.amplitude, f.sd_amplitude
         fr[i], sd_fr[i] = f.omega_rad_s / (2 * math.pi), f.sd_omega_rad_s / (2 * math.pi)
@@ -224,11 +230,13 @@ def wrench_harmonics_stage(
     harmonics (:func:`cdpr.analysis.oscillation.wrench_harmonics`), the tensions less the zero
     drift when that stage ran.  Adds ``cable_harmonics`` (objects), ``tension_outside_samples``,
     ``min_tension_margin_N``.  Flag ``tension_limit_in_cycle``: a tension outside its limits at
-    some sample of the window."""
+    some sample of the window; ``cable_wrench_not_fitted`` (too few usable samples or cycles in
+    the window: NaN)."""
     s = p.n
     out = _objects(s)
     outside = np.zeros(s, np.int64)
     margin = np.full(s, np.nan)
+    no_fit = np.zeros(s, bool)
     drift = p.arrays.get("zero_drift_N")
     for i in np.flatnonzero(_moving(p)):  # points, not samples
         f = p["motion_fit"][i]
@@ -239,9 +247,13 @@ def wrench_harmonics_stage(
             T = T - drift[i]
         a, b = (int(x) for x in p["window_ns"][i])
         off = float(np.nan_to_num(p["clock_offset_ns"][i]))
-        w = wrench_harmonics(
-            rig, t, T, u, f, off, (a, b), body, settings.loop_bins, settings.n_grid
-        )
+        try:
+            w = wrench_harmonics(
+                rig, t, T, u, f, off, (a, b), body, settings.loop_bins, settings.n_grid
+            )
+        except InputError:  # too few usable load-cell samples or cycles in the window
+            no_fit[i] = True
+            continue
         out[i] = w
         outside[i], margin[i] = w.tension_outside, w.min_margin_N
     return with_updates(
@@ -251,7 +263,7 @@ def wrench_harmonics_stage(
             "tension_outside_samples": outside,
             "min_tension_margin_N": margin,
         },
-        flag={"tension_limit_in_cycle": outside > 0},
+        flag={"tension_limit_in_cycle": outside > 0, "cable_wrench_not_fitted": no_fit},
     )
 
 

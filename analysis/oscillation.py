@@ -590,9 +590,12 @@ def clock_offset(
     for tr in tares:  # tares, not samples
         e_k, sd_k = at, math.inf
         for _ in range(max_newton):  # Newton steps until the step is within a fifth of σ
-            w0 = wrench_harmonics(
-                rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, at, tr.window_ns, body
-            )
+            try:
+                w0 = wrench_harmonics(
+                    rig, tr.t_ns, tr.tensions_N, tr.usable, tr.motion, at, tr.window_ns, body
+                )
+            except InputError:  # a tare without enough usable samples gives nothing
+                break
             p = w0.coef.shape[1]
             sel = np.arange(6) * p + 2
             q0 = w0.coef[:, 2]

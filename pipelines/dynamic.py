@@ -470,6 +470,7 @@ DYNAMIC_FLAG_LINES: dict[str, str] = {
     "motion_amplitude_off_plan": "the fitted motion's amplitude is off the plan",
     "motion_frequency_off_plan": "the fitted motion's frequency is off the plan",
     "motion_not_fitted": "no motion fitted (too few camera frames or cycles): no derivatives",
+    "cable_wrench_not_fitted": "too few usable load-cell samples or cycles: no derivatives",
     "clock_offset_not_identified": "the points reduced without the camera's clock offset",
     "tension_limit_in_cycle": "a tension left its limits during the cycle",
     "no_inertia_tare": "no wind-off oscillation serves the point: the rig file's mass and inertia "

@@ -257,3 +257,49 @@ def test_derivatives_of_the_lab_points_against_their_truth(lab) -> None:
         else:  # the lab's yaw report: Cn out of phase = -Cnr cos a + Cnp sin a + Cnbdot
             lin = o["linear"]
             assert d.named["Cnb"][0] == pytest.approx(lin["Cn_inphase"], abs=4 * d.named["Cnb"][1])
+
+
+def test_short_points_missing_tares_and_no_offset_are_flagged_not_silent(lab) -> None:
+    """Through the dynamic order on the lab's samples: a point cut after 5 of its 16 cycles is
+    analysed on those (flag too_few_cycles), one cut after 2 is not (motion_not_fitted, NaN, no
+    crash); an oscillation point without its tare takes the model's inertia (no_inertia_tare,
+    inertia_method model); a run without any wind-off oscillation has no clock offset
+    (clock_offset_not_identified, none removed)."""
+    from _dynamic_inputs import dynamic_inputs
+
+    from cdpr.analysis.aero import ModelGeometry
+    from cdpr.analysis.reduction import run_stages, with_updates
+    from cdpr.analysis.stages import dynamic_stages
+
+    pts, samples, labels = dynamic_inputs(lab["case"])
+    i = labels.index("osc-pitch-A5d-f2-a0-v41.42")
+    j = labels.index("osc-yaw-A0.5d-f1-a4-v25.51")
+    a, _ = samples.ranges[i]
+    ranges = list(samples.ranges)
+    ranges[i] = (a, a + int((2 + 5.5) / 2.0 * 1000))  # 2 settling cycles, then 5.5 at 2 Hz
+    a, _ = samples.ranges[j]
+    ranges[j] = (a, a + int((2 + 2.5) / 1.0 * 1000))
+    tix = pts["inertia_tare_index"].copy()
+    tix[j] = -1
+    pts = with_updates(pts, arrays={"inertia_tare_index": tix})
+    geo = ModelGeometry(area_m2=S, span_m=B, chord_m=C)
+    from dataclasses import replace
+
+    out = run_stages(pts, dynamic_stages(lab["rig"], geo, replace(samples, ranges=ranges)))
+    assert "too_few_cycles" in out.flags[i] and out["cycles_analysed"][i] == 5
+    assert np.isfinite(out["Cma"][i]) and out["inertia_method"][i] == "tare"
+    assert "motion_not_fitted" in out.flags[j] and np.isnan(out["Cnb"][j])
+    # the yaw point with its tare named away but a cut motion: nothing fitted, still no crash;
+    # the pitch point without its tare: the model
+    tix2 = pts["inertia_tare_index"].copy()
+    tix2[i] = -1
+    out2 = run_stages(with_updates(pts, arrays={"inertia_tare_index": tix2}),
+                      dynamic_stages(lab["rig"], geo, samples))  # fmt: skip
+    assert "no_inertia_tare" in out2.flags[i] and out2["inertia_method"][i] == "model"
+    assert np.isfinite(out2["Cma"][i])
+    # no wind-off oscillation at all: the offset is not identified, and said
+    kinds = np.where(pts["kind"] == "oscillation_tare", "zero", pts["kind"])
+    out3 = run_stages(with_updates(pts, arrays={"kind": kinds}),
+                      dynamic_stages(lab["rig"], geo, samples))  # fmt: skip
+    assert "clock_offset_not_identified" in out3.flags[i]
+    assert out3["clock_offset_ns"][i] == 0.0
