@@ -34,7 +34,7 @@ FloatArray = NDArray[np.float64]
 
 def wind_points(p: Points) -> NDArray[np.bool_]:
     """Points that carry an aerodynamic load of interest (wind on, or not known to be off)."""
-    return np.isin(p["kind"], ("wind_on", "unknown"))
+    return np.isin(p["kind"], ("wind_on", "oscillation", "unknown"))
 
 
 def _records(p: Points, *recs: CorrectionRecord) -> dict[str, Any]:
@@ -163,7 +163,8 @@ def flow_conditions_stage(p: Points, *, chord_m: float, wind_off_mps: float = 1.
     s = p.n
     nan = np.full(s, np.nan)
     V = p["airspeed_mps"]
-    windy = np.isin(p["kind"], ("wind_on", "windage")) & np.isfinite(V) & (V > wind_off_mps)
+    windy = np.isin(p["kind"], ("wind_on", "windage", "oscillation"))
+    windy &= np.isfinite(V) & (V > wind_off_mps)
     rh = np.asarray(p.arrays.get("relative_humidity", nan), dtype=np.float64)
     fc = flow_conditions(
         V,

@@ -43,9 +43,19 @@ from .correction_stages import (
     zero_drift_stage,
 )
 from .corrections import WallParameters
+from .dynamic_stages import (
+    DynamicSamples,
+    balance_harmonics_stage,
+    clock_offset_stage,
+    derivatives_stage,
+    inertia_removal_stage,
+    motion_fit_stage,
+    wrench_harmonics_stage,
+)
 from .dynamics import inertia_wrench
 from .errors import InputError
 from .kinematics import structure_matrix
+from .oscillation import DEFAULT_DYNAMIC, Body, DynamicSettings
 from .reduction import (
     POSE,
     POSE_COV,
@@ -72,12 +82,15 @@ from .uncertainty import expanded_uncertainty, propagate
 from .weight import WeightModel, fit_weight_model, weight_model_note
 
 __all__ = [
+    "DYNAMIC_STAGES",
     "STEADY_STAGES",
+    "DynamicSamples",
     "Corrections",
     "SystematicInputs",
     "PointSamples",
     "ReduceSettings",
     "core_stages",
+    "dynamic_stages",
     "flow_conditions_stage",
     "repeatability_stage",
     "spectrum_stage",
@@ -642,13 +655,88 @@ RUNS_WHEN: dict[str, str] = {
 """When a stage of :data:`STEADY_STAGES` is bound by :func:`core_stages` (else always)."""
 
 
-def stage_table() -> str:
-    """The canonical order as a Markdown table: stage, the pure function it wraps, when it runs
-    (docs/analysis.md prints this; a test keeps the two equal)."""
+DYNAMIC_STAGES: tuple[Callable[..., Points], ...] = (
+    input_flags,
+    zero_drift_stage,
+    motion_fit_stage,
+    clock_offset_stage,
+    wrench_harmonics_stage,
+    inertia_removal_stage,
+    flow_conditions_stage,
+    balance_harmonics_stage,
+    derivatives_stage,
+)
+"""The one order of a dynamic (forced-oscillation) point: the run's ``oscillation`` and
+``oscillation_tare`` points (its ``zero`` points ride along for the zero drift).  The steady
+points of the same run keep :data:`STEADY_STAGES`."""
+
+DYNAMIC_RUNS_WHEN: dict[str, str] = {
+    "flow_conditions": "with the corrections (`--matrix`)",
+    "zero_drift": "always (without the corrections: flags `uncorrected`)",
+    "balance_interaction": "always (logged when no balance calibration is given)",
+}
+"""When a stage of :data:`DYNAMIC_STAGES` is bound by :func:`dynamic_stages` (else always)."""
+
+
+def dynamic_stages(
+    rig: Rig,
+    geometry: ModelGeometry | None,
+    samples: DynamicSamples,
+    settings: DynamicSettings = DEFAULT_DYNAMIC,
+    *,
+    body: Body | None = None,
+    interaction: Any = None,
+    second_order: Any = None,
+    corrections: Corrections | None = None,
+) -> list[Stage]:
+    """The stages of :data:`DYNAMIC_STAGES` with a run's settings bound, in that order.
+
+    samples: the run's samples (the load cells on their own clock, the camera's frames); body:
+    the mass properties for gravity and the model inertia (the weight model's mass and centre of
+    mass when the steady points fitted one; default the rig file's); interaction / second_order:
+    the balance calibration; corrections: with ``cdpr analyze --matrix`` (the zero drift and the
+    flow conditions)."""
+    b = body or Body.of(rig)
+    bound: dict[Callable[..., Points], Stage | None] = {
+        input_flags: input_flags,
+        zero_drift_stage: functools.partial(zero_drift_stage, apply=corrections is not None),
+        motion_fit_stage: functools.partial(motion_fit_stage, samples=samples, settings=settings),
+        clock_offset_stage: functools.partial(
+            clock_offset_stage, rig=rig, samples=samples, settings=settings, body=b
+        ),
+        wrench_harmonics_stage: functools.partial(
+            wrench_harmonics_stage, rig=rig, samples=samples, settings=settings, body=b
+        ),
+        inertia_removal_stage: functools.partial(inertia_removal_stage, settings=settings),
+        flow_conditions_stage: None
+        if corrections is None or geometry is None
+        else functools.partial(
+            flow_conditions_stage, chord_m=geometry.chord_m, wind_off_mps=settings.wind_off_mps
+        ),
+        balance_harmonics_stage: functools.partial(
+            balance_harmonics_stage,
+            interaction=interaction,
+            second_order=second_order,
+            n_grid=settings.n_grid,
+        ),
+        derivatives_stage: functools.partial(
+            derivatives_stage, geometry=geometry, settings=settings
+        ),
+    }
+    return [st for key in DYNAMIC_STAGES if (st := bound[key]) is not None]
+
+
+def stage_table(order: str = "steady") -> str:
+    """A canonical order as a Markdown table: stage, the pure function it wraps, when it runs
+    (``order``: ``"steady"`` or ``"dynamic"``; docs/analysis.md prints both; a test keeps them
+    equal)."""
+    stages, when = (
+        (STEADY_STAGES, RUNS_WHEN) if order == "steady" else (DYNAMIC_STAGES, DYNAMIC_RUNS_WHEN)
+    )
     rows = ["| # | stage | wraps | runs |", "|---|---|---|---|"]
-    for i, st in enumerate(STEADY_STAGES, 1):
+    for i, st in enumerate(stages, 1):
         name = st.stage_name  # type: ignore[attr-defined]
         fn = st.wraps  # type: ignore[attr-defined]
         target = f"`{fn.__module__.removeprefix('cdpr.')}.{fn.__qualname__}`"
-        rows.append(f"| {i} | `{name}` | {target} | {RUNS_WHEN.get(name, 'always')} |")
+        rows.append(f"| {i} | `{name}` | {target} | {when.get(name, 'always')} |")
     return "\n".join(rows)

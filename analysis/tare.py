@@ -87,8 +87,9 @@ TARE_POSE_SD_REL: float = 0.5
 """The stiffness model's relative σ for the deflection between a point and its tare
 (:func:`tare_pose`): the cables' EA and the geometry may be known to a few per cent, but the
 frame's compliance, the cables' sag and their end fittings are not modelled (0.2 made the chi-square
-check below fire on the virtual rig's own alpha sweep).  Where the model is off by more than this, the camera sees it (the
-chi-square check at 0.1 %) and its measured difference is used instead, flagged
+check below fire on the virtual rig's own alpha sweep).  Where the model is off by more than
+this, the camera sees it (the chi-square check at 0.1 %) and its measured difference is used
+instead, flagged
 ``tare_pose_model_disagrees``."""
 
 

@@ -118,21 +118,7 @@ def write_campaign_run(
     sd_pose = np.array([0.05e-3] * 3 + [np.deg2rad(0.01)] * 3)
     cov = np.diag(sd_pose**2).reshape(-1).tolist()
     path = Path(path)
-    w = McapRunWriter(path, chunk_size=1024 * 1024, background_compression=True)
-    w.add_attachment(f"rig/{RIG_FILE.name}", text.encode())
-    fields = {f"T_{c}_N": FieldDescription("N") for c in CABLES}
-    fields.update({f"status_{c}": FieldDescription("", "int64") for c in CABLES})
-    fields["seq"] = FieldDescription("", "int64")
-    w.add_stream("tensions", StreamDescription(fields, RATE_HZ, "load-cell tensions"))
-    w.add_stream(
-        "tunnel",
-        StreamDescription(
-            {"airspeed_mps": FieldDescription("m/s"), "density_kgpm3": FieldDescription("kg/m^3")},
-            TUNNEL_HZ,
-        ),
-    )
-    w.add_stream("pose")
-    w.add_stream("events")
+    w = run_writer(path, RIG_FILE.name, text.encode(), CABLES)
     counts = {"tensions": 0, "pose": 0, "tunnel": 0, "events": 0}
     win_ns = int(window_s * 1e9)
     dt = 10**9 // RATE_HZ
@@ -189,6 +175,30 @@ def write_campaign_run(
     finally:
         w.finish()
     return {"counts": counts, "plan": plan, "path": str(path)}
+
+
+def run_writer(
+    path: Path, rig_name: str, rig_bytes: bytes, cables: Any, rate_hz: float = RATE_HZ
+) -> McapRunWriter:
+    """The project's writer with the rig attached and the streams of a bench run: ``tensions``
+    (``T_<cable>_N``, ``status_<cable>``, ``seq``: column blocks), ``tunnel`` (airspeed,
+    density), ``pose``, ``events``."""
+    w = McapRunWriter(path, chunk_size=1024 * 1024, background_compression=True)
+    w.add_attachment(f"rig/{rig_name}", rig_bytes)
+    fields = {f"T_{c}_N": FieldDescription("N") for c in cables}
+    fields.update({f"status_{c}": FieldDescription("", "int64") for c in cables})
+    fields["seq"] = FieldDescription("", "int64")
+    w.add_stream("tensions", StreamDescription(fields, rate_hz, "load-cell tensions"))
+    w.add_stream(
+        "tunnel",
+        StreamDescription(
+            {"airspeed_mps": FieldDescription("m/s"), "density_kgpm3": FieldDescription("kg/m^3")},
+            TUNNEL_HZ,
+        ),
+    )
+    w.add_stream("pose")
+    w.add_stream("events")
+    return w
 
 
 def _quat_xyzw(euler: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ from cdpr.analysis.aero import ModelGeometry, transfer_moment
 from cdpr.analysis.balance import SteadyRule, interpolate_at
 from cdpr.analysis.conventions import WRENCH_COLUMNS
 from cdpr.analysis.errors import CdprError, ConfigError
+from cdpr.analysis.oscillation import DynamicSettings
 from cdpr.analysis.point_inputs import points_from_samples
 from cdpr.analysis.reduction import POSE, Points, run_stages, with_updates
 from cdpr.analysis.rotations import rotation_from_euler
@@ -41,12 +42,20 @@ from cdpr.analysis.stages import (
 
 from . import __version__
 from .config import file_sha256, read_balance_calibration, read_balance_fit
+from .dynamic import merge_dynamic, reduce_dynamic, samples_of, split_plan
 from .freshness import fingerprint
 from .online_compare import compare_online
 from .point_plan import PointPlan, plan_points, point_conditions
 from .points_table import points_table, steps_log
 from .run_arrays import RunData, check_recalibration, load_run
-from .run_report import camera_pose_error, run_plots, run_report, spectrum_plots, warning_lines
+from .run_report import (
+    camera_pose_error,
+    dynamic_outputs,
+    run_plots,
+    run_report,
+    spectrum_plots,
+    warning_lines,
+)
 from .tunnel_section import TunnelSection
 
 __all__ = ["AnalyzeOptions", "analyze_run", "check_recalibration", "reduce_run", "run_fingerprint"]
@@ -99,6 +108,7 @@ class AnalyzeOptions:
     loadcell_calibration_file: str | None = None
     loadcell_calibration_from: str | None = None
     instruments: Any = None
+    dynamic: DynamicSettings = field(default_factory=DynamicSettings)
 
 
 def _input_words(run: RunData, plan: PointPlan, words: Any) -> np.ndarray:
@@ -119,8 +129,8 @@ def _input_words(run: RunData, plan: PointPlan, words: Any) -> np.ndarray:
 
 def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The per-point table of one run and the summary parts of the reduction (stage log, weight
-    model, warnings, the spectra for the figures)."""
-    rig = run.rig
+    model, warnings, the spectra for the figures): the steady points through the steady order,
+    the oscillation points through the dynamic one (:mod:`cdpr.pipelines.dynamic`)."""
     plan = plan_points(run, opts.rule)
     if not plan.ranges:
         raise ConfigError(
@@ -128,8 +138,24 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
             "/tensions",
             f"no test point ({plan.source}): run too short or never steady?",
         )
+    steady, moving = split_plan(plan)
+    if not moving.ranges:
+        return _reduce_steady(run, plan, opts)[:2]
+    df, info, out = (
+        _reduce_steady(*samples_of(run, steady), opts) if steady.ranges else (None, None, None)
+    )
+    wm = None if out is None else out.meta.get("weight_model")
+    return merge_dynamic(df, info, *reduce_dynamic(run, moving, opts, wm))
+
+
+def run_point_inputs(
+    run: RunData, plan: PointPlan, opts: AnalyzeOptions
+) -> tuple[Points, dict[str, Any]]:
+    """The core's inputs of ``plan``'s points from the run's samples
+    (:func:`cdpr.analysis.point_inputs.points_from_samples`; the steady and the dynamic
+    reductions both start here)."""
     airspeed, density = run.tunnel if run.tunnel is not None else (None, None)
-    pts, extra = points_from_samples(
+    return points_from_samples(
         kind=plan.kind,
         ranges=plan.ranges,
         t_ns=run.t_ns,
@@ -144,6 +170,15 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         pose_bad=run.pose_bad,
         pose_sd_word="pose_cov_nominal" if opts.pose_sd_from == "paper" else "pose_cov_stated",
     )
+
+
+def _reduce_steady(
+    run: RunData, plan: PointPlan, opts: AnalyzeOptions
+) -> tuple[pd.DataFrame, dict[str, Any], Points]:
+    """The steady points of ``plan`` through the steady order: their table, the summary parts
+    and the reduced points."""
+    rig = run.rig
+    pts, extra = run_point_inputs(run, plan, opts)
     arrays = {"input_flags": _input_words(run, plan, pts["input_flags"])}
     corrections = None
     if opts.corrections:
@@ -206,7 +241,7 @@ def reduce_run(run: RunData, opts: AnalyzeOptions) -> tuple[pd.DataFrame, dict[s
         if opts.corrections
         else "not applied (no test matrix given: cdpr analyze --matrix)",
     }
-    return df, info
+    return df, info, out
 
 
 def systematic_sources(run: RunData, opts: AnalyzeOptions) -> dict[str, str]:
@@ -366,7 +401,7 @@ def analyze_run(
             "points": len(df),
             "check_max_abs_dT_N": float(dmax.max()) if dmax.notna().any() else float("nan"),
             "check_pass": bool((dmax.dropna() <= opts.reduce.check_limit_N).all()),
-            "reduction": {k: v for k, v in red.items() if k != "_spectra"},
+            "reduction": {k: v for k, v in red.items() if not k.startswith("_")},
             "online": online,
         }
         pose_err = camera_pose_error(run)
@@ -381,8 +416,9 @@ def analyze_run(
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
         run_plots(run, df, tmp)
         summary["spectra_figures"] = spectrum_plots(run, df, red.get("_spectra"), tmp)
+        summary["dynamic_outputs"] = dynamic_outputs(df, red, tmp)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
-        (tmp / "report.md").write_text(run_report(run, df, summary))
+        (tmp / "report.md").write_text(run_report(run, df, summary, red.get("_harmonics")))
         if final.exists():
             shutil.rmtree(final)
         os.replace(tmp, final)

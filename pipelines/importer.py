@@ -60,6 +60,8 @@ class ImportRequest:
     raw_only: bool = False
     rate_hz: float = 0.0
     label: str = "import"
+    cable_lengths: str | None = None
+    length_sd_m: float | None = None
 
 
 @dataclass
@@ -90,6 +92,12 @@ def import_run(req: ImportRequest) -> ImportReport:
         cal = dict(read_calibration_file(req.calibration).settings(rig.cable_names))
     poses = read_pose_csv(req.poses) if req.poses else None
     pose_cov_source = _pose_cov_source(req, poses)
+    lengths = _read_cable_lengths(req, rig)
+    if lengths is not None:
+        pose_cov_source = (
+            f"forward kinematics of {Path(req.cable_lengths or '').name}, "
+            f"length sd {req.length_sd_m:g} m"
+        )
     side = {k: f(v) for k, f, v in (("tunnel", read_tunnel_csv, req.tunnel),
                                      ("events", read_events_csv, req.events)) if v}  # fmt: skip
     decoder = _decoder(req, list(rig.cable_names), cal)
@@ -117,6 +125,10 @@ def import_run(req: ImportRequest) -> ImportReport:
                 )
             if poses is not None:
                 desc, readings = pose_stream(poses, first_ns, req.pose_sd)
+                w.add_stream("pose", desc)
+                w.write_many(readings)
+            if lengths is not None:
+                desc, readings = _length_pose_stream(req, lengths, first_ns)
                 w.add_stream("pose", desc)
                 w.write_many(readings)
             for key, make in (("tunnel", tunnel_stream), ("events", event_stream)):
@@ -230,7 +242,7 @@ def _metadata(
     if req.calibration:
         ids["calibration"] = f"{Path(req.calibration).name}@{file_sha256(req.calibration)[:12]}"
     files = {}
-    for key in ("poses", "tunnel", "events"):
+    for key in ("poses", "cable_lengths", "tunnel", "events"):
         f = getattr(req, key)
         files[key] = Path(f).name if f else ""
         files[f"{key}_sha256"] = file_sha256(f) if f else ""
@@ -255,6 +267,7 @@ def _metadata(
             "can_log": Path(req.can_log).name,
             "can_log_sha256": file_sha256(req.can_log),
             **files,
+            "cable_length_sd_m": req.length_sd_m,
             "pose_covariance": pose_cov_source,
         },
     )
@@ -264,7 +277,40 @@ def _attach(w: McapRunWriter, req: ImportRequest) -> None:
     """The input files, so the run is self-contained."""
     w.add_attachment("rig/" + Path(req.rig).name, Path(req.rig).read_bytes(), "application/toml")
     for f, folder in ((req.dbc, "calibration"), (req.calibration, "calibration"),
-                      (req.poses, "poses"), (req.tunnel, "tunnel"), (req.events, "events")):  # fmt: skip
+                      (req.poses, "poses"), (req.cable_lengths, "cable_lengths"),
+                      (req.tunnel, "tunnel"), (req.events, "events")):  # fmt: skip
         if f:
             a = Attachment.from_file(f, f"{folder}/{Path(f).name}")
             w.add_attachment(a.name, a.data, a.media_type)
+
+
+def _read_cable_lengths(req: ImportRequest, rig: Any) -> Any:
+    """The ``--cable-lengths`` log as poses (:mod:`cdpr.pipelines.cable_lengths`), checked before
+    anything is written; one pose source only."""
+    if not req.cable_lengths:
+        if req.length_sd_m is not None:
+            raise ConfigError("--length-sd-m", "", "given without --cable-lengths")
+        return None
+    if req.poses:
+        raise ConfigError(req.cable_lengths, "--cable-lengths", "one pose source: not with --poses")
+    if req.pose_sd is not None:
+        raise InputError("--pose-sd: goes with --poses; --cable-lengths takes --length-sd-m")
+    from .cable_lengths import read_cable_lengths
+
+    return read_cable_lengths(req.cable_lengths, rig, req.length_sd_m)
+
+
+def _length_pose_stream(req: ImportRequest, lengths: Any, first_ns: int | None) -> Any:
+    """``/pose`` from the cable-length log: (description, readings); relative times (``t_s``)
+    from the first CAN frame."""
+    from .cable_lengths import pose_readings
+
+    if lengths.time_column == "t_s":
+        if first_ns is None:
+            raise ConfigError(
+                req.cable_lengths or "", "column t_s", "relative times need CAN frames"
+            )
+        t_ns = first_ns + np.round(lengths.times.astype(np.float64) * 1e9).astype(np.int64)
+    else:
+        t_ns = lengths.times.astype(np.int64)
+    return pose_readings(lengths, t_ns)

@@ -5,7 +5,7 @@ per-point conditions the correction stages read (mean p, T, humidity, repeat gro
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,18 @@ class PointPlan:
     source: str  # "events" | "detected"
     flags: list[str]
     targets: dict[str, list[Any]]
+    motion: dict[str, list[Any]] = field(default_factory=dict)
+    """An oscillation point's motion from its events (:data:`MOTION_FIELDS`; "" / NaN for a
+    steady point)."""
+    event_ns: list[tuple[int, int]] = field(default_factory=list)
+    """Each point's start and end event times (points from events; empty when detected)."""
+
+
+MOTION_FIELDS: tuple[str, ...] = (
+    "motion_axis", "motion_amplitude", "motion_frequency_Hz", "motion_cycles",
+    "motion_settling_cycles", "inertia_tare",
+)  # fmt: skip
+"""The fields of an oscillation point's ``test_point`` events (docs/dynamic_tests.md)."""
 
 
 def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
@@ -56,6 +68,10 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
             k: [x[2].get(k, np.nan) for x in pts]
             for k in ("target_aoa_deg", "target_sideslip_deg", "target_airspeed_mps", "repeat_of")
         }
+        motion = {
+            k: [x[2].get(k, "" if k in ("motion_axis", "inertia_tare") else np.nan) for x in pts]
+            for k in MOTION_FIELDS
+        }
         return PointPlan(
             ranges,
             [str(x[2].get("point", "")) for x in pts],
@@ -63,6 +79,8 @@ def plan_points(run: RunData, rule: SteadyRule) -> PointPlan:
             "events",
             [x[3] for x in pts],
             targets,
+            motion,
+            [(int(x[0]), int(x[1])) for x in pts],
         )
     q = interpolate_at(run.t_ns, run.pose_t_ns[~run.pose_bad], run.poses[~run.pose_bad])
     v = run.tunnel[0] if run.tunnel is not None else None

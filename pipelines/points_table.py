@@ -66,11 +66,13 @@ def points_table(
     for c in COEFFICIENTS:
         cols[c] = p.arrays.get(c, np.full(s, np.nan))
         cols[f"sd_{c}"] = p.arrays.get(f"sd_{c}", np.full(s, np.nan))
+    m = rig.n_cables
+    dT = p.arrays.get("check_dT_N", np.full((s, m), np.nan))  # the dynamic order has no check
     for k, name in enumerate(rig.cable_names):
         cols[f"T_{name}_N"] = p["tension_N"][:, k]
         cols[f"sd_T_{name}_N"] = np.sqrt(np.clip(p["tension_cov_N2"][:, k, k], 0.0, None))
-        cols[f"dT_{name}_N"] = p["check_dT_N"][:, k]
-    cols["check_max_abs_dT_N"] = p["check_max_abs_dT_N"]
+        cols[f"dT_{name}_N"] = dT[:, k]
+    cols["check_max_abs_dT_N"] = p.arrays.get("check_max_abs_dT_N", np.full(s, np.nan))
     cols.update(uncertainty_columns(p))
     cols.update(correction_columns(p, rig))
     cols.update(columns_after or {})

@@ -152,8 +152,14 @@ def campaign_table(
     return CampaignTable(df, inputs, missing, info_flags)
 
 
-def write_campaign_table(table: CampaignTable, out_dir: str | os.PathLike[str]) -> list[Path]:
-    """``campaign.csv`` and ``campaign.h5`` in ``out_dir`` (atomic); returns their paths."""
+def write_campaign_table(
+    table: CampaignTable,
+    out_dir: str | os.PathLike[str],
+    beside: Mapping[str, pd.DataFrame] | None = None,
+) -> list[Path]:
+    """``campaign.csv`` and ``campaign.h5`` in ``out_dir`` (atomic); ``beside``: more tables
+    (e.g. ``{"dynamic": ...}``, :mod:`cdpr.pipelines.dynamic_report`) written as
+    ``campaign_<name>.csv`` and the group ``<name>`` of ``campaign.h5``.  Returns the paths."""
     import h5py
 
     out = Path(out_dir)
@@ -161,22 +167,28 @@ def write_campaign_table(table: CampaignTable, out_dir: str | os.PathLike[str]) 
     csv = out / "campaign.csv"
     with atomic_output(csv) as fh:
         table.df.to_csv(fh, index=False)
+    extra = []
+    for name, t in (beside or {}).items():
+        extra.append(out / f"campaign_{name}.csv")
+        with atomic_output(extra[-1]) as fh:
+            t.to_csv(fh, index=False)
     h5 = out / "campaign.h5"
     tmp = h5.with_name(f".{h5.name}.part")
     with h5py.File(tmp, "w") as f:
-        g = f.create_group("points")
-        for c in table.df.columns:
-            col = table.df[c]
-            if pd.api.types.is_bool_dtype(col) or pd.api.types.is_numeric_dtype(col):
-                g.create_dataset(c, data=col.to_numpy())
-            else:  # text (object or pandas' string dtype): UTF-8 strings, NaN as ""
-                text = col.astype(object).where(col.notna(), "").astype(str)
-                g.create_dataset(c, data=text.to_numpy(dtype=object), dtype=h5py.string_dtype())
-        g.attrs["columns"] = list(map(str, table.df.columns))
+        for gname, t in {"points": table.df, **(beside or {})}.items():
+            g = f.create_group(gname)
+            for c in t.columns:
+                col = t[c]
+                if pd.api.types.is_bool_dtype(col) or pd.api.types.is_numeric_dtype(col):
+                    g.create_dataset(c, data=col.to_numpy())
+                else:  # text (object or pandas' string dtype): UTF-8 strings, NaN as ""
+                    text = col.astype(object).where(col.notna(), "").astype(str)
+                    g.create_dataset(c, data=text.to_numpy(dtype=object), dtype=h5py.string_dtype())
+            g.attrs["columns"] = list(map(str, t.columns))
         f.attrs["inputs"] = [f"{p} sha256={s}" for p, s in table.inputs]
         f.attrs["missing_points"] = list(table.missing_points)
     os.replace(tmp, h5)
-    return [csv, h5]
+    return [csv, h5, *extra]
 
 
 # --------------------------------------------------------------------------------------------

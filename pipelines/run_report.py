@@ -181,6 +181,10 @@ def spectrum_plots(run: RunData, df: pd.DataFrame, spectra: Any, folder: Path) -
 
     if spectra is None:
         return []
+    if len(df) != len(spectra.freqs_Hz):  # the spectra are the steady points'
+        from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS
+
+        df = df[~df["kind"].isin(OSCILLATION_POINT_KINDS)].reset_index(drop=True)
     grid = spectra_grid_figures(
         folder,
         [str(x) for x in df["point"]],
@@ -212,7 +216,10 @@ def _fmt(v: float, sd: float) -> str:
     return "–" if not np.isfinite(v) else f"{v:.3f} ± {sd:.3f}"
 
 
-def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
+def run_report(
+    run: RunData, df: pd.DataFrame, summary: dict[str, Any], harmonics: Any = None
+) -> str:
+    """``report.md`` of one run (``harmonics``: the dynamic points' harmonic table, when any)."""
     red = summary["reduction"]
     lines = [
         f"# Analysis of `{run.path.name}`",
@@ -283,6 +290,7 @@ def run_report(run: RunData, df: pd.DataFrame, summary: dict[str, Any]) -> str:
     lines += _corrections_section(df, red)
     if summary.get("online"):
         lines += ["", "## On-line against final values", "", *(f"- {x}" for x in summary["online"])]
+    lines += dynamic_section(df, summary, harmonics)
     lines += ["", "Stages of the reduction:", ""]
     for st in red["stages"]:
         note = f": {st['note']}" if st["note"] else ""
@@ -347,4 +355,196 @@ def _corrections_section(df: pd.DataFrame, red: dict[str, Any]) -> list[str]:
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "Per point, what was applied and its source (the `corrections` column):", ""]
     lines += [f"- {r.point}: {r.corrections or 'none'}" for r in on.itertuples()]
+    return lines
+
+
+# ------------------------------------------------------------------------------------------------
+# dynamic (forced-oscillation) points
+# ------------------------------------------------------------------------------------------------
+LOOPS_PER_FIGURE = 12
+"""Points per hysteresis figure (``hysteresis.png``, ``hysteresis_1.png``, ...): 4 a row."""
+
+
+def dynamic_outputs(df: pd.DataFrame, red: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """The files of a run's oscillation points: ``harmonics.csv`` (the harmonic table,
+    :func:`cdpr.pipelines.dynamic.harmonics_table`) and the hysteresis loops
+    (:func:`hysteresis_figures`).  Returns their names (nothing when the run has none)."""
+    h = red.get("_harmonics")
+    if h is None:
+        return {}
+    h.to_csv(folder / "harmonics.csv", index=False)
+    figs = hysteresis_figures(red.get("_loops") or [], folder)
+    return {"harmonics": "harmonics.csv", "hysteresis_figures": figs}
+
+
+def _loop_coefficients(axis: str) -> tuple[str, ...]:
+    from cdpr.analysis.oscillation import PRIMARY_COEFFICIENTS
+
+    return PRIMARY_COEFFICIENTS.get(axis, ("CL", "Cm"))[:2]
+
+
+def hysteresis_figures(loops: list[dict[str, Any]], folder: Path) -> list[str]:
+    """Per wind-on oscillation point, its primary coefficients (Cm and CL in pitch, Cn and Cl in
+    yaw, ...) against the instantaneous angle (deg; m for a translation) along the motion: every
+    cycle faint behind (the cycle's phase bins), the cycle average bold (mean over the cycles per
+    bin) and the fitted series dashed.  Small multiples: each point a column of two panels, four
+    points a row, ``LOOPS_PER_FIGURE`` points a file.  Returns the file names."""
+    from cdpr.analysis.motion import ANGULAR_AXES
+
+    from .plotting import png_figure
+
+    names = []
+    for k in range(0, len(loops), LOOPS_PER_FIGURE):
+        part = loops[k : k + LOOPS_PER_FIGURE]
+        name = "hysteresis.png" if k == 0 else f"hysteresis_{k // LOOPS_PER_FIGURE}.png"
+        ncol = min(4, len(part))
+        nrow = -(-len(part) // ncol)
+        size = (3.0 * ncol + 0.5, 4.6 * nrow + 0.6)
+        with png_figure(folder / name, 2 * nrow, ncol, size, dpi=90, tight=False) as (fig, axes):
+            for j in range(len(part), nrow * ncol):  # the empty places of the last row
+                for r in (0, 1):
+                    axes[2 * (j // ncol) + r, j % ncol].set_visible(False)
+            for j, d in enumerate(part):
+                ang = d["axis"] in ANGULAR_AXES
+                scale = np.degrees(1.0) if ang else 1.0
+                x = np.append(d["loop_angle"], d["loop_angle"][:1]) * scale
+                xm = np.append(d["mean_angle"], d["mean_angle"][:1]) * scale
+                for r, c in enumerate(_loop_coefficients(d["axis"])):
+                    ax = axes[2 * (j // ncol) + r, j % ncol]
+                    i = d["coefficients"].index(c)
+                    L = d["loops"][:, :, i]
+                    # every cycle, closed, NaN between them: one line for all (cheap to draw)
+                    cyc = np.concatenate([L, L[:, :1], np.full((L.shape[0], 1), np.nan)], axis=1)
+                    xs = np.tile(np.append(x, np.nan), L.shape[0])
+                    ax.plot(xs, cyc.reshape(-1), color="C0", lw=0.5, alpha=0.2)
+                    n_ok = np.isfinite(L).sum(axis=0)
+                    avg = np.where(n_ok > 0, np.nansum(L, axis=0) / np.maximum(n_ok, 1), np.nan)
+                    ax.plot(x, np.append(avg, avg[:1]), color="navy", lw=1.8, label="cycle average")
+                    ym = d["mean_loop"][:, i]
+                    ax.plot(
+                        xm, np.append(ym, ym[:1]), "--", color="C3", lw=1.2, label="harmonic fit"
+                    )
+                    ax.set_ylabel(c, fontsize=8, labelpad=1)
+                    ax.tick_params(labelsize=7)
+                    ax.grid(alpha=0.3)
+                    if r == 0:
+                        ax.set_title(f"{d['point']}", fontsize=8)
+                    else:
+                        ax.set_xlabel(f"{d['axis']} ({'deg' if ang else 'm'})", fontsize=8)
+            axes[0, 0].legend(fontsize=7, loc="best")
+            fig.suptitle(
+                "Hysteresis loops: coefficient against the instantaneous angle "
+                f"({len(part)} point(s); each cycle faint, the cycle average bold, the fit dashed)",
+                fontsize=9,
+            )
+            fig.subplots_adjust(left=0.08, right=0.98, bottom=0.06, top=1 - 0.8 / size[1],
+                                wspace=0.38, hspace=0.42)  # fmt: skip
+        names.append(name)
+    return names
+
+
+def dynamic_section(df: pd.DataFrame, summary: dict[str, Any], harmonics: Any = None) -> list[str]:
+    """The report's section on the oscillation points: the load cells' clock and the camera's
+    clock offset, the derivatives per point (± σ, the model's inertia beside the tare's, the
+    dwell that reaches the goals), the harmonic table of the moments' fundamentals (the inertia
+    measured by the tare, the rig file's and their difference), the hysteresis figures."""
+    from cdpr.analysis.conventions import OSCILLATION_POINT_KINDS
+    from cdpr.analysis.oscillation import NAMED_DERIVATIVES
+
+    osc = df[df["kind"].isin(OSCILLATION_POINT_KINDS)]
+    if osc.empty:
+        return []
+    red = summary["reduction"]
+    lines = ["", "## Dynamic points (forced oscillation)", ""]
+    clk = red.get("load_cell_clock") or {}
+    if clk:
+        lines.append(f"- load cells' clock: {clk['source']}")
+    co = red.get("clock_offset")
+    if co:
+        per = ", ".join(
+            f"{v:.4f} ± {s:.4f}"
+            for v, s in zip(co["per_tare_ms"], co["sd_per_tare_ms"], strict=True)
+        )
+        lines.append(
+            f"- camera clock offset: **{co['offset_ms']:.4f} ms ± {co['sd_ms']:.4f} ms** "
+            f"({'identified' if co['identified'] else 'NOT identified: none removed'}; per wind-off "
+            f"oscillation: {per or 'none'} ms; {co['note']})"
+        )
+    on = osc[osc["kind"] == "oscillation"]
+    for axis, named in NAMED_DERIVATIVES.items():
+        d = on[on["motion_axis"] == axis]
+        if d.empty:
+            continue
+        cols = [n for n, *_ in named if n in d]
+        lines += [
+            "",
+            f"**{axis}**: derivatives ± σ (inertia by the tare; [the rig file's inertia]; dwell "
+            "for the goals: 95 % within 2 % in phase, 5 % or 0.3 /rad out of phase)",
+            "",
+            "| point | V (m/s) | A | f (Hz) | k | " + " | ".join(cols) + " | flags |",
+            "|" + "---|" * (6 + len(cols)),
+        ]
+        ang = axis in ("roll", "pitch", "yaw")
+        for _, r in d.iterrows():
+            A = np.degrees(r["motion_amplitude"]) if ang else r["motion_amplitude"]
+            cells = [
+                f"{r[n]:.4g} ± {r['sd_' + n]:.2g} [{r[n + '_model']:.4g}] ({r['dwell_s_' + n]:.0f} s)"
+                if np.isfinite(r[n])
+                else "–"
+                for n in cols
+            ]
+            lines.append(
+                f"| {r['point']} | {r['airspeed_mps']:.2f} | {A:.3f}{'°' if ang else ' m'} | "
+                f"{r['motion_frequency_Hz']:.4f} | {r['reduced_frequency']:.4f} | "
+                + " | ".join(cells)
+                + f" | {r['flags']} |"
+            )
+    if harmonics is not None and len(harmonics):
+        h = harmonics[
+            (harmonics["harmonic"] == 1) & harmonics["quantity"].isin(("mx_Nm", "my_Nm", "mz_Nm"))
+        ]
+        h = h[
+            h["source"].isin(
+                ("measured", "inertia_tare", "inertia_model", "inertia_model_minus_tare", "aero")
+            )
+        ]
+        if len(h):
+            lines += [
+                "",
+                "Fundamentals of the moments (N m, in phase / quadrature with the motion; σ where "
+                "known): the measured cable wrench, the inertia the wind-off tare measured, the rig "
+                "file's, their difference, the aerodynamic moment about the MRP (every harmonic "
+                "and component: `harmonics.csv`)",
+                "",
+                "| point | source | Mx | My | Mz |",
+                "|---|---|---|---|---|",
+            ]
+            for (pt, src), g in h.groupby(["point", "source"], sort=False):
+                cells = []
+                for q in ("mx_Nm", "my_Nm", "mz_Nm"):
+                    r = g[g["quantity"] == q]
+                    if r.empty:
+                        cells.append("–")
+                        continue
+                    r0 = r.iloc[0]
+                    sd = (
+                        f" ± {r0['sd_inphase']:.1e}/{r0['sd_quadrature']:.1e}"
+                        if np.isfinite(r0["sd_inphase"])
+                        else ""
+                    )
+                    cells.append(f"{r0['mean_or_inphase']:+.5f} / {r0['quadrature']:+.5f}{sd}")
+                lines.append(f"| {pt} | {src} | " + " | ".join(cells) + " |")
+    figs = (summary.get("dynamic_outputs") or {}).get("hysteresis_figures", [])
+    if figs:
+        lines += [
+            "",
+            "Hysteresis loops (each cycle faint, the cycle average bold, the harmonic fit dashed):",
+            "",
+        ]
+        lines += [f"![hysteresis]({f})\n" for f in figs]
+    if red.get("dynamic_stages"):
+        lines += ["", "Stages of the dynamic reduction:", ""]
+        for st in red["dynamic_stages"]:
+            note = f": {st['note']}" if st["note"] else ""
+            lines.append(f"1. `{st['stage']}` — {st['points_flagged']} points flagged{note}")
     return lines

@@ -189,6 +189,17 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class Encoders:
+    """The controller's cable-length log (motor encoders): its rate, each length's noise (m) and
+    its clock's offset ahead of the load cells' (a row stamped ``t`` holds the lengths at
+    ``t - clock_offset_ns``).  The lengths are the true pose's (anchor to attachment point)."""
+
+    rate_hz: float = 500.0
+    sd_m: float = 20e-6
+    clock_offset_ns: int = 0
+
+
+@dataclass(frozen=True)
 class Tunnel:
     """The tunnel's true air and its instruments (noise per row, airspeed bias)."""
 
@@ -475,6 +486,7 @@ def generate(
     calibration: str = "fitted",
     name: str = "lab",
     chunk: int = 50_000,
+    encoders: Encoders | None = None,
 ) -> LabCase:
     """Run the physics of ``plan`` and write the lab's files into ``out_dir`` (module docstring).
 
@@ -499,6 +511,7 @@ def generate(
     rng = {k: np.random.default_rng(s) for k, s in zip(
         ("white", "ar1", "common", "mode", "drift", "camera", "tunnel", "cal", "tau", "spare"),
         streams, strict=True)}  # fmt: skip
+    rng["encoders"] = np.random.default_rng(np.random.SeedSequence([seed, 11]))
     dt = 1.0 / rate_hz
     dt_ns = int(round(1e9 / rate_hz))
 
@@ -702,6 +715,19 @@ def generate(
         cov[:, 3:, 3:] = Hi @ cov[:, 3:, 3:] @ np.swapaxes(Hi, 1, 2)
         cov = 0.5 * (cov + np.swapaxes(cov, 1, 2))  # exactly symmetric as written
 
+    # --- the controller's cable lengths (motor encoders)
+    enc_t = enc_L = None
+    if encoders is not None:
+        enc_t = np.arange(
+            T_LOG0_NS + encoders.clock_offset_ns + 1_300_000,
+            t_ns[-1] + encoders.clock_offset_ns,
+            int(round(1e9 / encoders.rate_hz)),
+            dtype=np.int64,
+        )
+        q_enc, _, _, _ = tl.states((enc_t - encoders.clock_offset_ns - T_LOG0_NS) * 1e-9)
+        enc_L = cable_vectors(true, q_enc)[2]
+        enc_L = enc_L + rng["encoders"].normal(0.0, encoders.sd_m, enc_L.shape)
+
     # --- the tunnel instruments
     t_tun = np.arange(T_LOG0_NS, t_ns[-1] + 1, int(round(1e9 / tunnel.rate_hz)), dtype=np.int64)
     tt = (t_tun - T_LOG0_NS) * 1e-9
@@ -789,6 +815,9 @@ def generate(
     write_table(files["tunnel"], t_tun, tun_names, tun_values)
     write_events(files["events"], ev)
     files["matrix"].write_text(matrix_text(plan, files["rig"].name, geometry, transition_s, name))
+    if enc_t is not None and enc_L is not None:
+        files["cable_lengths"] = out / "lengths.csv"
+        write_table(files["cable_lengths"], enc_t, [f"L_{c}_m" for c in nominal.cable_names], enc_L)
     truth: dict[str, Any] = {
         "generator": "tests/lab_generator.py (independent of cdpr: _lab_physics, _lab_aero, "
         "_lab_noise)",
@@ -808,6 +837,7 @@ def generate(
             "n_frames": k_f,
         },
         "tunnel": asdict(tunnel),
+        "encoders": None if encoders is None else asdict(encoders),
         "load_cells": {
             "noise": asdict(noise),
             "white_sd_N_used": W_sd,
@@ -1202,12 +1232,20 @@ def oscillation_case(
     return generate(oscillation_plan(specs), out_dir, seed=seed, name="oscillation", **kw)
 
 
-def lab_argv(case: LabCase, run: str | Path, analysis: str | Path) -> tuple[list[str], list[str]]:
-    """The ``cdpr import`` and ``cdpr analyze --matrix`` arguments (without the program name)."""
+def lab_argv(
+    case: LabCase, run: str | Path, analysis: str | Path, pose: str = "camera"
+) -> tuple[list[str], list[str]]:
+    """The ``cdpr import`` and ``cdpr analyze --matrix`` arguments (without the program name);
+    ``pose="lengths"``: the controller's cable-length log instead of the camera."""
     f = case.files
+    if pose == "lengths":
+        sd = case.truth["encoders"]["sd_m"]
+        src = ["--cable-lengths", str(f["cable_lengths"]), "--length-sd-m", repr(sd)]
+    else:
+        src = ["--poses", str(f["poses"])]
     imp = [
         "import", "--can-log", str(f["can_log"]), "--dbc", str(f["dbc"]), "--rig", str(f["rig"]),
-        "--calibration", str(f["calibration"]), "--poses", str(f["poses"]),
+        "--calibration", str(f["calibration"]), *src,
         "--tunnel", str(f["tunnel"]), "--events", str(f["events"]), "--rate", "1000",
         "--label", case.truth["name"], "--out", str(run),
     ]  # fmt: skip

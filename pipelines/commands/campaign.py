@@ -70,6 +70,29 @@ def _run_tensions(path: Path) -> tuple[Any, Any, list[str]] | None:
     return df["t_ns"].to_numpy(np.int64), df[cols].to_numpy(np.float64), names
 
 
+def dynamic_campaign(table: Any) -> Any:
+    """The campaign's dynamic table (the oscillation points' derivatives), or None."""
+    from ..dynamic_report import dynamic_table
+
+    return dynamic_table(table.df)
+
+
+def copied_hysteresis(d: Any, dst_dir: Path) -> list[Any]:
+    """The hysteresis figures ``cdpr analyze`` drew for a run, copied beside the run's report."""
+    import shutil
+
+    from ..report import Figure
+
+    figs = []
+    for pf in sorted(set(d["points_file"])):
+        for src in sorted(Path(pf).parent.glob("hysteresis*.png")):
+            dst_dir.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, dst_dir / src.name)
+            figs.append(Figure(src.name, "Hysteresis loops (each cycle faint, the cycle average "
+                               "bold, the harmonic fit dashed)", src.read_bytes()))  # fmt: skip
+    return figs
+
+
 def run(args: argparse.Namespace) -> int:
     import shutil
     import time
@@ -78,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .. import __version__
     from ..config import file_sha256
+    from ..dynamic_report import dynamic_figures, dynamic_summary
     from ..report import (
         CampaignTable,
         Figure,
@@ -117,12 +141,16 @@ def run(args: argparse.Namespace) -> int:
         prov["reference polars"] = f"{args.reference} sha256={file_sha256(args.reference)}"
     prov["written"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     out = Path(args.out)
-    written = write_campaign_table(table, out)
+    dyn = dynamic_campaign(table)
+    written = write_campaign_table(table, out, None if dyn is None else {"dynamic": dyn})
     figs = sweep_figures(table, out / "plots", ref)
     wfig = windage_figure(table, out / "plots")
     if wfig is not None:
         figs.append(wfig)
+    figs += dynamic_figures(dyn, out / "plots")
     rc = report_content(title, table, figs, prov)
+    if dyn is not None:
+        rc.sections.insert(0, ("Dynamic derivatives (± U95)", dynamic_summary(dyn)))
     if ref is not None:
         from ..report import reference_differences
 
@@ -152,6 +180,7 @@ def run(args: argparse.Namespace) -> int:
                 rfigs.append(
                     tension_figure(out / "plots" / stem / "tensions.png", *tens, windows=windows)
                 )
+        rfigs += copied_hysteresis(d, out / "plots" / stem)
         # the tension spectra with the rig's modes (cdpr analyze --matrix drew them per run):
         # the fastest point's, then every point's (small multiples, one panel per point)
         for pf in sorted(set(d["points_file"])):

@@ -45,6 +45,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "target_aoa_deg, target_sideslip_deg, target_airspeed_mps, repeat_of): /events",
     )
     p.add_argument(
+        "--cable-lengths",
+        help="the controller's cable-length log (CSV: t_ns or t_s, L_<cable>_m per cable): the "
+        "pose by forward kinematics with its covariance, instead of --poses "
+        "(docs/dynamic_tests.md)",
+    )
+    p.add_argument(
+        "--length-sd-m",
+        type=float,
+        help="σ of each logged cable length, m (required with --cable-lengths)",
+    )
+    p.add_argument(
         "--raw-only",
         action="store_true",
         help="keep the log's frames (/can_raw) even when none is a load-cell frame of the DBC "
@@ -64,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
             can_log=args.can_log, dbc=args.dbc, rig=args.rig, out=args.out, poses=args.poses,
             pose_sd=args.pose_sd, calibration=args.calibration, tunnel=args.tunnel,
             events=args.events, raw_only=args.raw_only, rate_hz=args.rate, label=args.label,
+            cable_lengths=args.cable_lengths, length_sd_m=args.length_sd_m,
         )
     )  # fmt: skip
     print(f"wrote {report.out}: " + ", ".join(f"{k} {v}" for k, v in report.counts.items() if v))
