@@ -107,3 +107,31 @@ def inertia_wrench(
         + mass_kg * np.cross(rc, a_P)
     )
     return np.concatenate([F, M], axis=-1)
+
+
+def mean_inertia_covariance(
+    mass_kg: float,
+    com_P_m: ArrayLike,
+    inertia_P_kgm2: ArrayLike,
+    pose: ArrayLike,
+    pose_rate_var: ArrayLike,
+    window_s: ArrayLike,
+) -> FloatArray:
+    """Covariance (..., 6, 6) of the mean inertia wrench over a window of ``window_s`` (...,) s of
+    a platform whose pose rate has the variance ``pose_rate_var`` (..., 6) ((m/s)^2, (rad/s)^2) at
+    ``pose`` (..., 6).
+
+    The mean of ``M qdd`` over the window is ``M (v_end - v_start) / T``; with the two ends' rates
+    independent (a window longer than the motion's correlation time; conservative otherwise),
+    ``Cov = M diag(2 Var(v)) M^T / T^2``, M the mass matrix of :func:`inertia_wrench` (at rest:
+    the Coriolis terms are second order in v)."""
+    q = check_trailing(pose, "pose", (6,))
+    rv = check_trailing(pose_rate_var, "pose_rate_var", (6,))
+    T = np.asarray(window_s, dtype=np.float64)
+    lead = q.shape[:-1]
+    unit = np.broadcast_to(np.eye(6), (*lead, 6, 6))
+    D = inertia_wrench(
+        mass_kg, com_P_m, inertia_P_kgm2, q[..., None, :], np.zeros((*lead, 6, 6)), unit
+    )  # D[..., j, :]: the wrench of a unit acceleration of coordinate j
+    var_acc = 2.0 * rv / T[..., None] ** 2
+    return np.asarray(np.einsum("...ji,...j,...jk->...ik", D, var_acc, D))

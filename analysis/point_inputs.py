@@ -112,6 +112,8 @@ def points_from_samples(
         nominal[:] = True
     else:
         raise InputError("pose_cov: no covariance in the pose stream and no fallback given")
+    frame_var = np.diagonal(pcov, axis1=1, axis2=2) * nf[:, None]  # one frame's variance (s, 6)
+    rate_var = pose_rate_variance(tp, qp, pbad, pranges, frame_var)
     # the covariance of each point's mean tensions from the data's own correlation (time and
     # across cables), not sd / sqrt(n): :mod:`cdpr.analysis.longrun`
     m = T.shape[1]
@@ -131,6 +133,8 @@ def points_from_samples(
         density_kgpm3=rho,
         input_flags=_input_words(st, ps, nominal, short & (st.n_used >= 2), pose_sd_word),
         tension_sample_cov_N2=g0,
+        pose_rate_var=rate_var,
+        window_s=(stop_ns - start_ns) * 1e-9,
         n_used=st.n_used,
         longrun_bandwidth=np.array([lr.bandwidth for lr in runs], dtype=np.int64),
         n_eff_min=min_n_eff,
@@ -147,6 +151,44 @@ def points_from_samples(
         "tension_sd_N": st.sd,
     }
     return pts, extra
+
+
+def pose_rate_variance(
+    pose_t_ns: ArrayLike,
+    poses: ArrayLike,
+    pose_bad: ArrayLike,
+    ranges: list[tuple[int, int]],
+    frame_var: ArrayLike,
+) -> FloatArray:
+    """The variance of the platform's pose rate within each point's frames (s, 6), (m/s)^2 and
+    (rad/s)^2: the scatter of the finite differences of consecutive usable frames, less what the
+    camera's own noise puts in them (``2 frame_var / dt^2``, frame_var (s, 6) one frame's
+    variance), never below 0; NaN with fewer than two differences.
+
+    A platform that rings (a lightly damped mode excited by the flow) is not at rest over a
+    point: the window's mean cable wrench carries the mean inertia wrench ``M (v_end -
+    v_start) / T``, an error of order 1/T that no zero-frequency spectrum of the tensions sees
+    (:func:`cdpr.analysis.stages.window_motion_stage` takes it into σ).  Differences of frames
+    alias a motion faster than half the camera's rate (its velocity is then underestimated)."""
+    tp = np.asarray(pose_t_ns, dtype=np.int64)
+    q = np.asarray(poses, dtype=np.float64)
+    bad = np.asarray(pose_bad, dtype=bool)
+    s = len(ranges)
+    if tp.shape[0] < 2:
+        return np.full((s, 6), np.nan)
+    dt = np.diff(tp).astype(np.float64) * 1e-9
+    dq = np.diff(q, axis=0)
+    dq[:, 3:] = (dq[:, 3:] + np.pi) % (2 * np.pi) - np.pi  # an angle through +-pi
+    dbad = bad[1:] | bad[:-1] | (dt <= 0)
+    v = dq / np.where(dt > 0, dt, 1.0)[:, None]
+    dranges = [(i, max(i, j - 1)) for i, j in ranges]
+    bits = dbad.astype(np.int64)
+    vs = point_stats(v, dranges, bits)
+    dts = point_stats(dt, dranges, bits).mean[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        noise = 2.0 * np.asarray(frame_var, dtype=np.float64) / dts[:, None] ** 2
+        out = np.clip(vs.sd**2 - noise, 0.0, None)
+    return np.asarray(np.where(np.isfinite(vs.sd), out, np.nan))
 
 
 def _input_words(

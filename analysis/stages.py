@@ -52,7 +52,7 @@ from .dynamic_stages import (
     motion_fit_stage,
     wrench_harmonics_stage,
 )
-from .dynamics import inertia_wrench
+from .dynamics import inertia_wrench, mean_inertia_covariance
 from .errors import InputError
 from .kinematics import structure_matrix
 from .oscillation import DEFAULT_DYNAMIC, Body, DynamicSettings
@@ -241,6 +241,35 @@ def inertia_stage(p: Points, *, rig: Rig, pose_rate: FloatArray, pose_accel: Flo
     D = inertia_wrench(rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, p[POSE], pose_rate, pose_accel)
     return with_updates(
         p, arrays={WRENCH: p[WRENCH] + D, "inertia_N": D}, meta={"_note": "M qdd + C"}
+    )
+
+
+@stage("window_motion", wraps=mean_inertia_covariance)
+def window_motion_stage(p: Points, *, rig: Rig) -> Points:
+    """The σ of the mean inertia wrench of a platform that is not at rest over a point (σ term
+    ``motion``, random): over a window of T seconds the cables' mean wrench carries
+    ``M (v_end - v_start) / T``, a ringing mode's share of order 1/T that the tensions' long-run
+    covariance cannot see (the mode's acceleration has no power at zero frequency);
+    :func:`cdpr.analysis.dynamics.mean_inertia_covariance` from the camera's pose-rate variance
+    ``pose_rate_var`` (:func:`cdpr.analysis.point_inputs.pose_rate_variance`) over the window
+    ``window_s``.  A tared point adds its tare's.  Points without camera rates pass unchanged
+    (the log says how many)."""
+    s = p.n
+    rv = np.asarray(p.arrays.get("pose_rate_var", np.full((s, 6), np.nan)), dtype=np.float64)
+    T_s = np.asarray(p.arrays.get("window_s", np.full(s, np.nan)), dtype=np.float64)
+    ok = np.isfinite(rv).all(axis=1) & np.isfinite(T_s) & (T_s > 0)
+    own = mean_inertia_covariance(
+        rig.mass_kg, rig.com_P_m, rig.inertia_P_kgm2, np.nan_to_num(p[POSE]),
+        np.where(ok[:, None], rv, 0.0), np.where(ok, T_s, 1.0),
+    )  # fmt: skip
+    cov = own.copy()
+    tare = np.asarray(p.arrays.get("tare_index", np.full(s, -1)), dtype=np.int64)
+    has = tare >= 0
+    cov[has] += own[tare[has]]
+    return with_updates(
+        p,
+        terms={"motion": cov},
+        meta={"_note": f"{int(ok.sum())} of {s} points with camera rates"},
     )
 
 
@@ -455,6 +484,7 @@ STEADY_STAGES: tuple[Callable[..., Points], ...] = (
     flow_conditions_stage,
     windage_stage,
     inertia_stage,
+    window_motion_stage,
     systematic_stage,
     balance_interaction,
     axes_stage,
@@ -601,6 +631,7 @@ def core_stages(
             sigma_rel=corrections.windage_sigma_rel,
             wind_off_mps=s.wind_off_mps,
         ),
+        window_motion_stage: functools.partial(window_motion_stage, rig=rig),
         inertia_stage: None
         if motion is None
         else functools.partial(inertia_stage, rig=rig, pose_rate=motion[0], pose_accel=motion[1]),

@@ -176,7 +176,7 @@ def wrench_covariance(
 # ------------------------------------------------------------------------------------------------
 # random and systematic parts, effective degrees of freedom, expanded uncertainty (GUM, AIAA S-071A)
 # ------------------------------------------------------------------------------------------------
-RANDOM_TERMS: tuple[str, ...] = ("load_cells", "pose")
+RANDOM_TERMS: tuple[str, ...] = ("load_cells", "pose", "motion")
 """σ terms that change from one point to the next (their scatter is what repeat points show); every
 other term (the weight model, the windage tare, calibrations, geometry, instruments) is fixed over a
 run: systematic."""
