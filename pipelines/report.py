@@ -11,7 +11,8 @@ test point, columns :data:`REQUIRED_COLUMNS`, plus ``true_*`` / ``err_*`` when a
 - :func:`write_campaign_table` writes ``campaign.csv`` and ``campaign.h5`` (h5py: one dataset per
   column, provenance as attributes);
 - :func:`sweep_figures` draws CL-aoa, the drag polar CD-CL, Cm-aoa and CY/Cl/Cn-sideslip, one
-  series per airspeed, error bars +-2 sigma, repeat points and flagged points with their own markers;
+  series per airspeed, error bars U95 (random + systematic; +-2 sigma where a run gives no
+  U95), repeat points and flagged points with their own markers;
 - :func:`tension_figure` draws tensions against time with per-cable labels spread so they stay
   readable when cables overlap, from a min/max envelope when the series is long;
 - :func:`html_report` / :func:`markdown_report`: a self-contained HTML page (plots inline as
@@ -210,8 +211,35 @@ def _figure(path: Path, title: str) -> Figure:
     return Figure(path.name, title, path.read_bytes())
 
 
+def _bars(e: pd.DataFrame, c: str) -> np.ndarray:
+    """The half-length of a point's bar on ``c``: its expanded uncertainty ``U95_<c>`` (random +
+    systematic, coverage factor from the effective degrees of freedom) where the table has it,
+    else ``SIGMA_BARS`` sigma."""
+    two_sd = SIGMA_BARS * e[f"sd_{c}"].to_numpy(float)
+    if f"U95_{c}" not in e:
+        return two_sd
+    u = pd.to_numeric(e[f"U95_{c}"], errors="coerce").to_numpy(float)
+    return np.asarray(np.where(np.isfinite(u), u, two_sd))
+
+
+def _bar_note(d: pd.DataFrame, cols: Sequence[str]) -> str:
+    """What the bars of a plot of ``cols`` show (said on the plot)."""
+    n = [
+        pd.to_numeric(d[f"U95_{c}"], errors="coerce").notna().to_numpy()
+        if f"U95_{c}" in d
+        else np.zeros(len(d), bool)
+        for c in cols
+    ]
+    if n and all(x.all() for x in n):
+        return "bars: U95 (random + systematic, k from the effective dof)"
+    if any(x.any() for x in n):
+        return f"bars: U95 (random + systematic), +-{SIGMA_BARS:g} sigma where a point has none"
+    return f"bars: +-{SIGMA_BARS:g} sigma (random + systematic; the runs give no U95)"
+
+
 def _series(ax: Any, d: pd.DataFrame, x: str, y: str, label: str, color: Any) -> None:
-    """Normal points (filled), repeats (open squares), flagged points (red x), +-2 sigma bars."""
+    """Normal points (filled), repeats (open squares), flagged points (red x), U95 bars
+    (:func:`_bars`)."""
     d = d.sort_values(x)
     sx = d.get(f"sd_{x}") if x in COEFFS else None
     normal = ~d["is_repeat"] & ~d["warned"]
@@ -223,10 +251,10 @@ def _series(ax: Any, d: pd.DataFrame, x: str, y: str, label: str, color: Any) ->
         if not sel.any():
             continue
         e = d[sel]
-        xerr = None if sx is None else SIGMA_BARS * e[f"sd_{x}"].to_numpy()
+        xerr = None if sx is None else _bars(e, x)
         color_k = "red" if kw.get("fmt") == "x" else color
         ax.errorbar(
-            e[x].to_numpy(), e[y].to_numpy(), yerr=SIGMA_BARS * e[f"sd_{y}"].to_numpy(),
+            e[x].to_numpy(), e[y].to_numpy(), yerr=_bars(e, y),
             xerr=xerr, color=color_k, capsize=3, **kw,
         )  # fmt: skip
 
@@ -257,7 +285,7 @@ def sweep_figures(
     cmap = matplotlib.colormaps["viridis"]
     speeds = sorted(d["target_airspeed_mps"].dropna().unique())
     color = {v: cmap(0.1 + 0.8 * i / max(1, len(speeds) - 1)) for i, v in enumerate(speeds)}
-    note = f"error bars +-{SIGMA_BARS:g} sigma; open squares: repeats; red x: flagged"
+    note = f"{_bar_note(d, [c for c in COEFFS if c in d])}; open squares: repeats; red x: flagged"
     alpha_sweeps = [
         (k, g) for k, g in _groups(d, ["target_sideslip_deg", "target_airspeed_mps"])
         if g["target_aoa_deg"].nunique() > 1

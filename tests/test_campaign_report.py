@@ -240,3 +240,17 @@ def test_a_sideslip_sweep_gets_the_lateral_plot(tmp_path: Path) -> None:
     assert [f.name for f in figs][-1] == "lateral_sideslip.png"
     img = read_image(tmp_path / "plots" / "lateral_sideslip.png", gray=True)
     assert img is not None and img.shape[0] > img.shape[1]  # three panels stacked
+
+
+def test_bars_are_the_expanded_uncertainty_and_the_plot_says_so() -> None:
+    """A point with ``U95_CL`` gets that bar (random + systematic), one without gets 2 sigma, and
+    the plot's note says which."""
+    from cdpr.pipelines.report import _bar_note, _bars
+
+    d = pd.DataFrame({"CL": [0.5, 0.6], "sd_CL": [0.01, 0.02], "U95_CL": [0.05, np.nan]})
+    assert _bars(d, "CL") == pytest.approx([0.05, 0.04])
+    assert "U95" in _bar_note(d, ["CL"]) and "sigma where a point has none" in _bar_note(d, ["CL"])
+    full = d.assign(U95_CL=[0.05, 0.07])
+    assert _bar_note(full, ["CL"]).startswith("bars: U95 (random + systematic")
+    assert _bars(d.drop(columns="U95_CL"), "CL") == pytest.approx([0.02, 0.04])
+    assert "the runs give no U95" in _bar_note(d.drop(columns="U95_CL"), ["CL"])
