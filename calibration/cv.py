@@ -216,21 +216,6 @@ def refine_pnp_lm(
     return np.asarray(r, np.float64).reshape(3), np.asarray(t, np.float64).reshape(3)
 
 
-def solve_p3p_all(
-    object_points: ArrayLike, image_points: ArrayLike, K: ArrayLike, dist: ArrayLike
-) -> list[tuple[F64, F64]]:
-    """All P3P solutions for exactly 3 correspondences: list of ``(rvec, tvec)``."""
-    obj = np.asarray(object_points, dtype=np.float64).reshape(3, 1, 3)
-    img = np.asarray(image_points, dtype=np.float64).reshape(3, 1, 2)
-    try:
-        n, rs, ts = cv2.solveP3P(obj, img, np.asarray(K, np.float64), _dist(dist), cv2.SOLVEPNP_P3P)
-    except cv2.error:
-        return []
-    return [
-        (np.asarray(r).reshape(3), np.asarray(t).reshape(3)) for r, t in zip(rs, ts, strict=False)
-    ]
-
-
 def solve_pnp_planar_all(
     object_points: ArrayLike, image_points: ArrayLike, K: ArrayLike, dist: ArrayLike
 ) -> list[tuple[F64, F64]]:
@@ -308,11 +293,6 @@ def downsample_area(image: NDArray[Any], factor: int) -> NDArray[Any]:
     return cv2.resize(image, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
 
 
-def pyr_down(image: NDArray[Any]) -> NDArray[Any]:
-    """Half-size image (Gaussian pyramid level)."""
-    return cv2.pyrDown(image)
-
-
 def threshold(gray: NDArray[np.uint8], level: float) -> NDArray[np.uint8]:
     """Binary image (0/255): pixels strictly above ``level``."""
     _, b = cv2.threshold(gray, float(level), 255, cv2.THRESH_BINARY)
@@ -326,11 +306,6 @@ def connected_components(binary: NDArray[np.uint8]) -> tuple[int, NDArray[np.int
     """
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
     return int(n), labels, stats
-
-
-def laplacian_variance(gray: NDArray[np.uint8]) -> float:
-    """Variance of the Laplacian: a focus measure (low for blurred images)."""
-    return float(cv2.Laplacian(gray, cv2.CV_64F).var())
 
 
 def corner_subpix(
