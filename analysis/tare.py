@@ -83,6 +83,11 @@ CHI2_6_999: float = 22.4577
 """The 99.9 % point of the chi-square distribution with 6 degrees of freedom."""
 
 
+LOAD_STEPS: int = 100
+"""At most this many fixed-point steps of the load a point adds over its tare (:func:`weight_tare`,
+each step the structure matrices and stiffness of the tared points; the cubic rig's takes about
+12 to 1e-3 of the deflection)."""
+
 TARE_POSE_SD_REL: float = 0.5
 """The stiffness model's relative σ for the deflection between a point and its tare
 (:func:`tare_pose`): the cables' EA and the geometry may be known to a few per cent, but the
@@ -255,9 +260,21 @@ def weight_tare(
     disagrees = np.zeros(s, bool)
     if j.size and tare_pose_sd_rel is not None and not tare_shares_pose:
         i = np.flatnonzero(has)
-        first = recover_wrench(rig, q[i], T[i], weight_theta=theta)
-        first = first - recover_wrench(rig, q[j], T[j], weight_theta=theta)
-        tp = tare_pose(rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel)
+        # the load the point adds, at the model's pose (never at the camera's: its noise times
+        # the full tensions would be the load): from the tare's pose, then at the predicted
+        # deflection, a fixed point (the cables' geometric stiffness against the whole: a
+        # contraction, a few steps reach 1e-3 of the deflection)
+        W_tare = recover_wrench(rig, q[j], T[j], weight_theta=theta)
+        q_i = q[j].copy()
+        for _ in range(LOAD_STEPS):
+            first = recover_wrench(rig, q_i, T[i], weight_theta=theta) - W_tare
+            tp = tare_pose(rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel)
+            new = q[j] + tp.delta_predicted
+            moved = np.linalg.norm(new - q_i, axis=1)
+            q_i = new
+            if not np.any(moved > 1e-3 * np.linalg.norm(tp.delta_predicted, axis=1) + 1e-12):
+                break
+        assert tp is not None  # LOAD_STEPS >= 1
         q_hat[i] = tp.pose
         deflection[i], deflection_measured[i] = tp.delta, tp.delta_measured
         disagrees[i] = tp.model_disagrees
