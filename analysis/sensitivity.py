@@ -50,7 +50,7 @@ from .errors import InputError
 from .kinematics import structure_matrix
 from .rig import Rig
 from .rotations import rotation_from_euler
-from .tension import METHODS, STATUS_RANK_DEFICIENT, distribute
+from .tension import METHODS, SOLVE_RANK_DEFICIENT, distribute
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -400,7 +400,7 @@ def sensitivity(
     failed = np.zeros(lead, dtype=bool)
     for r in (r0, rw):
         if r.status is not None:
-            failed = failed | np.broadcast_to(np.asarray(r.status) == STATUS_RANK_DEFICIENT, lead)
+            failed = failed | np.broadcast_to(np.asarray(r.status) == SOLVE_RANK_DEFICIENT, lead)
     T0 = np.broadcast_to(r0.tensions_N, lead + (m,))
     dT = T0 - rw.tensions_N
     S = sensitivity_value(dT)

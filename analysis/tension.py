@@ -29,7 +29,7 @@ Objectives (named, because they differ):
   polygon with a KKT or emptiness certificate) handles the poses it can certify.
 
 Rank-deficient (or numerically singular, see :data:`RANK_TOL`) structure matrices do not raise:
-the pose is flagged ``feasible=False`` with ``status == STATUS_RANK_DEFICIENT``, by every method,
+the pose is flagged ``feasible=False`` with ``status == SOLVE_RANK_DEFICIENT``, by every method,
 with a per-pose test (the same verdict alone and in any batch) relative to the problem's scale
 (:func:`rank_floor`: where no double-precision answer is determined to :data:`ACCURACY_N` by the
 data).  ``exact`` applies it to the structure matrix of the cables not at a limit at its answer
@@ -54,20 +54,20 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int8]
 
-STATUS_OK = 0
+SOLVE_OK = 0
 """Status code: a feasible solution was found."""
-STATUS_INFEASIBLE = 1
+SOLVE_INFEASIBLE = 1
 """Status code: no tension distribution within the limits (certified by ``exact``) or the method's
 answer violates the limits / equality."""
-STATUS_RANK_DEFICIENT = 2
+SOLVE_RANK_DEFICIENT = 2
 """Status code: the structure matrix (or the reduced one) is rank deficient at this pose."""
-STATUS_GAVE_UP = 3
+SOLVE_GAVE_UP = 3
 """Status code (improved closed form): clamping would leave fewer than n free cables."""
-STATUS_NAMES = {
-    STATUS_OK: "ok",
-    STATUS_INFEASIBLE: "infeasible",
-    STATUS_RANK_DEFICIENT: "rank-deficient structure matrix",
-    STATUS_GAVE_UP: "too few free cables left (improved closed form gave up)",
+SOLVE_NAMES = {
+    SOLVE_OK: "ok",
+    SOLVE_INFEASIBLE: "infeasible",
+    SOLVE_RANK_DEFICIENT: "rank-deficient structure matrix",
+    SOLVE_GAVE_UP: "too few free cables left (improved closed form gave up)",
 }
 """Human-readable meaning of each status code."""
 
@@ -83,7 +83,7 @@ class TensionResult:
     max_violation_N: (...,) worst bound violation ``max(t_min - T, T - t_max, 0)``, N.
     objective: the objective this method minimises, e.g. ``"min |T - T_mid|_2"``.
     method: the method's registered name.
-    status: (...,) int8 status code (see :data:`STATUS_NAMES`), or None.
+    status: (...,) int8 status code (see :data:`SOLVE_NAMES`), or None.
     """
 
     tensions_N: FloatArray
@@ -104,7 +104,7 @@ CHUNK = 5000
 
 ACCURACY_N = 1e-6
 """What ``exact`` promises (N): its tensions are within this of the exact optimum of the problem as
-given, or the pose is flagged ``STATUS_RANK_DEFICIENT`` (see :data:`RANK_TOL`)."""
+given, or the pose is flagged ``SOLVE_RANK_DEFICIENT`` (see :data:`RANK_TOL`)."""
 
 ACCURACY_REL = 1e-10
 """Beyond a scale of ``ACCURACY_N / ACCURACY_REL`` = 1e4 N (``scale_N``, :func:`rank_floor`) the
@@ -115,7 +115,7 @@ _EPS = float(np.finfo(np.float64).eps)
 
 RANK_TOL = 2.0 * _EPS / ACCURACY_N
 """The rank test, relative to the problem's scale (per N, 4.4e-10): a pose is flagged
-``STATUS_RANK_DEFICIENT`` when ``sigma_min(A') < RANK_TOL * scale_N`` (:func:`rank_floor`), with
+``SOLVE_RANK_DEFICIENT`` when ``sigma_min(A') < RANK_TOL * scale_N`` (:func:`rank_floor`), with
 ``A'`` = A with unit-norm rows and ``scale_N = sqrt(m) max_j max(|t_min_j|, |t_max_j|, |t_ref_j|)``,
 which bounds both ``|T|_2`` and ``|T_ref|_2``.  ``exact`` also flags an answer whose *reduced*
 matrix fails the same test: ``sigma_F``, the smallest singular value of ``A'`` restricted to the
@@ -230,7 +230,7 @@ def rank_floor(
     t_min_N: ArrayLike, t_max_N: ArrayLike, t_ref_N: ArrayLike | None = None
 ) -> FloatArray:
     """The rank test's floor (...,) for limits (and reference) (..., m): a pose whose
-    ``sigma_min_unit_rows(A)`` is below it is flagged ``STATUS_RANK_DEFICIENT`` by every method.
+    ``sigma_min_unit_rows(A)`` is below it is flagged ``SOLVE_RANK_DEFICIENT`` by every method.
 
     ``eps scale_N / max(ACCURACY_N, ACCURACY_REL scale_N)``, ``scale_N = sqrt(m) max_j
     max(|t_min_j|, |t_max_j|, |t_ref_j|)``: ``RANK_TOL scale_N`` up to a scale of 1e4 N, then
@@ -324,7 +324,7 @@ def finish(
     feasible = (res <= FEASIBILITY_TOL_N * scale) & (viol <= FEASIBILITY_TOL_N * scale)
     if ok is not None:
         feasible &= ok
-    status = np.where(feasible, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
+    status = np.where(feasible, SOLVE_OK, SOLVE_INFEASIBLE).astype(np.int8)
     return TensionResult(T, feasible, res, viol, objective, method, status)
 
 
@@ -499,8 +499,8 @@ class _Chunked:
             ex = tuple(ex_l)
             T, status = kernel(At, w, lo, hi, *ex)
             res, viol, feas = _summary(At, w, T, lo, hi)
-            feas &= status == STATUS_OK
-            status = np.where(feas | (status != STATUS_OK), status, STATUS_INFEASIBLE)
+            feas &= status == SOLVE_OK
+            status = np.where(feas | (status != SOLVE_OK), status, SOLVE_INFEASIBLE)
             T_out[s:e] = T.T
             res_out[s:e], viol_out[s:e], feas_out[s:e], status_out[s:e] = res, viol, feas, status
         lead = self.lead
@@ -524,7 +524,7 @@ def _closed_form_kernel(
 ) -> tuple[FloatArray, IntArray]:
     f = _Factor(At, _RankFloor(lo, hi))
     T = f.closest(At, w, 0.5 * (lo + hi))
-    status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
+    status = np.where(f.ok, SOLVE_OK, SOLVE_RANK_DEFICIENT).astype(np.int8)
     return T, status
 
 
@@ -556,7 +556,7 @@ def _improved_kernel(
     hi = np.broadcast_to(hi, (m, C))
     mid = 0.5 * (lo + hi)
     T_out = np.empty((m, C))
-    status_out = np.full(C, STATUS_INFEASIBLE, dtype=np.int8)
+    status_out = np.full(C, SOLVE_INFEASIBLE, dtype=np.int8)
     free = np.ones((m, C), dtype=bool)
     T_fix = np.zeros((m, C))
     idx = np.arange(C)
@@ -580,11 +580,11 @@ def _improved_kernel(
         vmax = v[worst, ar]
         rank_bad = ~f.ok
         done = (vmax <= tol[idx]) & ~rank_bad
-        status_out[idx[done]] = STATUS_OK
-        status_out[idx[rank_bad]] = STATUS_RANK_DEFICIENT
+        status_out[idx[done]] = SOLVE_OK
+        status_out[idx[rank_bad]] = SOLVE_RANK_DEFICIENT
         n_free = fr.sum(axis=0)
         give_up = ~done & ~rank_bad & (n_free - 1 < n)
-        status_out[idx[give_up]] = STATUS_GAVE_UP
+        status_out[idx[give_up]] = SOLVE_GAVE_UP
         go = ~done & ~rank_bad & ~give_up
         if not go.any():
             break
@@ -812,20 +812,20 @@ def _exact_kernel(
         return T, status
     # At a limit the normal equations' error is ~ eps |T| / (sigma_min sigma_F): the poses whose
     # sigma_F is not certified above SVD_BELOW are solved again from the SVD
-    redo = np.flatnonzero((status == STATUS_OK) & ~svd & (low < SVD_BELOW))
+    redo = np.flatnonzero((status == SOLVE_OK) & ~svd & (low < SVD_BELOW))
     if redo.size:
         a_, w_, lo_, hi_, ref_ = (_take(x, redo) for x in (At, w, lo, hi, ref))
         every = np.ones(redo.size, dtype=bool)
         T2, st2, low2, at2 = _exact_solve(f.subset(redo), a_, w_, lo_, hi_, ref_, every)
         T[:, redo], status[redo], low[redo], at[:, redo] = T2, st2, low2, at2
     # the rank test on the reduced matrix at the answer (RANK_TOL)
-    check = np.flatnonzero((status == STATUS_OK) & (low < max(f.floors.cap, _TRUST_BELOW)))
+    check = np.flatnonzero((status == SOLVE_OK) & (low < max(f.floors.cap, _TRUST_BELOW)))
     if check.size:
         fl = f.floors.at(check)
         near = low[check] < np.maximum(fl, _TRUST_BELOW)
         check, fl = check[near], fl[near]
         bad = _sigma_free(f.As, at, check) < fl
-        status[check[bad]] = STATUS_RANK_DEFICIENT
+        status[check[bad]] = SOLVE_RANK_DEFICIENT
     return T, status
 
 
@@ -856,10 +856,10 @@ def _exact_solve(
     tol = _REL_TOL * (1.0 + np.abs(hi).max(axis=0))
     tol = np.broadcast_to(tol, (C,))
     need = ((lo_ > tol) | (hi_ < -tol)).any(axis=0) & f.ok
-    status = np.where(f.ok, STATUS_OK, STATUS_RANK_DEFICIENT).astype(np.int8)
+    status = np.where(f.ok, SOLVE_OK, SOLVE_RANK_DEFICIENT).astype(np.int8)
     T = Tp
     if r == 0:
-        status[need] = STATUS_INFEASIBLE
+        status[need] = SOLVE_INFEASIBLE
         return T, status, low, at
     idx = np.flatnonzero(need)
     if idx.size == 0:
@@ -885,7 +885,7 @@ def _exact_solve(
         lam1[~found] = 0.0  # infeasible: T_p (balances w, violates a limit)
         lam2[~found] = 0.0
         T[:, idx] += N[0] * lam1 + N[1] * lam2
-    status[idx[~found]] = STATUS_INFEASIBLE
+    status[idx[~found]] = SOLVE_INFEASIBLE
     at_k = _at_limit(_take(T, idx), _take(lo, idx), _take(hi, idx))
     at[:, idx] = at_k
     low[idx] = _free_sigma_low(low[idx], N, at_k)
@@ -1102,7 +1102,7 @@ def _exact2_chunk(
             Sk = np.take(S, idx, axis=-1)
             lam1, lam2, state = _polygon_one_line(Sk[0], Sk[1], Sk[2], Sk[3], tol[idx])
             undecided = idx[state == 2]
-            status[idx[state == 1]] = STATUS_INFEASIBLE
+            status[idx[state == 1]] = SOLVE_INFEASIBLE
             L = np.zeros((2, C))
             L[0, idx] = lam1
             L[1, idx] = lam2
@@ -1132,8 +1132,8 @@ def _exact2_chunk(
     vmax = viol.max(axis=0)
     np.maximum(vmax, 0.0, out=vmax)
     ftol = FEASIBILITY_TOL_N * (1.0 + np.abs(hi_q).max(axis=0))
-    feas = (res <= ftol) & (vmax <= ftol) & (status == STATUS_OK)
-    status[~feas & (status == STATUS_OK)] = STATUS_INFEASIBLE
+    feas = (res <= ftol) & (vmax <= ftol) & (status == SOLVE_OK)
+    status[~feas & (status == SOLVE_OK)] = SOLVE_INFEASIBLE
     T_out, feas_out, res_out, viol_out, status_out = out
     T_out[s:e] = Tp.take(np.argsort(q), axis=0).T
     feas_out[s:e], res_out[s:e], viol_out[s:e], status_out[s:e] = feas, res, vmax, status
@@ -1322,13 +1322,13 @@ def exact(
     method's objective.  With ``T_p = T_ref + A^+ (w - A T_ref)`` and an orthonormal null-space
     basis ``N`` (m, m - n), ``T = T_p + N lam`` and ``|T - T_ref|^2 = |T_p - T_ref|^2 + |lam|^2``:
     the answer is the point of the polygon (interval for m = n + 1) ``{lam: limits}`` closest to
-    the origin.  ``feasible=False`` with ``status == STATUS_INFEASIBLE`` certifies that no tensions
+    the origin.  ``feasible=False`` with ``status == SOLVE_INFEASIBLE`` certifies that no tensions
     within the limits, relaxed by ``1e-12 (1 + max t_max)`` N, balance ``w``; the tensions are then
     ``T_p``.  For m = n + 2 a fast path (shared pivot order, one certified line of the polygon, see
     docs/tension.md) solves the poses it can and leaves the others to the general kernel.
 
     Accuracy: within :data:`ACCURACY_N` of the exact optimum of the problem as given (and of
-    quadprog), also for limit ranges narrower than that; otherwise ``STATUS_RANK_DEFICIENT``: the
+    quadprog), also for limit ranges narrower than that; otherwise ``SOLVE_RANK_DEFICIENT``: the
     pose's ``sigma_min(A')``, or at the answer the smallest singular value of ``A'`` restricted to
     the cables not at a limit, is below :func:`rank_floor` (``t_ref_N`` included in the scale).
     A: (..., n, m); w: (..., n); t_min_N, t_max_N, t_ref_N: (..., m) or (m,), N.
@@ -1413,12 +1413,12 @@ def _penalty_kernel(
             if k.size == 0:
                 break
         converged[k] = False
-    status = np.where(converged, STATUS_OK, STATUS_INFEASIBLE).astype(np.int8)
+    status = np.where(converged, SOLVE_OK, SOLVE_INFEASIBLE).astype(np.int8)
     # the shared rank test, and the method's own: with lambda_max sigma_min(A')^2 < 1 the penalty
     # on the weakest direction of A' T = w' weighs less than the objective (sigma < 1e-5 for the
     # default schedule; its error grows as 1 / (lambda sigma^2), docs/tension.md)
     floors = _RankFloor(lo_c.T, hi_c.T, at_least=1.0 / np.sqrt(max(lambdas)))
-    status[~_Factor(At, floors).ok] = STATUS_RANK_DEFICIENT
+    status[~_Factor(At, floors).ok] = SOLVE_RANK_DEFICIENT
     return np.ascontiguousarray(T.T), status
 
 
@@ -1439,7 +1439,7 @@ def penalty(
     iteration.  The squared norm replaces the paper's norm (same minimiser, smooth).  The result
     approaches the exact min ``|T - T_min|_2`` solution as lambda grows (error O(1/lambda), see
     docs/tension.md); ``feasible`` uses the same tolerance as the other methods.  Besides the
-    shared rank test, a pose with ``max(lambdas) sigma_min(A')^2 < 1`` is ``STATUS_RANK_DEFICIENT``:
+    shared rank test, a pose with ``max(lambdas) sigma_min(A')^2 < 1`` is ``SOLVE_RANK_DEFICIENT``:
     the penalty on the weakest direction of ``A' T = w'`` weighs less than the objective there
     (sigma < 1e-5 for the default schedule); above it the error still grows as
     1 / (lambda sigma^2), 1.4e-3 N at sigma 1e-2 on the flat rig.

@@ -33,6 +33,12 @@ from typing import Any
 
 import numpy as np
 
+from cdpr.analysis.conventions import (
+    CHANNEL_STATUS_FAULT,
+    CHANNEL_STATUS_SATURATED,
+    CHANNEL_STATUS_SLACK,
+)
+
 from .recorder import Recorder, RecorderStatus
 from .source import STATUS_GAP, STATUS_SATURATED, STATUS_SENSOR_FAULT, STATUS_SLACK
 from .vrig_events import MOTION_EVENT_FIELDS
@@ -224,7 +230,8 @@ def tension_warnings(
     values: dict[str, Any], t_min_N: Sequence[float] | None, t_max_N: Sequence[float] | None
 ) -> list[str]:
     """``"<cable> slack"`` / ``"<cable> saturated"`` for tensions outside the cable limits, and
-    per-cable DBC status bits (``status_<cable>``: 1 saturated, 2 slack, 4 fault)."""
+    per-cable channel status bits (``status_<cable>``,
+    :data:`cdpr.analysis.conventions.CHANNEL_TO_STATUS`)."""
     out: list[str] = []
     cables = [k[2:-2] for k in values if k.startswith("T_") and k.endswith("_N")]
     for i, c in enumerate(cables):
@@ -233,13 +240,17 @@ def tension_warnings(
         if isinstance(v, float) and not math.isfinite(v):
             out.append(f"{c} missing")
             continue
-        slack = bool(st & 2) or (t_min_N is not None and i < len(t_min_N) and v < t_min_N[i])
-        sat = bool(st & 1) or (t_max_N is not None and i < len(t_max_N) and v > t_max_N[i])
+        slack = bool(st & CHANNEL_STATUS_SLACK) or (
+            t_min_N is not None and i < len(t_min_N) and v < t_min_N[i]
+        )
+        sat = bool(st & CHANNEL_STATUS_SATURATED) or (
+            t_max_N is not None and i < len(t_max_N) and v > t_max_N[i]
+        )
         if slack:
             out.append(f"{c} slack")
         if sat:
             out.append(f"{c} saturated")
-        if st & 4:
+        if st & CHANNEL_STATUS_FAULT:
             out.append(f"{c} fault")
     return out
 

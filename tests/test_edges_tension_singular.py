@@ -58,14 +58,14 @@ def test_exact_is_within_1e_6_of_the_optimum_or_flagged(sigma):
     floor = floor_from_spec(lo, hi, ref)
     at = (np.abs(T_opt - lo) < 1e-9) | (np.abs(T_opt - hi) < 1e-9)  # the constructed active set
     s_F = sigma_free(A, at)
-    flagged = r.status == tn.STATUS_RANK_DEFICIENT
+    flagged = r.status == tn.SOLVE_RANK_DEFICIENT
     assert np.all(~r.feasible[flagged])
     # the verdict is the rank test on sigma_F (sigma_min(A') when no cable is at a limit), up
     # to a band around the floor where the answer's own active set decides
     clear = (s_F < floor / 1.3) | (s_F > 1.3 * floor)
     np.testing.assert_array_equal(flagged[clear], (s_F < floor)[clear])
     # every case here is feasible (T_opt is), so nothing else may be reported
-    assert np.all(r.status[~flagged] == tn.STATUS_OK)
+    assert np.all(r.status[~flagged] == tn.SOLVE_OK)
     err = np.abs(r.tensions_N - T_opt).max(axis=-1)
     assert np.all(err[~flagged] <= OPT_TOL_N), (sigma, err[~flagged].max())
     # quadprog agrees with the constructed optimum on the accepted cases
@@ -87,10 +87,10 @@ def test_exact_flags_an_ill_conditioned_vertex_in_a_well_conditioned_pose(sigma_
     r = tn.exact(A, w, lo, hi, t_ref_N=ref)
     floor = floor_from_spec(lo, hi, ref)
     s_F = sigma_free(A, active)
-    flagged = r.status == tn.STATUS_RANK_DEFICIENT
+    flagged = r.status == tn.SOLVE_RANK_DEFICIENT
     clear = (s_F < floor / 1.3) | (s_F > 1.3 * floor)
     np.testing.assert_array_equal(flagged[clear], (s_F < floor)[clear])
-    assert np.all(r.status[~flagged] == tn.STATUS_OK)
+    assert np.all(r.status[~flagged] == tn.SOLVE_OK)
     err = np.abs(r.tensions_N - T_opt).max(axis=-1)
     assert np.all(err[~flagged] <= OPT_TOL_N), err[~flagged].max()
     for k in np.flatnonzero(~flagged)[:20]:
@@ -126,7 +126,7 @@ def test_exact_matches_quadprog_on_near_singular_rig_poses(source, band):
     A, w, lo, hi, balanced = _near_singular_rig_cases(source, 300, 17, band)
     for ref in (0.5 * (lo + hi), lo):
         r = tn.exact(A, w, lo, hi, t_ref_N=ref)
-        flagged = r.status == tn.STATUS_RANK_DEFICIENT
+        flagged = r.status == tn.SOLVE_RANK_DEFICIENT
         T_qp = [quadprog_solve_orthonormal(A[k], w[k], lo[k], hi[k], ref[k]) for k in range(300)]
         feas = np.array([t is not None for t in T_qp])
         assert np.all(feas[balanced])  # quadprog solves what is feasible by construction
@@ -158,7 +158,7 @@ def test_issue_pose_at_sigma_2_1e_6_is_solved_like_quadprog():
         T0 = np.random.default_rng(5).uniform(lo, hi)
         w = np.einsum("kij,kj->ki", A, T0)
         r = tn.exact(A, w, lo, hi)
-        flagged = r.status == tn.STATUS_RANK_DEFICIENT
+        flagged = r.status == tn.SOLVE_RANK_DEFICIENT
         assert np.all(r.feasible == ~flagged) and flagged.sum() <= 4, flagged.sum()
         mid = 0.5 * (lo + hi)
         for k in range(200):
@@ -178,7 +178,7 @@ def test_closed_forms_near_singular_poses_match_quadprog():
     off at sigma 1e-6 from the normal equations)."""
     A, w, lo, hi, balanced = _near_singular_rig_cases("flat_optimum", 200, 23, (2.0, 100.0))
     cf = tn.closed_form(A, w, lo, hi)
-    assert np.all(cf.status != tn.STATUS_RANK_DEFICIENT)
+    assert np.all(cf.status != tn.SOLVE_RANK_DEFICIENT)
     mid = 0.5 * (lo + hi)
     for k in np.flatnonzero(balanced):  # the aero loads need tensions of 1e6 N here
         rn = np.linalg.norm(A[k], axis=-1)
@@ -203,16 +203,16 @@ def test_penalty_flags_poses_its_weight_cannot_hold():
     A, w, lo, hi = rig_cases("flat_optimum", 40, 8)
     for sigma, flagged in ((3e-6, True), (3e-5, False)):
         r = tn.penalty(with_sigma_min(A, sigma), w, lo, hi)
-        assert np.all((r.status == tn.STATUS_RANK_DEFICIENT) == flagged), sigma
+        assert np.all((r.status == tn.SOLVE_RANK_DEFICIENT) == flagged), sigma
     r = tn.penalty(with_sigma_min(A, 3e-5), w, lo, hi, lambdas=(1.0, 1e2, 1e4, 1e6))
-    assert np.all(r.status == tn.STATUS_RANK_DEFICIENT)  # 1 / sqrt(1e6) = 1e-3
+    assert np.all(r.status == tn.SOLVE_RANK_DEFICIENT)  # 1 / sqrt(1e6) = 1e-3
 
 
 def test_every_method_flags_rank_5_structure_matrices():
     A, w, lo, hi, _, _ = singular_cases(0.0, 300, seed=5)
     for name in tn.METHODS:
         r = tn.distribute(name, A, w, lo, hi)
-        assert np.all(r.status == tn.STATUS_RANK_DEFICIENT), name
+        assert np.all(r.status == tn.SOLVE_RANK_DEFICIENT), name
         assert not r.feasible.any(), name
 
 
@@ -231,8 +231,8 @@ def test_rank_verdict_does_not_depend_on_the_batch(monkeypatch):
     odd_w = np.concatenate([ws, wb, wv]) * scale[..., 0]
     odd_lo, odd_hi = np.concatenate([los, lob, lov]), np.concatenate([his, hib, hiv])
     alone = np.array([tn.exact(odd_A[k], odd_w[k], odd_lo[k], odd_hi[k]).status for k in range(30)])
-    assert np.all(alone[:10] == tn.STATUS_RANK_DEFICIENT)
-    assert np.all(alone[10:20] != tn.STATUS_RANK_DEFICIENT)
+    assert np.all(alone[:10] == tn.SOLVE_RANK_DEFICIENT)
+    assert np.all(alone[10:20] != tn.SOLVE_RANK_DEFICIENT)
     rank_5 = np.arange(30) < 10
     rng = np.random.default_rng(3)
     for size, chunk in ((31, 5000), (60, 7), (150, 5000)):
@@ -246,7 +246,7 @@ def test_rank_verdict_does_not_depend_on_the_batch(monkeypatch):
             r = tn.distribute(name, batch[0], batch[1], bl, bh)
             if name == "exact":
                 np.testing.assert_array_equal(r.status[where], alone)
-            rd = r.status[where] == tn.STATUS_RANK_DEFICIENT
+            rd = r.status[where] == tn.SOLVE_RANK_DEFICIENT
             np.testing.assert_array_equal(rd[:20], rank_5[:20], err_msg=name)
 
 

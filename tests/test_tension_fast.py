@@ -80,7 +80,7 @@ def test_fast_path_matches_quadprog_on_perturbed_rigs(chunk, monkeypatch, genera
             feas = ~np.isnan(T_qp[:, 0])
             res = tn.exact(A, w, lo, hi, t_ref_N=ref)
             assert np.array_equal(res.feasible, feas), np.flatnonzero(res.feasible != feas)
-            assert np.all(res.status[~feas] == tn.STATUS_INFEASIBLE)
+            assert np.all(res.status[~feas] == tn.SOLVE_INFEASIBLE)
             assert np.abs(res.tensions_N[feas] - T_qp[feas]).max() <= 1e-6
             n_total += feas.size
             n_feasible += int(feas.sum())

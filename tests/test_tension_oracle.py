@@ -160,7 +160,7 @@ def test_exact_matches_quadprog(source, chunk):
     assert res.objective == "min |T - T_mid|_2" and res.method == "exact"
     # infeasible cases agree with the oracle (quadprog raises), and vice versa
     assert np.array_equal(res.feasible, feas), np.flatnonzero(res.feasible != feas)[:10]
-    assert np.all(res.status[~feas] == tn.STATUS_INFEASIBLE)
+    assert np.all(res.status[~feas] == tn.SOLVE_INFEASIBLE)
     err = np.abs(res.tensions_N[feas] - T_qp[feas]).max()
     print(f"{source}: exact vs quadprog max |dT| = {err:.2e} N over {feas.sum()} feasible cases")
     assert err <= EXACT_TOL_N
@@ -199,7 +199,7 @@ def test_improved_closed_form_against_exact():
         res = tn.improved_closed_form(A, w, lo, hi)
         ok = res.feasible
         assert not np.any(ok & ~feas)  # never claims success on an infeasible case
-        assert np.all(res.status[ok] == tn.STATUS_OK)
+        assert np.all(res.status[ok] == tn.SOLVE_OK)
         assert np.all(res.max_violation_N[ok] <= 1e-6) and np.all(res.residual_N[ok] <= 1e-6)
         dev = np.abs(res.tensions_N[ok] - T_qp[ok]).max(axis=-1)
         subopt = int((dev > EXACT_TOL_N).sum())
@@ -352,7 +352,7 @@ def test_exact_matches_quadprog_on_narrow_limit_ranges(source):
         T_qp, feas = oracle(A, w, lo, hi, ref)
         res = tn.exact(A, w, lo, hi, t_ref_N=ref)
         assert np.array_equal(res.feasible, feas), np.flatnonzero(res.feasible != feas)[:10]
-        assert np.all(res.status[~feas] == tn.STATUS_INFEASIBLE)
+        assert np.all(res.status[~feas] == tn.SOLVE_INFEASIBLE)
         err = np.abs(res.tensions_N[feas] - T_qp[feas]).max()
         worst = max(worst, err)
         print(f"{source}, T_ref {name}: {feas.sum()} of {K} feasible, max |dT| {err:.1e} N")
@@ -412,7 +412,7 @@ def test_exact_matches_quadprog_on_random_edges(seed, n_narrow, u_width, log_sig
     hi_n[0, cab] = lo_n[0, cab] + width
     T_qp = quadprog_solve_orthonormal(A[0], w[0], lo_n[0], hi_n[0], ref[0])
     r = tn.exact(A, w, lo_n, hi_n, t_ref_N=ref)
-    if r.status[0] == tn.STATUS_RANK_DEFICIENT:
+    if r.status[0] == tn.SOLVE_RANK_DEFICIENT:
         assert T_qp is not None
         at = (np.abs(T_qp - lo_n[0]) < 1e-8) | (np.abs(T_qp - hi_n[0]) < 1e-8)
         assert sigma_free(A, at[None])[0] < 1.3 * floor_from_spec(lo_n[0], hi_n[0], ref[0])

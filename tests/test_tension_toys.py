@@ -41,7 +41,7 @@ def test_one_dof_three_cables_by_hand():
     assert not cf.feasible and cf.max_violation_N == pytest.approx(16 / 3 - 4)
     ex = tn.exact(A, [12.0], lo, hi)
     np.testing.assert_allclose(ex.tensions_N, [9.0, 1.0, 4.0], atol=1e-9)
-    assert ex.feasible and ex.status == tn.STATUS_OK
+    assert ex.feasible and ex.status == tn.SOLVE_OK
     icf = tn.improved_closed_form(A, [12.0], lo, hi)
     np.testing.assert_allclose(icf.tensions_N, [9.0, 1.0, 4.0], atol=1e-9)
     assert icf.feasible
@@ -50,7 +50,7 @@ def test_one_dof_three_cables_by_hand():
     pen = tn.penalty(A, [12.0], lo, hi)
     np.testing.assert_allclose(pen.tensions_N, [8.0, 0.0, 4.0], atol=1e-6)
     bad = tn.exact(A, [17.0], lo, hi)
-    assert not bad.feasible and bad.status == tn.STATUS_INFEASIBLE
+    assert not bad.feasible and bad.status == tn.SOLVE_INFEASIBLE
 
 
 def test_one_dof_two_cables_interval_by_hand():
@@ -60,7 +60,7 @@ def test_one_dof_two_cables_interval_by_hand():
     np.testing.assert_allclose(ex.tensions_N[0], [10.0, 2.0], atol=1e-9)
     np.testing.assert_allclose(ex.tensions_N[2], [7.25, 4.25], atol=1e-9)  # closed form inside
     assert ex.feasible.tolist() == [True, False, True]
-    assert ex.status.tolist() == [tn.STATUS_OK, tn.STATUS_INFEASIBLE, tn.STATUS_OK]
+    assert ex.status.tolist() == [tn.SOLVE_OK, tn.SOLVE_INFEASIBLE, tn.SOLVE_OK]
 
 
 def test_planar_point_four_cables_by_hand():
@@ -105,10 +105,10 @@ def test_improved_closed_form_uses_each_cables_own_limits():
     np.testing.assert_allclose(r.tensions_N, [0.125, 4.125, 7.125, 0.625], atol=1e-12)
     r = tn.improved_closed_form(A, [24.0], lo4, hi4)
     np.testing.assert_allclose(r.tensions_N, [2.0, 9.0, 10.0, 3.0], atol=1e-9)
-    assert r.feasible and r.status == tn.STATUS_OK
+    assert r.feasible and r.status == tn.SOLVE_OK
     # w = 26 needs T_2 = 11 > 10 after the three clamps: one free cable left -> gives up
     r = tn.improved_closed_form(A, [26.0], lo4, hi4)
-    assert not r.feasible and r.status == tn.STATUS_GAVE_UP
+    assert not r.feasible and r.status == tn.SOLVE_GAVE_UP
 
 
 def test_rank_deficient_structure_matrix_is_flagged_not_raised():
@@ -121,8 +121,8 @@ def test_rank_deficient_structure_matrix_is_flagged_not_raised():
         r = tn.distribute(name, A, w, np.full(8, 1.0), np.full(8, 100.0))
         assert not r.feasible[1] and not r.feasible[2]
         if name != "penalty":
-            assert r.status[1] == tn.STATUS_RANK_DEFICIENT, name
-            assert r.status[2] == tn.STATUS_RANK_DEFICIENT, name
+            assert r.status[1] == tn.SOLVE_RANK_DEFICIENT, name
+            assert r.status[2] == tn.SOLVE_RANK_DEFICIENT, name
         assert np.all(np.isfinite(r.residual_N))
 
 

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from cdpr.analysis.kinematics import cable_vectors, structure_matrix
     from cdpr.analysis.rotations import rotation_from_euler
     from cdpr.analysis.tension import (
-        STATUS_RANK_DEFICIENT,
+        SOLVE_RANK_DEFICIENT,
         distribute,
         rank_floor,
         sigma_min_unit_rows,
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     write_table(args.out, out, header)
     if n_bad:
         i = int(np.flatnonzero(~res.feasible)[0])
-        n_rank = int(np.sum(res.status == STATUS_RANK_DEFICIENT)) if res.status is not None else 0
+        n_rank = int(np.sum(res.status == SOLVE_RANK_DEFICIENT)) if res.status is not None else 0
         why = (
             f", {n_rank} of them because the structure matrix of the cables not at a limit "
             "loses rank at the answer"
