@@ -47,6 +47,24 @@ def png_figure(
         fh.write(buf.getvalue())
 
 
+def minmax_bins(y: Any, n_bins: int) -> tuple[Any, Any, Any]:
+    """The one binning of the decimated plots: ``n_bins`` bins of equal sample count over ``y``
+    (n, ...) (n >= n_bins; bin k starts at ``k n // n_bins``), each bin's minimum and maximum per
+    column with NaN ignored (a bin of NaN only stays NaN).  Returns ``(starts (b,), lo, hi)``.
+    Vectorised: one ``fmin/fmax.reduceat``."""
+    import warnings
+
+    import numpy as np
+
+    n = len(y)
+    starts = (np.arange(n_bins, dtype=np.int64) * n) // n_bins
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins
+        lo = np.fmin.reduceat(y, starts, axis=0)
+        hi = np.fmax.reduceat(y, starts, axis=0)
+    return starts, lo, hi
+
+
 def minmax_envelope(t: Any, y: Any, n_bins: int = 2000) -> tuple[Any, Any]:
     """Decimate samples for a line plot: the min/max envelope over ``n_bins`` bins of equal sample
     count.
@@ -58,8 +76,6 @@ def minmax_envelope(t: Any, y: Any, n_bins: int = 2000) -> tuple[Any, Any]:
     stays visible), from ``2 * n_bins`` points instead of ``n``.  Series of at most ``2 * n_bins``
     samples come back unchanged.  Vectorised: one ``fmin/fmax.reduceat`` per call.
     """
-    import warnings
-
     import numpy as np
 
     t = np.asarray(t)
@@ -71,11 +87,7 @@ def minmax_envelope(t: Any, y: Any, n_bins: int = 2000) -> tuple[Any, Any]:
     n = len(t)
     if n <= 2 * n_bins:
         return t, y
-    starts = (np.arange(n_bins, dtype=np.int64) * n) // n_bins
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins
-        lo = np.fmin.reduceat(y, starts, axis=0)
-        hi = np.fmax.reduceat(y, starts, axis=0)
+    starts, lo, hi = minmax_bins(y, n_bins)
     t_d = np.repeat(t[starts], 2)
     y_d = np.empty((2 * n_bins, *y.shape[1:]))
     y_d[0::2] = lo

@@ -24,7 +24,6 @@ from __future__ import annotations
 import base64
 import html
 import os
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -343,19 +342,18 @@ def _reference_lines(ax: Any, ref: pd.DataFrame | None, x: str, y: str) -> None:
 def envelope(
     t: NDArray[np.float64], y: NDArray[np.float64], max_bins: int
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Min/max envelope of ``y`` (n, m) over ``max_bins`` equal-count bins of samples: bin centre
+    """Min/max envelope of ``y`` (n, m) over ``max_bins`` bins of equal sample count
+    (:func:`cdpr.pipelines.plotting.minmax_bins`, the one binning of the plots): the bins' mean
     times (b,), minima (b, m), maxima (b, m); NaN samples ignored (an all-NaN bin gives NaN).  With
     ``n <= max_bins`` the samples themselves (min = max = y)."""
+    from .plotting import minmax_bins
+
     n = y.shape[0]
     if n <= max_bins:
         return t, y, y
-    size = -(-n // max_bins)
-    pad = size * max_bins - n
-    yp = np.concatenate([y, np.full((pad, y.shape[1]), np.nan)]).reshape(max_bins, size, -1)
-    tp = np.concatenate([t, np.full(pad, np.nan)]).reshape(max_bins, size)
-    with warnings.catch_warnings():  # an all-NaN bin is NaN, said by the plot's gap
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmean(tp, axis=1), np.nanmin(yp, axis=1), np.nanmax(yp, axis=1)
+    starts, lo, hi = minmax_bins(y, max_bins)
+    counts = np.diff(np.append(starts, n))
+    return np.add.reduceat(np.asarray(t, dtype=np.float64), starts) / counts, lo, hi
 
 
 def spread_labels(y: NDArray[np.float64], min_gap: float) -> NDArray[np.float64]:

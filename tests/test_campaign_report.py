@@ -94,9 +94,11 @@ def test_envelope_against_hand_values() -> None:
     np.testing.assert_allclose(lo[:, 0], [0, 2, 4, 6, 8])
     np.testing.assert_allclose(hi[:, 0], [1, 2, 5, 7, 9])  # the NaN sample is ignored
     np.testing.assert_allclose(hi[:, 1], [0, -2, -4, -6, -8])
-    tc, lo, hi = envelope(np.arange(7.0), np.arange(7.0)[:, None], 3)  # 7 samples, bins of 3
-    np.testing.assert_allclose(lo[:, 0], [0, 3, 6])
-    np.testing.assert_allclose(hi[:, 0], [2, 5, 6])
+    # 7 samples in 3 bins: they start at k n // 3 = 0, 2, 4 (2, 2 and 3 samples)
+    tc, lo, hi = envelope(np.arange(7.0), np.arange(7.0)[:, None], 3)
+    np.testing.assert_allclose(tc, [0.5, 2.5, 5.0])
+    np.testing.assert_allclose(lo[:, 0], [0, 2, 4])
+    np.testing.assert_allclose(hi[:, 0], [1, 3, 6])
 
 
 def test_spread_labels_fans_out_overlaps_and_keeps_separated_ones() -> None:
