@@ -1,4 +1,6 @@
-"""The one module that imports OpenCV (``cv2``): a thin adapter that normalises shapes and API changes.
+"""The one module that imports OpenCV (``cv2``): the adapters that normalise shapes and API changes,
+and the OpenCV-backed calibration targets (``CharucoBoard``, ``ChessboardTarget``,
+``CircleGridTarget``), ArUco detector and video I/O built on them.
 
 Every other module calls these functions with plain numpy arrays:
 
