@@ -65,7 +65,8 @@ class TarePose:
     pose: (k, 6) the point's pose (m, rad) = the tare's measured pose + ``delta``; delta: (k, 6) the
     fused pose difference; delta_measured, delta_predicted: (k, 6) the camera's and the stiffness
     model's; gain_measured: (k, 6, 6) ``F`` with ``delta = predicted + F (measured - predicted)``;
-    cov_predicted: (k, 6, 6) the prediction's covariance; model_disagrees: (k,) True where the
+    cov_predicted: (k, 6, 6) the prediction's covariance; load_sensitivity: (k, 6, 6) ``S``, the
+    prediction's change per unit of load (``delta_predicted = S load``); model_disagrees: (k,) True where the
     camera's difference and the model's disagree beyond their covariances (chi-square, 6 dof, at
     0.1 %): there the camera's difference alone is used (``gain_measured`` = I).
     """
@@ -77,6 +78,7 @@ class TarePose:
     gain_measured: FloatArray
     cov_predicted: FloatArray
     model_disagrees: NDArray[np.bool_]
+    load_sensitivity: FloatArray
 
 
 CHI2_6_999: float = 22.4577
@@ -88,14 +90,27 @@ LOAD_STEPS: int = 100
 each step the structure matrices and stiffness of the tared points; the cubic rig's takes about
 12 to 1e-3 of the deflection)."""
 
-TARE_POSE_SD_REL: float = 0.5
+TARE_POSE_SD_REL: float = 0.2
 """The stiffness model's relative σ for the deflection between a point and its tare
-(:func:`tare_pose`): the cables' EA and the geometry may be known to a few per cent, but the
-frame's compliance, the cables' sag and their end fittings are not modelled (0.2 made the chi-square
-check below fire on the virtual rig's own alpha sweep).  Where the model is off by more than
-this, the camera sees it (the chi-square check at 0.1 %) and its measured difference is used
-instead, flagged
+(:func:`tare_pose`): the cables' EA and the geometry known to a few per cent.  A rig whose frame,
+end fittings or sag add compliance the model does not know shows it to the camera (the chi-square
+check at 0.1 %): there the measured difference is used instead, flagged
 ``tare_pose_model_disagrees``."""
+
+
+def _deflection(rig: Rig, pose: FloatArray, tensions_N: FloatArray, load: FloatArray) -> FloatArray:
+    """The stiffness model's pose change (k, 6) [position m, Euler angles rad] under ``load``
+    (k, 6) at P in {O}, at ``pose`` (k, 6) and ``tensions_N`` (k, m): ``x = K^-1 load``."""
+    from .rotations import euler_rate_matrix
+    from .stiffness import stiffness_matrix
+
+    K = stiffness_matrix(
+        rig.anchors_O_m, rig.attach_P_m, pose[:, :3], rotation_from_euler(pose[:, 3:]),
+        tensions_N, rig.cable_EA_N, rig.mass_kg, rig.com_P_m, rig.gravity_O_mps2,
+    ).K  # fmt: skip
+    x = np.linalg.solve(K, load[..., None])[..., 0]
+    dpsi = np.linalg.solve(euler_rate_matrix(pose[:, 3:]), x[:, 3:, None])[..., 0]
+    return np.concatenate([x[:, :3], dpsi], axis=1)
 
 
 def tare_pose(
@@ -165,7 +180,8 @@ def tare_pose(
     gain[disagree] = np.eye(6)
     cov_p[disagree] = 0.0
     delta = predicted + np.einsum("kij,kj->ki", gain, r)
-    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p, disagree)
+    S = to_q @ np.linalg.inv(st.K)
+    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p, disagree, S)
 
 
 def load_cell_maps(
@@ -247,7 +263,16 @@ def weight_tare(
     finite = np.asarray(np.isfinite(T).all(axis=1) & np.isfinite(q_in).all(axis=1))
     off = np.isin(kind, WIND_OFF_KINDS) & finite
     q = np.where(finite[:, None], q_in, 0.0)
-    tare = nearest_tare(q, off, start_ns, position_tol_m, angle_tol_rad) if s else np.zeros(0)
+    # a point's twin is at the pose it would have without its load: a soft rig yields tenths of a
+    # degree under the wind, more than the tolerance (the stiffness model's deflection under the
+    # point's own load over the weight model is taken out for the match only)
+    q_match = q.copy()
+    loaded = np.flatnonzero(finite & ~off)
+    if loaded.size:
+        W_own = recover_wrench(rig, q[loaded], T[loaded], weight_theta=theta)
+        q_match[loaded] = q[loaded] - _deflection(rig, q[loaded], T[loaded], W_own)
+    q_match = np.where(np.isfinite(q_match), q_match, q)
+    tare = nearest_tare(q_match, off, start_ns, position_tol_m, angle_tol_rad) if s else np.zeros(0)
     tare = np.where(finite & ~off, tare, -1).astype(np.int64)
 
     has = tare >= 0
@@ -298,6 +323,14 @@ def weight_tare(
             rig.anchors_O_m, rig.attach_P_m, q[idx, :3], rotation_from_euler(q[idx, 3:])
         )
     G, support = load_cell_maps(A, tare, mix)
+    if tp is not None and j.size:
+        # the model's deflection is a function of the load the point's own tensions make (and its
+        # tare's): at the fixed point dW_i/dT = N (the plain map), N = I + J (I - F) (I - S J)^-1 S
+        i = np.flatnonzero(has)
+        Ji, S, F = J[i], tp.load_sensitivity, tp.gain_measured
+        eye = np.eye(6)
+        N = eye + Ji @ (eye - F) @ np.linalg.solve(eye - S @ Ji, S)
+        G[i] = np.einsum("sab,skbm->skam", N, G[i])
     raw_k = np.where((support >= 0)[..., None, None], raw[np.maximum(support, 0)], 0.0)
     c_load = np.einsum("skam,skmn,skbn->sab", G, raw_k, G)
     c_load[~finite] = 0.0

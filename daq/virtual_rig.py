@@ -120,6 +120,7 @@ class VirtualRig:
         gain = np.broadcast_to(np.asarray(sens.gain_N_per_count, dtype=np.float64), (m,))
         self.calibration = Calibration(off, gain.copy())
         self.drift_rate_N_per_s = sens.drift_N_per_s * rng.uniform(-1.0, 1.0, size=m)
+        self.deflection = self._segment_deflections()
         self._compute_truth(rng)
 
     # -- physics ---------------------------------------------------------------------------
@@ -143,6 +144,48 @@ class VirtualRig:
             aero.air_density(aero.static_pressure_Pa, aero.temperature_K, aero.relative_humidity),
             sutherland_viscosity(aero.temperature_K),
         ).wrench_N
+
+    def _segment_deflections(self) -> FloatArray:
+        """(n_segments, 6) the steady pose change of each held segment under its wind's load
+        ``x = K^-1 (W_aero + D)`` ([position m, Euler angles rad]), K the cables' stiffness
+        (elastic and geometric, gravity's term with it; :func:`cdpr.analysis.stiffness.
+        stiffness_matrix`) at the commanded pose and its wind-off tensions: the winches hold the
+        cable lengths, the cables stretch, the platform yields, as a real balance does.  Zero for
+        wind-off and oscillation segments."""
+        from cdpr.analysis.rotations import euler_rate_matrix
+        from cdpr.analysis.stiffness import stiffness_matrix
+
+        rig, segs = self.rig, self.schedule.segments
+        out = np.zeros((len(segs), 6))
+        held = [
+            i
+            for i, sg in enumerate(segs)
+            if sg.wind_mps > 0 and getattr(sg, "oscillation", None) is None
+        ]
+        if not held:
+            return out
+        p = np.array([segs[i].position_O_m for i in held], dtype=np.float64)
+        e = np.array([segs[i].euler_rad for i in held], dtype=np.float64)
+        R = rotation_from_euler(e)
+        V = np.array([segs[i].wind_mps for i in held], dtype=np.float64)
+        on = np.array([segs[i].kind != "windage" for i in held])
+        W, G, D = self.physics(p, R, V, on)
+        A = structure_matrix(rig.anchors_O_m, rig.attach_P_m, p, R)
+        T0 = np.asarray(
+            distribute(self.schedule.method, A, -G, rig.t_min_N, rig.t_max_N).tensions_N
+        )
+        # a load the cables cannot hold at the commanded pose is refused there, not deflected
+        held_ok = np.asarray(
+            distribute(self.schedule.method, A, -(G + W + D), rig.t_min_N, rig.t_max_N).feasible
+        )
+        K = stiffness_matrix(
+            rig.anchors_O_m, rig.attach_P_m, p, R, T0, rig.cable_EA_N, rig.mass_kg, rig.com_P_m,
+            rig.gravity_O_mps2,
+        ).K  # fmt: skip
+        x = np.linalg.solve(K, (W + D)[..., None])[..., 0]  # [dp; dtheta]
+        x[:, 3:] = np.einsum("nij,nj->ni", np.linalg.inv(euler_rate_matrix(e)), x[:, 3:])
+        out[held] = np.where(np.isfinite(x) & held_ok[:, None], x, 0.0)
+        return out
 
     def _segment_starts(self) -> FloatArray:
         d = np.array([s.duration_s for s in self.schedule.segments])
@@ -172,6 +215,18 @@ class VirtualRig:
         pos = P_prev[idx] + frac[:, None] * (P[idx] - P_prev[idx])
         eul = E_prev[idx] + frac[:, None] * (E[idx] - E_prev[idx])
         wind = V_prev[idx] + frac * (V[idx] - V_prev[idx])
+        # the steady deflection under the wind's load, ramped with the load (wind squared)
+        X = getattr(self, "deflection", None)
+        if X is not None and np.any(X != 0.0):
+            X_prev = np.vstack([np.zeros(6), X[:-1]])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                w_now = np.where(V[idx] > 0, (wind / V[idx]) ** 2, 0.0)
+                w_prev = np.where(V_prev[idx] > 0, (wind / V_prev[idx]) ** 2, 0.0)
+            # from the last segment's to this one's over the transition (continuous)
+            x = (1.0 - frac)[:, None] * w_prev[:, None] * X_prev[idx]
+            x = x + (frac * w_now)[:, None] * X[idx]
+            pos = pos + x[:, :3]
+            eul = eul + x[:, 3:]
         off, _, _ = self._motion_at(t_s, idx)
         return pos + off[:, :3], eul + off[:, 3:], wind, idx
 

@@ -17,20 +17,7 @@ import numpy as np
 import pytest
 from measure_coverage import coverage_table, run_lab_path
 
-CASES = [
-    "white",
-    "ar1",
-    "common",
-    pytest.param(
-        "mode",
-        marks=pytest.mark.xfail(
-            strict=True,
-            reason="issue 21 open: the slow wander of a ringing platform (its pose's zero-frequency "
-            "part, balanced by the cables' geometric stiffness) is not in sigma; mz rms(e/sd) 1.6 "
-            "over 108 points (the window's mean inertia term took it from 3.4)",
-        ),
-    ),
-]
+CASES = ["white", "ar1", "common", "mode"]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -47,12 +34,6 @@ def test_intervals_cover_the_truth_under_each_noise(case: str, tmp_path: Path) -
     assert off.empty, (case, off[["cover95", "rms_e_over_sd"]])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 21.4 open: with the camera's noise (0.05 mm / 0.01 deg) the cubic rig's my and "
-    "mz are off by up to 6-7 mN m (rms 1.7, 1.4) over 108 points (0.2 with the true pose): the "
-    "stiffness model trusted to 50 %",
-)
 def test_the_cubic_rig_tare_keeps_the_flat_rigs_accuracy(tmp_path: Path) -> None:
     """5 kg on the cubic rig, large tensions: the tare at the point's pose from the stiffness
     model and the camera by their covariances (not the camera's noise times the full tensions)."""

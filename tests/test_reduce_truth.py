@@ -207,8 +207,9 @@ def test_coefficients_and_check_columns() -> None:
     lift, drag = Wt[:, 2], Wt[:, 0]
     np.testing.assert_allclose(out["CL"][on], lift / qS, atol=5 * out["sd_CL"][on].max())
     np.testing.assert_allclose(out["CD"][on], drag / qS, atol=5 * out["sd_CD"][on].max())
-    # the angle of attack is the platform pitch with the default mounting (nose upstream, level)
-    np.testing.assert_allclose(aoa, out["pose_O_m_rad"][on, 4], atol=1e-9)
+    # the angle of attack is the platform pitch with the default mounting (nose upstream, level),
+    # to second order in the small roll and yaw the load deflects the platform by (up to 1e-3 rad)
+    np.testing.assert_allclose(aoa, out["pose_O_m_rad"][on, 4], atol=2e-6)
     assert np.nanmax(out["check_max_abs_dT_N"]) < 1.0
 
 

@@ -90,6 +90,24 @@ def aero_wrench(aoa_rad: float, speed: float, rho: float) -> np.ndarray:
     )
 
 
+def yielded_pose(q: np.ndarray, load: np.ndarray, mass: float, com: np.ndarray) -> np.ndarray:
+    """The pose (6,) the platform takes when ``load`` (6,) at P in {O} is added at pose ``q``
+    with the winches holding the cable lengths: ``x = K^-1 load``, K the cables' stiffness at q
+    and its wind-off tensions (tests/_lab_physics.py's own, by central differences), the rotation
+    part turned into Euler angles.  The body ``mass``, ``com`` is this world's."""
+    from dataclasses import replace
+
+    from _lab_physics import LabRig, rate_matrix, stiffness
+
+    lab = replace(LabRig.from_toml(RIG_FILE), mass_kg=mass, com_P_m=np.asarray(com, float))
+    T0 = controller(
+        statics(lab.anchors_O_m, lab.attach_P_m, q), weight(mass, com, q), lab.t_min_N, lab.t_max_N
+    )
+    K, _ = stiffness(lab, q, T0)
+    x = np.linalg.solve(K, load)
+    return q + np.concatenate([x[:3], np.linalg.solve(rate_matrix(q[3:]), x[3:])])
+
+
 @dataclass
 class Sweep:
     """Sample streams and the truth of one generated run."""
@@ -151,9 +169,9 @@ def alpha_sweep(
         W = aero_wrench(aoa, v, rho) if v > 0 else np.zeros(6)
         # the nose is -x_P: a positive pitch about y_O turns it to (-cos, 0, +sin), nose up
         q = np.concatenate([home, [0.0, aoa, 0.0]])
-        # the platform yields a little under load (the controller's pose, not exactly the tare's)
-        q[:3] += 2e-5 * W[:3]
-        q[4] += 2e-5 * W[4]
+        # the platform yields under the load as its cables stretch (not exactly the tare's pose)
+        if v > 0:
+            q = yielded_pose(q, W, mass, com)
         A = statics(anchors, attach, q)
         T = controller(A, weight(mass, com, q) + W, tmin, tmax)
         if prev_T is not None:

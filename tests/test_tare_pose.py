@@ -1,0 +1,67 @@
+"""The pose between a wind-on point and its tare (issue 21 item 4): the stiffness model's
+deflection under the point's load fused with the camera's difference by their covariances, and
+the camera trusted alone where the rig is not what the model says.  The deflections that serve
+as truth come from the lab generator's own stiffness (tests/_lab_physics.py: central differences
+of its own statics, not cdpr's), the loads and the camera noise from here."""
+
+from __future__ import annotations
+
+import numpy as np
+from _lab_physics import LabRig, gravity_wrench, rate_matrix, stiffness, structure_matrix
+from lab_generator import RIGS, distribute
+
+from cdpr.analysis.tare import tare_pose
+from cdpr.pipelines.config import load_rig
+
+
+def _world(rig_name: str, k: int, seed: int, softer: float = 1.0, cam_rad: float = 1e-5):
+    """k wind-on points at the reference pose of a data_samples rig with random aerodynamic-size
+    loads: (rig, the tare's poses (k, 6), wind-on poses, camera covariances, tare tensions,
+    loads, true deflections in Euler angles)."""
+    path = RIGS[rig_name]
+    lab = LabRig.from_toml(path)
+    rng = np.random.default_rng(seed)
+    q0 = np.tile(lab.reference_pose, (k, 1))
+    q0[:, 4] = rng.uniform(-0.1, 0.1, k)  # pitch of the sweep
+    A = structure_matrix(lab, q0)
+    T0, _ = distribute(A, -gravity_wrench(lab, q0), lab.t_min_N, lab.t_max_N)
+    W = rng.normal(0, 1, (k, 6)) * np.array([0.3, 0.1, 2.0, 0.01, 0.03, 0.01])
+    x = np.empty((k, 6))
+    for i in range(k):
+        K, _ = stiffness(lab, q0[i], T0[i])
+        d = np.linalg.solve(K, W[i]) * softer
+        x[i] = np.concatenate([d[:3], np.linalg.solve(rate_matrix(q0[i, 3:]), d[3:])])
+    sd = np.array([cam_rad * 0.3] * 3 + [cam_rad] * 3)  # the mean pose's noise: m, rad
+    C = np.broadcast_to(np.diag(sd**2), (k, 6, 6)).copy()
+    qt = q0 + rng.normal(0, 1, (k, 6)) * sd
+    qp = q0 + x + rng.normal(0, 1, (k, 6)) * sd
+    return load_rig(path), qt, qp, C, T0, W, x
+
+
+def test_the_model_and_the_camera_fused_beat_the_camera_alone() -> None:
+    rig, qt, qp, C, T0, W, x = _world("cubic", 400, 1)
+    tp = tare_pose(rig, qp, qt, C, C, T0, W, 0.2)
+    assert not tp.model_disagrees.any()
+    err_fused = tp.delta - x
+    err_cam = tp.delta_measured - x
+    # the fused difference's error is several times smaller than the camera's in pitch
+    assert np.std(err_fused[:, 4]) < 0.35 * np.std(err_cam[:, 4])
+    # and the model's own prediction is the truth's to well within its stated 20 %
+    rel = np.abs(tp.delta_predicted[:, 4] - x[:, 4]) / np.abs(x[:, 4]).clip(1e-9)
+    assert np.median(rel) < 0.05
+    # the fusion's covariance (S_p - F S_p) covers its error
+    cov = tp.cov_predicted - np.einsum("kij,kjl->kil", tp.gain_measured, tp.cov_predicted)
+    z = err_fused[:, 4] / np.sqrt(cov[:, 4, 4])
+    assert 0.9 <= np.mean(np.abs(z) <= 1.96) <= 1.0, np.mean(np.abs(z) <= 1.96)
+
+
+def test_a_rig_softer_than_the_model_is_told_and_the_camera_used() -> None:
+    """A frame three times softer than the cables (what the model does not know): where the
+    camera can tell, the model is dropped (flag) and the measured difference used as it is."""
+    rig, qt, qp, C, T0, W, x = _world("flat", 200, 2, softer=3.0)
+    tp = tare_pose(rig, qp, qt, C, C, T0, W, 0.2)
+    seen = np.abs(x[:, 4]) > 30 * 1e-5  # the extra deflection far beyond the camera's noise
+    assert seen.sum() > 20
+    assert tp.model_disagrees[seen].mean() > 0.9
+    d = tp.model_disagrees
+    np.testing.assert_allclose(tp.delta[d], tp.delta_measured[d])
