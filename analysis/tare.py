@@ -66,7 +66,10 @@ class TarePose:
     fused pose difference; delta_measured, delta_predicted: (k, 6) the camera's and the stiffness
     model's; gain_measured: (k, 6, 6) ``F`` with ``delta = predicted + F (measured - predicted)``;
     cov_predicted: (k, 6, 6) the prediction's covariance; load_sensitivity: (k, 6, 6) ``S``, the
-    prediction's change per unit of load (``delta_predicted = S load``); model_disagrees: (k,) True where the
+    prediction's change per unit of load (``delta_predicted = S load``); model_scale,
+    model_scale_sd: the camera's factor on the model's deflections over all k points and its σ;
+    model_rescaled: True when that factor is off 1 by more than ``sigma_rel`` and 3 σ (the
+    predictions are then the model's times it); model_disagrees: (k,) True where the
     camera's difference and the model's disagree beyond their covariances (chi-square, 6 dof, at
     0.1 %): there the camera's difference alone is used (``gain_measured`` = I).
     """
@@ -79,6 +82,9 @@ class TarePose:
     cov_predicted: FloatArray
     model_disagrees: NDArray[np.bool_]
     load_sensitivity: FloatArray
+    model_scale: float
+    model_scale_sd: float
+    model_rescaled: bool
 
 
 CHI2_6_999: float = 22.4577
@@ -159,6 +165,15 @@ def tare_pose(
     x = np.linalg.solve(st.K, dW[..., None])[..., 0]  # (k, 6): [dp; dtheta]
     to_q = np.tile(np.eye(6), (k, 1, 1))
     to_q[:, 3:, 3:] = np.linalg.inv(euler_rate_matrix(qj[:, 3:]))  # dpsi = H^-1 dtheta
+    measured = qi - qj
+    S = np.asarray(cov_point, dtype=np.float64) + np.asarray(cov_tare, dtype=np.float64)
+    # the model's scale over the run, from the camera (generalised least squares of the measured
+    # differences on the predicted ones): a rig softer or stiffer than the model by more than
+    # sigma_rel, beyond 3 sigma of the fit, has its predictions rescaled (flagged)
+    scale, scale_sd = _model_scale(np.einsum("kij,kj->ki", to_q, x), measured, S)
+    rescaled = bool(abs(scale - 1.0) > max(3.0 * scale_sd, sigma_rel))
+    if rescaled:
+        x = scale * x
     spread = np.concatenate(
         [np.repeat(np.linalg.norm(x[:, :3], axis=1)[:, None], 3, axis=1),
          np.repeat(np.linalg.norm(x[:, 3:], axis=1)[:, None], 3, axis=1)], axis=1
@@ -168,8 +183,6 @@ def tare_pose(
     )
     cov_p = propagate(to_q, cov_x)
     predicted = np.einsum("kij,kj->ki", to_q, x)
-    measured = qi - qj
-    S = np.asarray(cov_point, dtype=np.float64) + np.asarray(cov_tare, dtype=np.float64)
     gain = np.swapaxes(np.linalg.solve(S + cov_p, np.swapaxes(cov_p, 1, 2)), 1, 2)  # Sp (Sm+Sp)^-1
     # the model is used only where the camera agrees with it: a rig whose controller holds the
     # pose, a frame softer than its cables, a model off by more than sigma_rel, all show as a
@@ -180,8 +193,25 @@ def tare_pose(
     gain[disagree] = np.eye(6)
     cov_p[disagree] = 0.0
     delta = predicted + np.einsum("kij,kj->ki", gain, r)
-    S = to_q @ np.linalg.inv(st.K)
-    return TarePose(qj + delta, delta, measured, predicted, gain, cov_p, disagree, S)
+    sens = (scale if rescaled else 1.0) * to_q @ np.linalg.inv(st.K)
+    return TarePose(
+        qj + delta, delta, measured, predicted, gain, cov_p, disagree, sens, scale, scale_sd,
+        rescaled,
+    )  # fmt: skip
+
+
+def _model_scale(
+    predicted: FloatArray, measured: FloatArray, cov: FloatArray
+) -> tuple[float, float]:
+    """``(s, sd)``: the factor s that best maps the predicted pose differences (k, 6) on the
+    measured ones with their covariances (k, 6, 6), ``min sum (m - s p)^T C^-1 (m - s p)``, and
+    its standard deviation; (1, inf) when nothing is predicted."""
+    w = np.linalg.solve(cov, predicted[..., None])[..., 0]
+    ok = np.isfinite(w).all(axis=1) & np.isfinite(measured).all(axis=1)
+    den = float(np.sum(w[ok] * predicted[ok]))
+    if not den > 0:
+        return 1.0, float("inf")
+    return float(np.sum(w[ok] * measured[ok]) / den), float(1.0 / np.sqrt(den))
 
 
 def load_cell_maps(
@@ -283,6 +313,7 @@ def weight_tare(
     deflection = np.full((s, 6), np.nan)
     deflection_measured = np.full((s, 6), np.nan)
     disagrees = np.zeros(s, bool)
+    rescaled = np.zeros(s, bool)
     if j.size and tare_pose_sd_rel is not None and not tare_shares_pose:
         i = np.flatnonzero(has)
         # the load the point adds, at the model's pose (never at the camera's: its noise times
@@ -303,6 +334,7 @@ def weight_tare(
         q_hat[i] = tp.pose
         deflection[i], deflection_measured[i] = tp.delta, tp.delta_measured
         disagrees[i] = tp.model_disagrees
+        rescaled[i] = tp.model_rescaled
     W = np.full((s, 6), np.nan)
     c_pose = np.zeros((s, 6, 6))
     c_wm = np.zeros((s, 6, 6))
@@ -355,6 +387,7 @@ def weight_tare(
     flags: dict[str, NDArray[np.bool_]] = {
         "tare": has,
         "tare_pose_model_disagrees": disagrees,
+        "stiffness_model_rescaled": rescaled,
         "weight_model": model_used,
         "nonfinite_input": ~finite,
     }
