@@ -114,6 +114,12 @@ def points_from_samples(
         raise InputError("pose_cov: no covariance in the pose stream and no fallback given")
     frame_var = np.diagonal(pcov, axis1=1, axis2=2) * nf[:, None]  # one frame's variance (s, 6)
     rate_var = pose_rate_variance(tp, qp, pbad, pranges, frame_var)
+    wander = np.flatnonzero(np.any(ps.sd**2 > 2.0 * frame_var, axis=1))  # beyond the camera's noise
+    motion_cov = np.zeros((s, 6, 6))
+    if wander.size:
+        motion_cov[wander] = pose_motion_covariance(
+            qp, pbits, [pranges[k] for k in wander], np.asarray(pcov)[wander]
+        )
     # the covariance of each point's mean tensions from the data's own correlation (time and
     # across cables), not sd / sqrt(n): :mod:`cdpr.analysis.longrun`
     m = T.shape[1]
@@ -134,6 +140,7 @@ def points_from_samples(
         input_flags=_input_words(st, ps, nominal, short & (st.n_used >= 2), pose_sd_word),
         tension_sample_cov_N2=g0,
         pose_rate_var=rate_var,
+        pose_motion_cov=motion_cov,
         window_s=(stop_ns - start_ns) * 1e-9,
         n_used=st.n_used,
         longrun_bandwidth=np.array([lr.bandwidth for lr in runs], dtype=np.int64),
@@ -151,6 +158,50 @@ def points_from_samples(
         "tension_sd_N": st.sd,
     }
     return pts, extra
+
+
+def pose_motion_covariance(
+    poses: ArrayLike,
+    pose_bits: ArrayLike,
+    ranges: list[tuple[int, int]],
+    camera_cov_of_mean: ArrayLike,
+) -> FloatArray:
+    """The covariance (s, 6, 6) of each point's mean pose from the platform's own motion: the
+    long-run covariance of the frames' mean (:func:`cdpr.analysis.longrun.window_long_runs`, the
+    tensions' estimator) beyond the camera's noise (``camera_cov_of_mean`` (s, 6, 6)), kept only in
+    the directions where it is beyond the estimate's own scatter (:func:`_significant_excess`); 0
+    where a point has fewer than 48 usable frames.  A platform that wanders or rings in the flow
+    is not where the stiffness model puts it for the mean load: the tare pose weighs the camera
+    more there (:func:`cdpr.analysis.tare.tare_pose`)."""
+    q = np.asarray(poses, dtype=np.float64)
+    s = len(ranges)
+    out = np.zeros((s, 6, 6))
+    if q.shape[0] < 2 or s == 0:
+        return out
+    runs = window_long_runs(q, ranges, pose_bits)
+    C = np.asarray(camera_cov_of_mean, dtype=np.float64)
+    for i, lr in enumerate(runs):
+        if lr.n < 48 or not (np.isfinite(lr.cov_of_mean).all() and np.isfinite(C[i]).all()):
+            continue
+        out[i] = _significant_excess(lr.cov_of_mean, C[i], 1.5 * lr.n / max(lr.bandwidth, 1))
+    return out
+
+
+def _significant_excess(estimate: FloatArray, counted: FloatArray, dof: float) -> FloatArray:
+    """The part of the covariance ``estimate`` beyond ``counted`` (both (6, 6)) in the directions
+    where it is beyond the estimate's own scatter: in the coordinates where ``counted`` is the
+    identity, the eigenvalues above ``1 + 2 sqrt(2 / dof)`` (two standard deviations of a variance
+    estimated with ``dof`` degrees of freedom; a Bartlett estimate has about ``1.5 n / bandwidth``,
+    Priestley 1981, 6.2.4), less 1."""
+    w, V = np.linalg.eigh(0.5 * (counted + counted.T))
+    floor = max(float(w.max()), 0.0) * 1e-12
+    if floor <= 0:
+        return np.zeros_like(counted)
+    half = (V * np.sqrt(np.clip(w, floor, None))) @ V.T  # counted^(1/2)
+    ihalf = (V / np.sqrt(np.clip(w, floor, None))) @ V.T
+    lam, U = np.linalg.eigh(ihalf @ (0.5 * (estimate + estimate.T)) @ ihalf)
+    x = np.where(lam > 1.0 + 2.0 * np.sqrt(2.0 / max(dof, 1.0)), lam - 1.0, 0.0)
+    return np.asarray(half @ ((U * x) @ U.T) @ half)
 
 
 def pose_rate_variance(

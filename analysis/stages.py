@@ -211,6 +211,7 @@ def weight_tare_stage(
         tension_mix=p.arrays.get("tension_mix"),
         tension_cov_raw_N2=p.arrays.get("tension_cov_raw_N2"),
         tare_pose_sd_rel=tare_pose_sd_rel,
+        pose_motion_cov=p.arrays.get("pose_motion_cov"),
     )
     return with_updates(
         p,

@@ -91,10 +91,10 @@ CHI2_6_999: float = 22.4577
 """The 99.9 % point of the chi-square distribution with 6 degrees of freedom."""
 
 
-LOAD_STEPS: int = 100
+LOAD_STEPS: int = 200
 """At most this many fixed-point steps of the load a point adds over its tare (:func:`weight_tare`,
-each step the structure matrices and stiffness of the tared points; the cubic rig's takes about
-12 to 1e-3 of the deflection)."""
+each step the structure matrices and stiffness of the tared points; each point stops at 1e-6 of
+its deflection, the cubic rig's in about 25)."""
 
 TARE_POSE_SD_REL: float = 0.2
 """The stiffness model's relative σ for the deflection between a point and its tare
@@ -102,6 +102,11 @@ TARE_POSE_SD_REL: float = 0.2
 end fittings or sag add compliance the model does not know shows it to the camera (the chi-square
 check at 0.1 %): there the measured difference is used instead, flagged
 ``tare_pose_model_disagrees``."""
+
+
+STIFFNESS_SHAPE_SD_REL: float = 0.05
+"""The stiffness model's relative σ beyond its overall scale (which the run's camera data fit,
+:func:`tare_pose`): the cables' EA from one to the next and the geometry, a few per cent."""
 
 
 def _deflection(rig: Rig, pose: FloatArray, tensions_N: FloatArray, load: FloatArray) -> FloatArray:
@@ -128,6 +133,9 @@ def tare_pose(
     tensions_tare_N: ArrayLike,
     load_change_N_Nm: ArrayLike,
     sigma_rel: float = TARE_POSE_SD_REL,
+    load_cov: ArrayLike | None = None,
+    load_pose_jacobian: ArrayLike | None = None,
+    wander_cov: ArrayLike | None = None,
 ) -> TarePose:
     """The pose difference between a wind-on point and its wind-off tare, from what it really is.
 
@@ -142,7 +150,11 @@ def tare_pose(
 
     pose_point, pose_tare: (k, 6) measured mean poses; cov_point, cov_tare: (k, 6, 6) their
     covariances; tensions_tare_N: (k, m); load_change_N_Nm: (k, 6) the load the point adds at P in
-    {O} (its wrench against the tare's, a first estimate is enough: the deflection is linear in it).
+    {O} (its wrench against the tare's, a first estimate is enough: the deflection is linear in it);
+    load_cov: (k, 6, 6) that load's covariance from the load cells and load_pose_jacobian (k, 6, 6)
+    its change with the pose (None: the prediction's own noise left out of the weighting);
+    wander_cov: (k, 6, 6) the platform's own motion in the point's and its tare's mean poses
+    beyond the camera's noise (what the model for the mean load cannot know).
     """
     from .rotations import euler_rate_matrix
     from .stiffness import stiffness_matrix
@@ -178,22 +190,37 @@ def tare_pose(
         [np.repeat(np.linalg.norm(x[:, :3], axis=1)[:, None], 3, axis=1),
          np.repeat(np.linalg.norm(x[:, 3:], axis=1)[:, None], 3, axis=1)], axis=1
     )  # fmt: skip
-    cov_x = sigma_rel**2 * (
-        x[:, :, None] * x[:, None, :] + np.einsum("ki,ij->kij", spread**2, np.eye(6))
+    # the model's error: its scale, as well as the run's own fit knows it (never worse than the
+    # prior sigma_rel), and its shape (cable to cable, STIFFNESS_SHAPE_SD_REL) in every direction
+    scale_u = scale_sd if rescaled else sigma_rel  # (per point: not the other points' data)
+    xx = x[:, :, None] * x[:, None, :]
+    cov_x = scale_u**2 * xx + STIFFNESS_SHAPE_SD_REL**2 * (
+        xx + np.einsum("ki,ij->kij", spread**2, np.eye(6))
     )
     cov_p = propagate(to_q, cov_x)
     predicted = np.einsum("kij,kj->ki", to_q, x)
-    gain = np.swapaxes(np.linalg.solve(S + cov_p, np.swapaxes(cov_p, 1, 2)), 1, 2)  # Sp (Sm+Sp)^-1
+    sens = (scale if rescaled else 1.0) * to_q @ np.linalg.inv(st.K)
+    # the prediction also carries the noise of the load it is made from (the point's tensions),
+    # through the fixed point: D = (I - sens J)^-1 sens (J: the load's change with the pose)
+    cov_g = cov_p
+    if load_cov is not None:
+        D = sens
+        if load_pose_jacobian is not None:
+            Jl = np.asarray(load_pose_jacobian, dtype=np.float64)
+            D = np.linalg.solve(np.eye(6) - sens @ Jl, sens)
+        cov_g = cov_p + propagate(D, np.asarray(load_cov, dtype=np.float64))
+    if wander_cov is not None:  # the platform is not where the mean load puts it
+        cov_g = cov_g + np.asarray(wander_cov, dtype=np.float64)
+    gain = np.swapaxes(np.linalg.solve(S + cov_g, np.swapaxes(cov_g, 1, 2)), 1, 2)  # Sp (Sm+Sp)^-1
     # the model is used only where the camera agrees with it: a rig whose controller holds the
     # pose, a frame softer than its cables, a model off by more than sigma_rel, all show as a
     # measured difference the prediction does not explain (chi-square at 0.1 %)
     r = measured - predicted
-    chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(S + cov_p, r[..., None])[..., 0])
+    chi2 = np.einsum("ki,ki->k", r, np.linalg.solve(S + cov_g, r[..., None])[..., 0])
     disagree = chi2 > CHI2_6_999
     gain[disagree] = np.eye(6)
     cov_p[disagree] = 0.0
     delta = predicted + np.einsum("kij,kj->ki", gain, r)
-    sens = (scale if rescaled else 1.0) * to_q @ np.linalg.inv(st.K)
     return TarePose(
         qj + delta, delta, measured, predicted, gain, cov_p, disagree, sens, scale, scale_sd,
         rescaled,
@@ -206,8 +233,15 @@ def _model_scale(
     """``(s, sd)``: the factor s that best maps the predicted pose differences (k, 6) on the
     measured ones with their covariances (k, 6, 6), ``min sum (m - s p)^T C^-1 (m - s p)``, and
     its standard deviation; (1, inf) when nothing is predicted."""
-    w = np.linalg.solve(cov, predicted[..., None])[..., 0]
-    ok = np.isfinite(w).all(axis=1) & np.isfinite(measured).all(axis=1)
+    C = np.asarray(cov, dtype=np.float64)
+    pd: NDArray[np.bool_] = np.asarray(np.isfinite(C).all(axis=(1, 2)), dtype=bool)
+    pd[pd] = (
+        np.linalg.eigvalsh(C[pd]).min(axis=1) > 0
+    )  # an exact pose (zero covariance) tells nothing here
+    w = np.zeros_like(predicted)
+    if pd.any():
+        w[pd] = np.linalg.solve(C[pd], predicted[pd][..., None])[..., 0]
+    ok = pd & np.isfinite(w).all(axis=1) & np.isfinite(measured).all(axis=1)
     den = float(np.sum(w[ok] * predicted[ok]))
     if not den > 0:
         return 1.0, float("inf")
@@ -259,6 +293,7 @@ def weight_tare(
     tension_mix: ArrayLike | None = None,
     tension_cov_raw_N2: ArrayLike | None = None,
     tare_pose_sd_rel: float | None = TARE_POSE_SD_REL,
+    pose_motion_cov: ArrayLike | None = None,
 ) -> WeightTare:
     """Remove the weight from every point's cable load (see the module docstring).
 
@@ -270,7 +305,8 @@ def weight_tare(
     ``tension_mix``; identity without one) and tension_cov_raw_N2 (s, m, m) the raw means'
     covariances (default: ``tension_cov_N2``).  tare_pose_sd_rel: the stiffness model's relative σ
     for the pose difference between a point and its tare (:func:`tare_pose`; None: the two
-    measured poses as they are).
+    measured poses as they are); pose_motion_cov: (s, 6, 6) each mean pose's own motion beyond the
+    camera's noise (:func:`cdpr.analysis.point_inputs.pose_motion_covariance`; None: none).
 
     σ terms: ``load_cells`` (one covariance for the point, its tare and the zeros they share:
     :func:`load_cell_maps`), ``pose`` (both points' pose covariances through
@@ -320,17 +356,36 @@ def weight_tare(
         # the full tensions would be the load): from the tare's pose, then at the predicted
         # deflection, a fixed point (the cables' geometric stiffness against the whole: a
         # contraction, a few steps reach 1e-3 of the deflection)
-        W_tare = recover_wrench(rig, q[j], T[j], weight_theta=theta)
+        # (the weight's change over the deflection is second order: the rig file's weight, so that
+        # a point's pose does not move with the other points' weight fit, on-line as off-line)
+        W_tare = recover_wrench(rig, q[j], T[j])
+        wander = None if pose_motion_cov is None else np.asarray(pose_motion_cov, np.float64)
+        zero_q = np.zeros((i.size, 6, 6))
+        own = wrench_covariance(rig, q[j], T[i], C_T[i], zero_q)
+        of_tare = wrench_covariance(rig, q[j], T[j], C_T[j], zero_q)
+        load_cov = own.from_tensions + of_tare.from_tensions
+        wander_ij = None if wander is None else wander[i] + wander[j]
+
+        def pose_at(q_load: FloatArray) -> TarePose:
+            first = recover_wrench(rig, q_load, T[i]) - W_tare
+            return tare_pose(
+                rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel, load_cov,
+                own.jacobian, wander_ij,
+            )  # fmt: skip
+
+        # each point iterates until its own step is small and then stays (its result must not
+        # depend on when the other points of the run converge: on-line, they are fewer)
         q_i = q[j].copy()
+        done = np.zeros(i.size, bool)
         for _ in range(LOAD_STEPS):
-            first = recover_wrench(rig, q_i, T[i], weight_theta=theta) - W_tare
-            tp = tare_pose(rig, q[i], q[j], C_q[i], C_q[j], T[j], first, tare_pose_sd_rel)
-            new = q[j] + tp.delta_predicted
-            moved = np.linalg.norm(new - q_i, axis=1)
-            q_i = new
-            if not np.any(moved > 1e-3 * np.linalg.norm(tp.delta_predicted, axis=1) + 1e-12):
+            pred = pose_at(q_i).delta_predicted
+            new = q[j] + pred
+            small = np.linalg.norm(new - q_i, axis=1) <= 1e-6 * np.linalg.norm(pred, axis=1) + 1e-15
+            q_i = np.where(done[:, None], q_i, new)
+            done |= small
+            if done.all():
                 break
-        assert tp is not None  # LOAD_STEPS >= 1
+        tp = pose_at(q_i)
         q_hat[i] = tp.pose
         deflection[i], deflection_measured[i] = tp.delta, tp.delta_measured
         disagrees[i] = tp.model_disagrees

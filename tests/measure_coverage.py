@@ -103,6 +103,14 @@ def coverage_table(points: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
             "median_sd": float(np.nanmedian(sd)),
             "bound": "U95" if u is not None else "1.96 sd",
         }
+        if f"sd_random_{c}" in m:  # the random part alone (the generator's geometry is exact)
+            from scipy.stats import t as student
+
+            sr = m[f"sd_random_{c}"].to_numpy(float)
+            nu = m.get(f"dof_random_{c}", pd.Series(np.inf, index=m.index)).to_numpy(float)
+            k95 = np.where(np.isfinite(nu), student.ppf(0.975, np.maximum(nu, 1.0)), 1.96)
+            row["cover95_random"] = float(np.mean(np.abs(e) <= k95 * sr))
+            row["rms_e_over_sd_random"] = float(np.sqrt(np.nanmean((e / sr) ** 2)))
         lc = f"sd_load_cells_{c}"
         if lc in m:
             s2 = m[lc].to_numpy(float)
@@ -155,6 +163,8 @@ def main(argv: list[str] | None = None) -> int:
             "rms_error",
             "median_sd",
         ]
+        if "cover95_random" in table:
+            cols += ["cover95_random", "rms_e_over_sd_random"]
         if "cover95_load_cells" in table:
             cols += ["cover95_load_cells", "rms_e_over_sd_load_cells"]
         print(table[cols].to_string(index=False, float_format=lambda x: f"{x:.4g}"))

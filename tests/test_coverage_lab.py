@@ -17,7 +17,19 @@ import numpy as np
 import pytest
 from measure_coverage import coverage_table, run_lab_path
 
-CASES = ["white", "ar1", "common", "mode"]
+CASES = [
+    "white",
+    "ar1",
+    "common",
+    pytest.param(
+        "mode",
+        marks=pytest.mark.xfail(
+            strict=True,
+            reason="issue 21 open: the load that makes a ringing platform wander (its mean pose's "
+            "own zero-frequency part) is not in sigma; mz cover 0.81, rms(e/sd) 1.56 over 108 points",
+        ),
+    ),
+]
 
 
 @pytest.mark.parametrize("case", CASES)

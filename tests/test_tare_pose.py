@@ -42,7 +42,7 @@ def _world(rig_name: str, k: int, seed: int, softer: float = 1.0, cam_rad: float
 def test_the_model_and_the_camera_fused_beat_the_camera_alone() -> None:
     rig, qt, qp, C, T0, W, x = _world("cubic", 400, 1)
     tp = tare_pose(rig, qp, qt, C, C, T0, W, 0.2)
-    assert not tp.model_disagrees.any()
+    assert tp.model_disagrees.mean() < 0.01  # the check's own 0.1 % of false alarms
     err_fused = tp.delta - x
     err_cam = tp.delta_measured - x
     # the fused difference's error is several times smaller than the camera's in pitch
@@ -52,7 +52,8 @@ def test_the_model_and_the_camera_fused_beat_the_camera_alone() -> None:
     assert np.median(rel) < 0.05
     # the fusion's covariance (S_p - F S_p) covers its error
     cov = tp.cov_predicted - np.einsum("kij,kjl->kil", tp.gain_measured, tp.cov_predicted)
-    z = err_fused[:, 4] / np.sqrt(cov[:, 4, 4])
+    ok = ~tp.model_disagrees  # (where the camera alone is used, its own covariance applies)
+    z = err_fused[ok, 4] / np.sqrt(cov[ok, 4, 4])
     assert 0.9 <= np.mean(np.abs(z) <= 1.96) <= 1.0, np.mean(np.abs(z) <= 1.96)
 
 
