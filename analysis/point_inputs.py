@@ -232,7 +232,8 @@ def pose_rate_variance(
     dq[:, 3:] = (dq[:, 3:] + np.pi) % (2 * np.pi) - np.pi  # an angle through +-pi
     dbad = bad[1:] | bad[:-1] | (dt <= 0)
     v = dq / np.where(dt > 0, dt, 1.0)[:, None]
-    dranges = [(i, max(i, j - 1)) for i, j in ranges]
+    nd = dt.shape[0]  # differences k join frames k and k + 1; a window past the last frame has none
+    dranges = [(min(i, nd), min(max(i, j - 1), nd)) for i, j in ranges]
     bits = dbad.astype(np.int64)
     vs = point_stats(v, dranges, bits)
     dts = point_stats(dt, dranges, bits).mean[:, 0]

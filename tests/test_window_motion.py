@@ -76,3 +76,13 @@ def test_camera_noise_alone_gives_no_motion() -> None:
     # a window with fewer than two usable differences has no estimate (NaN), not zero
     bad = np.ones(k, bool)
     assert np.isnan(pose_rate_variance(t_ns, q, bad, [(0, k)], (sd**2)[None])).all()
+
+
+def test_windows_without_frames_yet_have_no_estimate() -> None:
+    """On-line, a point's window may lie past the last frame received so far (or hold one):
+    NaN, not an error."""
+    t_ns = np.arange(5, dtype=np.int64) * 10_000_000
+    q = np.zeros((5, 6))
+    fv = np.full((3, 6), 1e-8)
+    rv = pose_rate_variance(t_ns, q, np.zeros(5, bool), [(0, 5), (4, 5), (5, 5)], fv)
+    assert np.isfinite(rv[0]).all() and np.isnan(rv[1:]).all()
