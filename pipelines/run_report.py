@@ -297,9 +297,14 @@ def run_report(
         lines.append(f"1. `{st['stage']}` — {st['points_flagged']} points flagged{note}")
     lines += [
         "",
-        "σ: load-cell noise (standard error of each point's mean), the pose covariance (the camera's "
-        "per frame, else the configured constant, flagged), the weight model's covariance and the "
-        "tare-to-point pose difference, linearised (`cdpr.analysis.reduction`).",
+        "σ, each source its own column (`sd_<source>_<column>` in points.csv): the load cells (the "
+        "long-run covariance of each point's mean from the data's own correlation, across the "
+        "cables; `n_eff_min` its effective samples), the pose (the camera's covariance per frame, "
+        "else a stated or the paper's constant, flagged; the tare-to-point difference from the "
+        "stiffness model and the camera), the platform's motion over the window, the weight model, "
+        "and the systematic terms (load-cell calibration, rig geometry, interaction matrix, flow "
+        "instruments); `U95_<column>` = k u with k from the effective degrees of freedom "
+        "(docs/analysis.md).",
         "",
         "![tensions](tensions.png)",
         "",
