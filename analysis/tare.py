@@ -93,8 +93,8 @@ CHI2_6_999: float = 22.4577
 
 LOAD_STEPS: int = 200
 """At most this many fixed-point steps of the load a point adds over its tare (:func:`weight_tare`,
-each step the structure matrices and stiffness of the tared points; each point stops at 1e-6 of
-its deflection, the cubic rig's in about 25)."""
+each step the structure matrices and stiffness of the tared points; each point stops at 1e-4 of
+its deflection and keeps that pose, so its result does not depend on the other points)."""
 
 TARE_POSE_SD_REL: float = 0.2
 """The stiffness model's relative σ for the deflection between a point and its tare
@@ -361,8 +361,9 @@ def weight_tare(
         W_tare = recover_wrench(rig, q[j], T[j])
         wander = None if pose_motion_cov is None else np.asarray(pose_motion_cov, np.float64)
         zero_q = np.zeros((i.size, 6, 6))
-        own = wrench_covariance(rig, q[j], T[i], C_T[i], zero_q)
-        of_tare = wrench_covariance(rig, q[j], T[j], C_T[j], zero_q)
+        # (a tension covariance not known yet, on-line early in a point, weighs nothing here)
+        own = wrench_covariance(rig, q[j], T[i], np.nan_to_num(C_T[i], posinf=0.0), zero_q)
+        of_tare = wrench_covariance(rig, q[j], T[j], np.nan_to_num(C_T[j], posinf=0.0), zero_q)
         load_cov = own.from_tensions + of_tare.from_tensions
         wander_ij = None if wander is None else wander[i] + wander[j]
 
@@ -380,7 +381,7 @@ def weight_tare(
         for _ in range(LOAD_STEPS):
             pred = pose_at(q_i).delta_predicted
             new = q[j] + pred
-            small = np.linalg.norm(new - q_i, axis=1) <= 1e-6 * np.linalg.norm(pred, axis=1) + 1e-15
+            small = np.linalg.norm(new - q_i, axis=1) <= 1e-4 * np.linalg.norm(pred, axis=1) + 1e-15
             q_i = np.where(done[:, None], q_i, new)
             done |= small
             if done.all():

@@ -612,11 +612,11 @@ class LiveServer:
             due = max(due + self.online_period_s, time.monotonic())
             try:
                 self._online_step()
-            except Exception as exc:
-                self.error = f"on-line reduction: {type(exc).__name__}: {exc}"
-                if self._record_event is not None:
-                    self._record_event(self.error, level="error", name="live_server")
-                return
+            except Exception as exc:  # said once per distinct error; the next period tries again
+                error = f"on-line reduction: {type(exc).__name__}: {exc}"
+                if error != self.error and self._record_event is not None:
+                    self._record_event(error, level="error", name="live_server")
+                self.error = error
 
     def online_line(self) -> str | None:
         """The terminal view's line of the latest on-line result (None before the first)."""
