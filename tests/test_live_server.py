@@ -327,7 +327,9 @@ def test_online_results_agree_with_analyze_and_the_report(session: dict[str, Any
         assert b["final"] is True and b["n_samples"] == pts.loc[p, "n_samples"]
         for c in ("CL", "CD", "Cm", "CY", "Cl", "Cn", "fx_N", "fz_N", "my_Nm"):
             assert abs(b[c] - pts.loc[p, c]) <= pts.loc[p, f"sd_{c}"], (p, c)
-            assert b[f"sd_{c}"] == pytest.approx(pts.loc[p, f"sd_{c}"], rel=1e-6)
+            # the same σ: to 1e-4, since the tare pose's model deflection (and with it the σ)
+            # follows the point's tensions, whose zero drift is held on-line (no closing zero yet)
+            assert b[f"sd_{c}"] == pytest.approx(pts.loc[p, f"sd_{c}"], rel=1e-4)
         assert "no_closing_zero" in b["flags"].split(";")  # the zero drift held on-line: said
     # cdpr analyze prints the comparison per point, and writes it into points.csv
     assert "on-line against final: 4 of 4 point(s) agree within 1 σ" in res.stdout
