@@ -191,7 +191,21 @@ def _regression_bias(Q: FloatArray, ok: NDArray[np.bool_], w: FloatArray) -> flo
     takes the lowest frequencies with it); dividing by it makes the estimate unbiased for white
     residuals (about ``1 - b + b^2/3`` for the mean alone, b the bandwidth over n: Kiefer and
     Vogelsang 2005, Econometric Theory 21, 1130; twice that deficit with the line too)."""
-    GQ = _autocov(Q, ok, w.size)
+    n_all, r = Q.shape
+    L = w.size
+    if ok.all() and r <= 2 and L < n_all:  # no gaps: the sums in closed form (no FFT)
+        n = float(n_all)
+        k = np.arange(1, L + 1, dtype=np.float64)
+        m = n - k  # pairs at lag k
+        tr_k = m / n  # the mean's column: sum_t (1/sqrt(n))^2 over the pairs
+        if r == 2:  # the line's: sum_u (u - c + k)(u - c), u < m, c = (n - 1)/2, over sum (t - c)^2
+            c = (n - 1.0) / 2.0
+            s1 = m * (m - 1.0) / 2.0 - m * c
+            s2 = (m - 1.0) * m * (2.0 * m - 1.0) / 6.0 - c * m * (m - 1.0) + m * c * c
+            tr_k = tr_k + (s2 + k * s1) / (n * (n * n - 1.0) / 12.0)
+        tr0 = r / n
+        return float(max(1.0 - tr0 - 2.0 * (w @ (tr_k / m)), 0.5))
+    GQ = _autocov(Q, ok, L)
     tr = np.trace(GQ, axis1=1, axis2=2)
     return float(max(1.0 - tr[0] - 2.0 * (w @ tr[1:]), 0.5))
 

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .balance import PointStats, mask_words, point_stats
 from .errors import InputError
-from .longrun import MIN_N_EFF, window_long_runs
+from .longrun import MIN_N_EFF, long_run, window_long_runs
 from .reduction import POSE, POSE_COV, Points, new_points
 
 FloatArray = NDArray[np.float64]
@@ -160,6 +160,10 @@ def points_from_samples(
     return pts, extra
 
 
+MAX_POSE_BLOCKS: int = 2000
+"""The most frames (block means beyond) a point's pose long-run estimate is made from."""
+
+
 def pose_motion_covariance(
     poses: ArrayLike,
     pose_bits: ArrayLike,
@@ -178,10 +182,20 @@ def pose_motion_covariance(
     out = np.zeros((s, 6, 6))
     if q.shape[0] < 2 or s == 0:
         return out
-    runs = window_long_runs(q, ranges, pose_bits)
+    bits = np.asarray(pose_bits)
     C = np.asarray(camera_cov_of_mean, dtype=np.float64)
-    for i, lr in enumerate(runs):
-        if lr.n < 48 or not (np.isfinite(lr.cov_of_mean).all() and np.isfinite(C[i]).all()):
+    for i, (a, b) in enumerate(ranges):
+        x = q[a:b][(bits[a:b] == 0) & np.isfinite(q[a:b]).all(axis=1)]
+        # a long window's frames as the means of at most MAX_POSE_BLOCKS blocks (the mean and its
+        # long-run covariance are the same; the cost is not that of 1 kHz poses)
+        size = -(-x.shape[0] // MAX_POSE_BLOCKS)
+        if size > 1:
+            nb = x.shape[0] // size
+            x = x[: nb * size].reshape(nb, size, 6).mean(axis=1)
+        if x.shape[0] < 48 or not np.isfinite(C[i]).all():
+            continue
+        lr = long_run(x)
+        if not np.isfinite(lr.cov_of_mean).all():
             continue
         out[i] = _significant_excess(lr.cov_of_mean, C[i], 1.5 * lr.n / max(lr.bandwidth, 1))
     return out
